@@ -1,0 +1,116 @@
+"""Serial-arm interface: M(q), C(q, q̇), G(q), forward kinematics h(q), J(q), J̇(q, q̇).
+
+Paper eq. (1): ``M(q) q̈ + C(q, q̇) q̇ + G(q) + Jᵀ(q) F = τ + ω``.
+
+:class:`Arm` derives everything a subclass does not write in closed form:
+
+* ``J = ∂h/∂q`` by ``jax.jacfwd`` of :meth:`Arm.h`, ``J̇ = d/dt J`` by ``jax.jvp`` along q̇;
+* ``C`` from the Christoffel symbols of ``M`` (autodiff of :meth:`Arm.M`), the choice that makes
+  ``Ṁ − 2C`` skew-symmetric;
+* ``G = ∂U/∂q`` from the potential energy :meth:`Arm.potential`.
+
+:class:`PlanarPointMassArm` is the generic n-link planar arm with a point mass at the tip of each
+link, written only through ``h``-like position maps and energies; the Sec. VI arm is its n = 2
+case and :class:`hinfnn.model.planar.TwoLinkArm` is the closed form tested against it.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from .._pytree import pytree_dataclass, static_field
+
+
+class Arm:
+    """Base class of serial arms. Subclasses are pytree dataclasses with the parameters as data.
+
+    Must define ``n`` (number of joints), :meth:`h`, :meth:`M`; and either :meth:`potential`
+    or :meth:`G`. May override :meth:`J`, :meth:`J_dot`, :meth:`C` with closed forms.
+    """
+
+    n: int
+
+    # --- kinematics -------------------------------------------------------------------------
+    def h(self, q):
+        """Forward kinematics x = h(q) of the end-effector (assumption A1)."""
+        raise NotImplementedError
+
+    def J(self, q):
+        """Jacobian ∂h/∂q (autodiff of :meth:`h`)."""
+        return jax.jacfwd(self.h)(q)
+
+    def J_dot(self, q, qd):
+        """Time derivative of J along q̇: J̇ = Σ_i (∂J/∂q_i) q̇_i (forward-mode autodiff)."""
+        return jax.jvp(self.J, (q,), (qd,))[1]
+
+    # --- dynamics ---------------------------------------------------------------------------
+    def M(self, q):
+        """Inertia matrix M(q), symmetric positive definite."""
+        raise NotImplementedError
+
+    def potential(self, q):
+        """Potential energy U(q); G = ∂U/∂q."""
+        raise NotImplementedError
+
+    def G(self, q):
+        """Gravity torque G(q) = ∂U/∂q."""
+        return jax.grad(self.potential)(q)
+
+    def C(self, q, qd):
+        """Coriolis/centrifugal matrix from the Christoffel symbols of M.
+
+        C_kj = Σ_i ½ (∂M_kj/∂q_i + ∂M_ki/∂q_j − ∂M_ij/∂q_k) q̇_i, so that Ṁ − 2C is skew.
+        """
+        dM = jax.jacfwd(self.M)(q)  # dM[k, j, i] = ∂M_kj / ∂q_i
+        term1 = dM @ qd  # Σ_i ∂M_kj/∂q_i q̇_i
+        term2 = jnp.einsum("kij,i->kj", dM, qd)  # Σ_i ∂M_ki/∂q_j q̇_i
+        term3 = jnp.einsum("ijk,i->kj", dM, qd)  # Σ_i ∂M_ij/∂q_k q̇_i
+        return 0.5 * (term1 + term2 - term3)
+
+    def M_dot(self, q, qd):
+        """Ṁ along q̇ (autodiff), used to check the skew-symmetry of Ṁ − 2C."""
+        return jax.jvp(self.M, (q,), (qd,))[1]
+
+    def forward_dynamics(self, q, qd, tau_total):
+        """q̈ = M⁻¹ (τ_total − C q̇ − G); τ_total already includes −JᵀF and disturbances."""
+        return jnp.linalg.solve(self.M(q), tau_total - self.C(q, qd) @ qd - self.G(q))
+
+    def inverse_kinematics(self, x, q_guess, iterations: int = 50):
+        """Solve h(q) = x by Newton's method from ``q_guess`` (square arms, n = dim x)."""
+
+        def body(_, q):
+            return q - jnp.linalg.solve(self.J(q), self.h(q) - x)
+
+        return jax.lax.fori_loop(0, iterations, body, jnp.asarray(q_guess, dtype=float))
+
+
+@pytree_dataclass
+class PlanarPointMassArm(Arm):
+    """Generic n-link planar arm, point mass m_i at the tip of link i, gravity along −x2.
+
+    Everything is derived by autodiff from the mass positions:
+    M = Σ_i m_i J_iᵀ J_i (J_i the Jacobian of mass i), U = Σ_i m_i g y_i.
+    For n = 2 this is exactly the arm of the paper's Sec. VI.
+    """
+
+    masses: jax.Array
+    lengths: jax.Array
+    g: float = 9.8
+    n: int = static_field(default=2)
+
+    def _mass_positions(self, q):
+        angles = jnp.cumsum(q)
+        dx = self.lengths * jnp.cos(angles)
+        dy = self.lengths * jnp.sin(angles)
+        return jnp.stack([jnp.cumsum(dx), jnp.cumsum(dy)], axis=-1)  # (n, 2)
+
+    def h(self, q):
+        return self._mass_positions(q)[-1]
+
+    def M(self, q):
+        Js = jax.jacfwd(self._mass_positions)(q)  # (n, 2, n)
+        return jnp.einsum("i,iak,ial->kl", self.masses, Js, Js)
+
+    def potential(self, q):
+        return self.g * jnp.sum(self.masses * self._mass_positions(q)[:, 1])

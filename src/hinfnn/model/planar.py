@@ -1,0 +1,108 @@
+"""The planar two-link arm of the paper's Sec. VI in closed form.
+
+Printed error fixed (NOTES.md, "Printed errors"): entry (2,1) of the Coriolis matrix is
+``+q̇1`` (the paper prints ``−q̇1``); with the printed sign Ṁ − 2C is not skew-symmetric.
+The closed forms are tested against the autodiff path of
+:class:`hinfnn.model.arm.PlanarPointMassArm`.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from .._pytree import pytree_dataclass, static_field
+from .arm import Arm
+
+
+@pytree_dataclass
+class TwoLinkArm(Arm):
+    """Sec. VI arm: point masses m1, m2 at the link tips, link lengths l1, l2, gravity g."""
+
+    m1: float
+    m2: float
+    l1: float
+    l2: float
+    g: float = 9.8
+    n: int = static_field(default=2)
+
+    def h(self, q):
+        """Forward kinematics x = (l1 c1 + l2 c12, l1 s1 + l2 s12)."""
+        q12 = q[0] + q[1]
+        return jnp.stack(
+            [
+                self.l1 * jnp.cos(q[0]) + self.l2 * jnp.cos(q12),
+                self.l1 * jnp.sin(q[0]) + self.l2 * jnp.sin(q12),
+            ]
+        )
+
+    def J(self, q):
+        """Sec. VI Jacobian J = [[−l1 s1 − l2 s12, −l2 s12], [l1 c1 + l2 c12, l2 c12]]."""
+        s1, c1 = jnp.sin(q[0]), jnp.cos(q[0])
+        s12, c12 = jnp.sin(q[0] + q[1]), jnp.cos(q[0] + q[1])
+        return jnp.array(
+            [
+                [-self.l1 * s1 - self.l2 * s12, -self.l2 * s12],
+                [self.l1 * c1 + self.l2 * c12, self.l2 * c12],
+            ]
+        )
+
+    def J_dot(self, q, qd):
+        """Closed-form time derivative of the Sec. VI Jacobian."""
+        s1, c1 = jnp.sin(q[0]), jnp.cos(q[0])
+        s12, c12 = jnp.sin(q[0] + q[1]), jnp.cos(q[0] + q[1])
+        w1, w12 = qd[0], qd[0] + qd[1]
+        return jnp.array(
+            [
+                [-self.l1 * c1 * w1 - self.l2 * c12 * w12, -self.l2 * c12 * w12],
+                [-self.l1 * s1 * w1 - self.l2 * s12 * w12, -self.l2 * s12 * w12],
+            ]
+        )
+
+    def M(self, q):
+        """Sec. VI inertia matrix."""
+        m1, m2, l1, l2 = self.m1, self.m2, self.l1, self.l2
+        c2 = jnp.cos(q[1])
+        m11 = (m1 + m2) * l1**2 + m2 * l2**2 + 2 * m2 * l1 * l2 * c2
+        m12 = m2 * l2**2 + m2 * l1 * l2 * c2
+        m22 = m2 * l2**2
+        return jnp.array([[m11, m12], [m12, m22]])
+
+    def C(self, q, qd):
+        """Sec. VI Coriolis matrix, m2 l1 l2 s2 [[−q̇2, −(q̇1+q̇2)], [+q̇1, 0]] (sign fixed)."""
+        hs = self.m2 * self.l1 * self.l2 * jnp.sin(q[1])
+        return hs * jnp.array([[-qd[1], -(qd[0] + qd[1])], [qd[0], 0.0 * qd[0]]])
+
+    def G(self, q):
+        """Sec. VI gravity vector g [(m1+m2) l1 c1 + m2 l2 c12, m2 l2 c12]."""
+        c1, c12 = jnp.cos(q[0]), jnp.cos(q[0] + q[1])
+        return self.g * jnp.stack(
+            [(self.m1 + self.m2) * self.l1 * c1 + self.m2 * self.l2 * c12, self.m2 * self.l2 * c12]
+        )
+
+    def potential(self, q):
+        y1 = self.l1 * jnp.sin(q[0])
+        y2 = y1 + self.l2 * jnp.sin(q[0] + q[1])
+        return self.g * (self.m1 * y1 + self.m2 * y2)
+
+    def inverse_kinematics_closed(self, x, elbow_up: bool = True):
+        """Closed-form inverse kinematics; elbow up means q2 < 0 (NOTES.md, Initial state).
+
+        Returns NaN where x is out of reach (|cos q2| > 1); callers validate.
+        """
+        c2 = (x[0] ** 2 + x[1] ** 2 - self.l1**2 - self.l2**2) / (2 * self.l1 * self.l2)
+        q2 = jnp.arccos(c2)
+        q2 = jnp.where(elbow_up, -q2, q2)
+        q1 = jnp.arctan2(x[1], x[0]) - jnp.arctan2(self.l2 * jnp.sin(q2), self.l1 + self.l2 * jnp.cos(q2))
+        return jnp.stack([q1, q2])
+
+    def to_generic(self) -> "PlanarPointMassArm":
+        """The same arm as a :class:`PlanarPointMassArm` (the autodiff oracle)."""
+        from .arm import PlanarPointMassArm
+
+        return PlanarPointMassArm(
+            masses=jnp.stack([jnp.asarray(self.m1, float), jnp.asarray(self.m2, float)]),
+            lengths=jnp.stack([jnp.asarray(self.l1, float), jnp.asarray(self.l2, float)]),
+            g=self.g,
+            n=2,
+        )
+

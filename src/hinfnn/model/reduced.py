@@ -1,0 +1,121 @@
+"""Task-space reduced-order model, paper eqs. (9)–(14), with the NOTES.md corrections.
+
+Premultiplying eq. (5) by Sᵀ Ĵ⁻ᵀ gives eq. (9)
+
+    M̄ ü + C̄ u̇ + Ḡ + Sᵀ Âᵀ λ = B̄ τ + B̄ ω_x,    Sᵀ Âᵀ = [0; Πᵀ]  (by eq. 4)
+
+with (printed errors fixed, NOTES.md "Printed errors"):
+
+    M̄ = Sᵀ Ĵ⁻ᵀ M̂ Ĵ⁻¹ S          (printed: ... M̂ Ĵ⁻ᵀ S)
+    C̄ = Sᵀ Ĵ⁻ᵀ { M̂ Ĵ⁻¹ Ṡ + [Ĉ − M̂ Ĵ⁻¹ J̇̂] Ĵ⁻¹ S }
+    Ḡ = Sᵀ Ĵ⁻ᵀ Ĝ                  (printed: Sᵀ Ĵ⁻¹ Ĝ)
+    B̄ = Sᵀ Ĵ⁻ᵀ
+
+The partitions (11)–(14) use the m × m, k × m blocks M̄11, M̄21, C̄11, C̄21 and the rows B̄1, B̄2.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from .._pytree import pytree_dataclass, static_field
+
+
+@pytree_dataclass
+class ReducedModel:
+    """M̄, C̄, Ḡ, B̄ of eq. (9) at one (q, q̇), with the quantities they were built from."""
+
+    M_bar: jax.Array  # (n, n)
+    C_bar: jax.Array  # (n, n)
+    G_bar: jax.Array  # (n,)
+    B_bar: jax.Array  # (n, n)
+    S: jax.Array
+    S_dot: jax.Array
+    A_hat: jax.Array  # (k, n)
+    x: jax.Array  # nominal task-space position ĥ(q)
+    x_dot: jax.Array  # Ĵ q̇
+    m: int = static_field()
+
+    # --- partitions used by eqs. (11)-(14) ------------------------------------------------
+    @property
+    def M11(self):
+        return self.M_bar[: self.m, : self.m]
+
+    @property
+    def M21(self):
+        return self.M_bar[self.m :, : self.m]
+
+    @property
+    def C11(self):
+        return self.C_bar[: self.m, : self.m]
+
+    @property
+    def C21(self):
+        return self.C_bar[self.m :, : self.m]
+
+    @property
+    def G1(self):
+        return self.G_bar[: self.m]
+
+    @property
+    def G2(self):
+        return self.G_bar[self.m :]
+
+    @property
+    def B1(self):
+        return self.B_bar[: self.m]
+
+    @property
+    def B2(self):
+        return self.B_bar[self.m :]
+
+    @property
+    def Pi(self):
+        """Π = ∂θ̂/∂x2 at the nominal end-effector position."""
+        return self.A_hat[:, self.m :]
+
+    # --- eqs. (13)-(14) ---------------------------------------------------------------------
+    def force_terms(self):
+        """The (k × m) and (k,) coefficients of eq. (14):
+        C̄21 − M̄21 M̄11⁻¹ C̄11 and Ḡ2 − M̄21 M̄11⁻¹ Ḡ1."""
+        L = self.M21 @ jnp.linalg.inv(self.M11)
+        return self.C21 - L @ self.C11, self.G2 - L @ self.G1
+
+    def decoupling_matrix(self):
+        """T = [B̄1; B̄2 − M̄21 M̄11⁻¹ B̄1] of eqs. (24), (51); τ = T⁻¹ [Λp; Λf]."""
+        L = self.M21 @ jnp.linalg.inv(self.M11)
+        return jnp.concatenate([self.B1, self.B2 - L @ self.B1], axis=0)
+
+
+def reduced_model(arm, surface, q, qd) -> ReducedModel:
+    """Build M̄, C̄, Ḡ, B̄ of eq. (9) (corrected per NOTES.md) from a nominal arm and surface.
+
+    Implements Eq. (9). ``arm`` and ``surface`` are the controller's nominal models.
+    """
+    x = arm.h(q)
+    J = arm.J(q)
+    J_dot = arm.J_dot(q, qd)
+    M = arm.M(q)
+    x_dot = J @ qd
+    m = surface.m
+    S = surface.S(x[:m])
+    S_dot = surface.S_dot(x[:m], x_dot[:m])
+    J_inv = jnp.linalg.inv(J)
+    B_bar = S.T @ J_inv.T  # Sᵀ Ĵ⁻ᵀ
+    MJi = M @ J_inv
+    M_bar = B_bar @ MJi @ S
+    C_bar = B_bar @ (MJi @ S_dot + (arm.C(q, qd) - MJi @ J_dot) @ J_inv @ S)
+    G_bar = B_bar @ arm.G(q)
+    return ReducedModel(
+        M_bar=M_bar,
+        C_bar=C_bar,
+        G_bar=G_bar,
+        B_bar=B_bar,
+        S=S,
+        S_dot=S_dot,
+        A_hat=surface.A_hat(x),
+        x=x,
+        x_dot=x_dot,
+        m=m,
+    )

@@ -1,0 +1,57 @@
+"""The truth: true arm, true surface with penalty contact, joint disturbance, sensors.
+
+Only the simulator holds a :class:`Plant`; controllers receive what :meth:`Plant.measure`
+returns (q, q̇ and the contact force vector F), never the plant itself.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from .._pytree import pytree_dataclass
+from ..measurement import Measurement
+from .contact import PenaltyContact
+from .disturbance import SquareWave
+
+
+@pytree_dataclass
+class Plant:
+    """True arm and surface (model types, true parameters), contact law and disturbance."""
+
+    arm: object
+    surface: object
+    contact: PenaltyContact
+    disturbance: SquareWave
+
+    def contact_state(self, q, qd):
+        """(F, f_n, p): force vector on the surface, normal force, penetration depth."""
+        x = self.arm.h(q)
+        x_dot = self.arm.J(q) @ qd
+        p, p_dot = jax.jvp(self.surface.signed_distance, (x,), (x_dot,))
+        f_n = self.contact.normal_force(p, p_dot)
+        return f_n * self.surface.inward_normal(x), f_n, p
+
+    def measure(self, q, qd) -> Measurement:
+        """Sensors: joint angles, joint rates and the force sensor's F (exact, noise-free)."""
+        F, _, _ = self.contact_state(q, qd)
+        return Measurement(q=q, qd=qd, F=F)
+
+    def acceleration(self, q, qd, tau, w, F=None):
+        """q̈ from eq. (1): M q̈ + C q̇ + G + Jᵀ F = τ + ω with the TRUE parameters."""
+        if F is None:
+            F = self.contact_state(q, qd)[0]
+        return self.arm.forward_dynamics(q, qd, tau + w - self.arm.J(q).T @ F)
+
+    def initial_q(self, u1_0, elbow_up: bool = True):
+        """Joint angles with the TRUE end-effector at x1 = u1_0 on the TRUE surface, zero
+        penetration (NOTES.md, Initial state: elbow up, q2 < 0)."""
+        x1 = jnp.atleast_1d(jnp.asarray(u1_0, dtype=float))
+        x = jnp.concatenate([x1, self.surface.Omega(x1)])
+        if hasattr(self.arm, "inverse_kinematics_closed"):
+            return self.arm.inverse_kinematics_closed(x, elbow_up=elbow_up)
+        guess = jnp.full(self.arm.n, 0.3) * jnp.where(elbow_up, 1.0, -1.0)
+        return self.arm.inverse_kinematics(x, guess)
+
+
+__all__ = ["Plant", "PenaltyContact", "SquareWave"]

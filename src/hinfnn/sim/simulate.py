@@ -1,0 +1,281 @@
+"""Closed-loop simulation: plant and controller state integrated together, one ``lax.scan``.
+
+The state y = (q, q̇, controller state, accumulators) is advanced by fixed-step RK4
+(:func:`~hinfnn.sim.integrate.rk4_step`) with the controller evaluated at every stage from that
+stage's measurements (continuous-time control, the paper's setting), or held by a zero-order
+hold between samples (``control_period``, the sampled-data adapter: torque computed at each
+sample instant, controller state advanced by forward Euler over the period).
+
+The disturbance is held over each step at its value at the step's midpoint; steps land on its
+switching instants when dt divides them (checked by the scenario loader).
+
+Accumulated along the run as states (eq. 34 and the dissipation check of Theorems 1–2):
+``J`` = ∫ integrand of (34), ``J_aug`` = J + Remark 1's extra terms (augmented designs),
+``supply`` = ∫ (‖f_p‖² + ‖f_f‖²) dt with f_p, f_f the actual residuals of (28)–(29)/(52)–(53).
+
+One run and a batch are the same program: :func:`simulate_batch` is :func:`jax.vmap` of it over
+stacked parameter pytrees.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._pytree import pytree_dataclass
+from ..errors import ConfigError, DesignError, SimulationError
+from .integrate import rk4_step
+from .trajectory import STATUS, Trajectory
+
+
+@pytree_dataclass
+class Accumulators:
+    J: jax.Array
+    J_aug: jax.Array
+    supply: jax.Array
+
+
+@pytree_dataclass
+class SimState:
+    q: jax.Array
+    qd: jax.Array
+    xc: object  # ControllerState
+    acc: Accumulators
+
+
+@pytree_dataclass
+class Limits:
+    """A run stops (status ≠ 0) when |τ_i| or the penetration passes these."""
+
+    torque: jax.Array = 1e5
+    penetration: jax.Array = 0.05
+
+
+def _rhs(plant, ctrl, ref, t, y: SimState, w, held_tau):
+    meas = plant.measure(y.q, y.qd)
+    tau_c, dxc, sig = ctrl.step_terms(t, y.xc, meas, ref)
+    if held_tau is None:
+        tau = tau_c
+    else:
+        tau = held_tau
+        dxc = jax.tree.map(jnp.zeros_like, dxc)
+    F, f_n, p = plant.contact_state(y.q, y.qd)
+    qdd = plant.acceleration(y.q, y.qd, tau, w, F=F)
+    j, j_extra = ctrl.performance_rate(y.xc, sig)
+    f_p, f_f = ctrl.supply_residuals(t, y.xc, sig, ctrl.u1_ddot(y.q, y.qd, qdd), ref)
+    supply = f_p @ f_p + f_f @ f_f
+    dy = SimState(q=y.qd, qd=qdd, xc=dxc, acc=Accumulators(J=j, J_aug=j + j_extra, supply=supply))
+    r = ref(t)
+    aux = dict(
+        t=jnp.asarray(t, dtype=float), q=y.q, qd=y.qd, u1=sig.u1, u1_dot=sig.u1_dot, lam=sig.lam,
+        u1_d=r.u1_d, u1_d_dot=r.u1_d_dot, lam_d=r.lam_d,
+        e_u1=sig.e_u1, e_u1_dot=sig.e_u1_dot, e_lam=sig.e_lam, z=y.xc.z,
+        v_p=sig.v_p, v_lam=sig.v_lam, nn_p=sig.nn_p, nn_f=sig.nn_f,
+        tau=tau, F=F, normal_force=f_n, penetration=p, disturbance=w,
+        theta_p_norm=jnp.linalg.norm(y.xc.theta_p), theta_f_norm=jnp.linalg.norm(y.xc.theta_f),
+        J=y.acc.J, J_aug=y.acc.J_aug, supply=y.acc.supply, V=ctrl.storage(y.xc, sig),
+        f_p=f_p, f_f=f_f,
+    )
+    return dy, aux
+
+
+def _all_finite(tree):
+    leaves = [jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]
+    return functools.reduce(jnp.logical_and, leaves)
+
+
+def _run(plant, ctrl, ref, y0, limits, *, n_records, save_every, n_hold, dt):
+    """The whole run as nested scans: n_records records, each after ``save_every`` steps."""
+    sampled = n_hold > 0
+
+    def f(t, y, w, held):
+        return _rhs(plant, ctrl, ref, t, y, w, held)
+
+    def step(carry, k):
+        y, held, status, t_fail, bad_tau, bad_pen = carry
+        t = k * dt
+        if sampled:
+            meas = plant.measure(y.q, y.qd)
+            tau_s, dxc_s, _ = ctrl.step_terms(t, y.xc, meas, ref)
+            is_sample = jnp.mod(k, n_hold) == 0
+            held = jnp.where(is_sample, tau_s, held)
+            xc = jax.tree.map(lambda a, d: jnp.where(is_sample, a + (n_hold * dt) * d, a), y.xc, dxc_s)
+            y = SimState(q=y.q, qd=y.qd, xc=xc, acc=y.acc)
+        w = plant.disturbance(t + 0.5 * dt)
+        y_new, aux = rk4_step(lambda tt, yy: f(tt, yy, w, held if sampled else None), t, y, dt)
+        tau_peak = jnp.max(jnp.abs(aux["tau"]))
+        pen = aux["penetration"]
+        code = jnp.where(~_all_finite(y_new), 1,
+                         jnp.where(tau_peak > limits.torque, 2,
+                                   jnp.where(pen > limits.penetration, 3, 0)))
+        first = (status == 0) & (code != 0)
+        t_fail = jnp.where(first, jnp.where(code == 1, t + dt, t), t_fail)
+        bad_tau = jnp.where(first, tau_peak, bad_tau)
+        bad_pen = jnp.where(first, pen, bad_pen)
+        status = jnp.where(status == 0, code, status)
+        y_next = jax.tree.map(lambda a, b: jnp.where(status == 0, b, a), y, y_new)
+        return (y_next, held, status, t_fail, bad_tau, bad_pen), aux
+
+    def record(carry, i):
+        k0 = i * save_every
+        carry, aux = step(carry, k0)
+        if save_every > 1:
+            carry = jax.lax.fori_loop(k0 + 1, k0 + save_every, lambda k, c: step(c, k)[0], carry)
+        return carry, aux
+
+    n = plant.arm.n
+    held0 = jnp.zeros(n)
+    zero = jnp.zeros(())
+    carry0 = (y0, held0, jnp.zeros((), jnp.int32), jnp.full((), jnp.nan), zero, zero)
+    carry, rec = jax.lax.scan(record, carry0, jnp.arange(n_records))
+    y_end, held, status, t_fail, bad_tau, bad_pen = carry
+    t_end = n_records * save_every * dt
+    w_end = plant.disturbance(t_end - 0.5 * dt)
+    _, aux_end = f(t_end, y_end, w_end, held if sampled else None)
+    rec = jax.tree.map(lambda a, b: jnp.concatenate([a, b[None]], axis=0), rec, aux_end)
+    return rec, status, t_fail, dict(tau_peak=bad_tau, penetration=bad_pen)
+
+
+@functools.lru_cache(maxsize=64)
+def _compiled(in_axes, n_records, save_every, n_hold, dt):
+    fn = functools.partial(_run, n_records=n_records, save_every=save_every, n_hold=n_hold, dt=dt)
+    if in_axes is not None:
+        fn = jax.vmap(fn, in_axes=in_axes)
+    return jax.jit(fn)
+
+
+def _steps(t_final, dt, save_every, control_period):
+    for name, v in (("t_final", t_final), ("dt", dt)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise ConfigError(f"must be a finite number > 0, got {v!r}", key=f"simulation.{name}")
+    n_steps = round(t_final / dt)
+    if abs(n_steps * dt - t_final) > 1e-9 * max(1.0, t_final):
+        raise ConfigError(f"t_final = {t_final:g} is not a whole number of steps dt = {dt:g}",
+                          key="simulation.t_final")
+    if not (isinstance(save_every, int) and save_every >= 1 and n_steps % save_every == 0):
+        raise ConfigError(f"must be a positive integer dividing the {n_steps} steps, got {save_every!r}",
+                          key="simulation.save_every")
+    n_hold = 0
+    if control_period is not None:
+        n_hold = round(control_period / dt)
+        if n_hold < 1 or abs(n_hold * dt - control_period) > 1e-9 * control_period:
+            raise ConfigError(f"control period {control_period:g} must be a whole multiple of dt = {dt:g}",
+                              key="simulation.control_period")
+    return n_steps // save_every, n_hold
+
+
+def initial_state(plant, ctrl, *, u1_0=1.6902, q0=None, qd0=None, xc0=None) -> SimState:
+    """Sec. VI initial state: q0 with the TRUE end-effector at u1(0) on the TRUE surface,
+    q̇ = 0, controller state ``ctrl.init()`` (z = 0, weights 0), accumulators 0."""
+    q0 = plant.initial_q(u1_0) if q0 is None else jnp.asarray(q0, float)
+    qd0 = jnp.zeros_like(q0) if qd0 is None else jnp.asarray(qd0, float)
+    zero = jnp.zeros(())
+    return SimState(q=q0, qd=qd0, xc=ctrl.init() if xc0 is None else xc0,
+                    acc=Accumulators(J=zero, J_aug=zero, supply=zero))
+
+
+def check_start(controller, y0: SimState, min_abs_det: float = 1e-6):
+    """The start pose must be finite and the nominal Jacobian Ĵ(q0) nonsingular (A1)."""
+    q0 = np.asarray(y0.q)
+    if not np.all(np.isfinite(q0)):
+        raise DesignError(f"the start pose is unreachable: q0 = {q0.tolist()} (u1(0) is out of the "
+                          "true arm's reach on the true surface)", key="initial.u1")
+    det = float(jnp.linalg.det(controller.arm.J(y0.q)))
+    if not abs(det) >= min_abs_det:
+        raise DesignError(f"the nominal Jacobian is singular at the start pose q0 = {q0.tolist()} "
+                          f"(|det J| = {abs(det):.3g} < {min_abs_det:g})", key="initial.u1")
+
+
+def _to_numpy(rec, status, t_fail, details, *, config, dt, save_every) -> Trajectory:
+    arrays = {k: np.asarray(v) for k, v in rec.items()}
+    return Trajectory(arrays=arrays, status=np.asarray(status), t_fail=np.asarray(t_fail),
+                      fail_details={k: np.asarray(v) for k, v in details.items()},
+                      config=config or {}, dt=float(dt), save_every=int(save_every))
+
+
+def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float = 1e-4,
+             u1_0: float = 1.6902, q0=None, qd0=None, xc0=None, save_every: int = 1,
+             control_period: float | None = None, limits: Limits | None = None,
+             config: dict | None = None, raise_on_failure: bool = True) -> Trajectory:
+    """Simulate one closed-loop run; returns a :class:`Trajectory` sampled every ``save_every``
+    steps (t = 0, …, t_final).
+
+    Raises :class:`~hinfnn.errors.SimulationError` with the time and the offending quantities
+    if the state becomes non-finite or a limit is passed (unless ``raise_on_failure=False``;
+    the trajectory is then frozen at its last good state from the failing step on).
+    """
+    n_records, n_hold = _steps(t_final, dt, save_every, control_period)
+    y0 = initial_state(plant, controller, u1_0=u1_0, q0=q0, qd0=qd0, xc0=xc0)
+    check_start(controller, y0)
+    run = _compiled(None, n_records, save_every, n_hold, float(dt))
+    out = run(plant, controller, reference, y0, limits or Limits())
+    traj = _to_numpy(*out, config=config, dt=dt, save_every=save_every)
+    if raise_on_failure and int(traj.status) != 0:
+        raise failure_error(traj)
+    return traj
+
+
+def failure_error(traj: Trajectory) -> SimulationError:
+    """A :class:`SimulationError` describing why a (single) run stopped."""
+    code = int(traj.status)
+    t = float(traj.t_fail)
+    details = {k: float(v) for k, v in traj.fail_details.items()}
+    what = STATUS.get(code, f"status {code}")
+    msg = f"run stopped at t = {t:.6g} s: {what}"
+    if code == 2:
+        msg += f" (peak |tau| = {details['tau_peak']:.4g} N·m)"
+    elif code == 3:
+        msg += f" (penetration = {details['penetration']:.4g} m)"
+    return SimulationError(msg, t_fail=t, details=details)
+
+
+def stack(items):
+    """Stack a list of pytrees of identical structure into one with a leading batch axis."""
+    treedefs = {jax.tree.structure(x) for x in items}
+    if len(treedefs) != 1:
+        raise ConfigError("batch members differ in structure (controller kind, network sizes or "
+                          "model types); run them as separate batches")
+    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *items)
+
+
+def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt: float = 1e-4,
+                   u1_0=1.6902, save_every: int = 1, control_period: float | None = None,
+                   limits: Limits | None = None, configs: list | None = None) -> Trajectory:
+    """Simulate B runs as ONE program (``jax.vmap`` of :func:`simulate`'s run).
+
+    ``plants``, ``controllers``, ``references``: each either a list of B objects (stacked along
+    a new axis) or a single object shared by every member. Members that fail are marked in
+    ``status``/``t_fail`` and do not stop the others; nothing is raised for them.
+    """
+    given = [x for x in (plants, controllers, references) if isinstance(x, (list, tuple))]
+    if not given:
+        raise ConfigError("simulate_batch needs at least one list of plants, controllers or references")
+    sizes = {len(x) for x in given}
+    if len(sizes) != 1:
+        raise ConfigError(f"batch lists have different lengths {sorted(sizes)}")
+    (B,) = sizes
+    u1s = list(u1_0) if isinstance(u1_0, (list, tuple, np.ndarray)) else [u1_0] * B
+    pl = [plants[i] if isinstance(plants, (list, tuple)) else plants for i in range(B)]
+    ct = [controllers[i] if isinstance(controllers, (list, tuple)) else controllers for i in range(B)]
+    y0s = [initial_state(pl[i], ct[i], u1_0=u1s[i]) for i in range(B)]
+    for i in range(B):
+        check_start(ct[i], y0s[i])
+    n_records, n_hold = _steps(t_final, dt, save_every, control_period)
+    args, axes = [], []
+    for x in (plants, controllers, references):
+        if isinstance(x, (list, tuple)):
+            args.append(stack(list(x)))
+            axes.append(0)
+        else:
+            args.append(x)
+            axes.append(None)
+    args += [stack(y0s), limits or Limits()]
+    axes += [0, None]
+    run = _compiled(tuple(axes), n_records, save_every, n_hold, float(dt))
+    out = run(*args)
+    return _to_numpy(*out, config={"members": list(configs)} if configs else {}, dt=dt,
+                     save_every=save_every)

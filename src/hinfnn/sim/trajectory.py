@@ -1,0 +1,116 @@
+"""The result of a run: plain NumPy arrays plus the configuration that produced them."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+#: Status codes of a run (``Trajectory.status``).
+STATUS = {0: "ok", 1: "non-finite state", 2: "torque limit exceeded", 3: "penetration limit exceeded"}
+
+#: Arrays a Trajectory carries, with their units, for files and figures.
+FIELDS = {
+    "t": "s",
+    "q": "rad",
+    "qd": "rad/s",
+    "u1": "m",
+    "u1_dot": "m/s",
+    "lam": "λ units (N·cos δ̂ with the paper's scaling)",
+    "u1_d": "m",
+    "u1_d_dot": "m/s",
+    "lam_d": "λ units",
+    "e_u1": "m",
+    "e_u1_dot": "m/s",
+    "e_lam": "λ units",
+    "z": "λ units",
+    "v_p": "m/s²",
+    "v_lam": "λ units",
+    "nn_p": "m/s²",
+    "nn_f": "λ units",
+    "tau": "N·m",
+    "F": "N",
+    "normal_force": "N",
+    "penetration": "m",
+    "disturbance": "N·m",
+    "theta_p_norm": "-",
+    "theta_f_norm": "-",
+    "J": "-",
+    "J_aug": "-",
+    "supply": "-",
+    "V": "-",
+    "f_p": "m/s²",
+    "f_f": "λ units",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Trajectory:
+    """A simulated run (or a batch, with a leading batch axis on every array).
+
+    ``J`` is the H∞ index of eq. (34) integrated as a state; ``J_aug`` adds Remark 1's terms
+    when the controller is augmented (else equals ``J``); ``supply`` is ∫(‖f_p‖² + ‖f_f‖²) dt
+    with f_p, f_f the actual residuals of eqs. (28)–(29)/(52)–(53); ``V`` the storage function.
+    ``status``/``t_fail``: 0 and NaN for a completed run, else the code of :data:`STATUS` and the
+    time of the failing step. ``config`` is the run's full configuration (a plain dict).
+    """
+
+    arrays: dict[str, np.ndarray]
+    status: np.ndarray
+    t_fail: np.ndarray
+    fail_details: dict[str, np.ndarray]
+    config: dict[str, Any]
+    dt: float
+    save_every: int
+
+    def __getattr__(self, name):
+        arrays = self.__dict__.get("arrays", {})
+        if name in arrays:
+            return arrays[name]
+        raise AttributeError(name)
+
+    @property
+    def batched(self) -> bool:
+        return self.arrays["t"].ndim == 2
+
+    @property
+    def batch_size(self) -> int:
+        return self.arrays["t"].shape[0] if self.batched else 1
+
+    def __len__(self) -> int:
+        return self.batch_size
+
+    def member(self, i: int) -> "Trajectory":
+        """Run ``i`` of a batch as a single Trajectory."""
+        if not self.batched:
+            if i != 0:
+                raise IndexError(i)
+            return self
+        cfg = self.config
+        if isinstance(cfg, dict) and isinstance(cfg.get("members"), list):
+            cfg = cfg["members"][i]
+        return Trajectory(
+            arrays={k: v[i] for k, v in self.arrays.items()},
+            status=self.status[i], t_fail=self.t_fail[i],
+            fail_details={k: v[i] for k, v in self.fail_details.items()},
+            config=cfg, dt=self.dt, save_every=self.save_every)
+
+    @property
+    def ok(self):
+        return np.asarray(self.status) == 0
+
+    def decimated(self, max_interval: float) -> "Trajectory":
+        """Every s-th sample, s the largest divisor of the step count with s·dt·save_every ≤
+        ``max_interval``, so the samples stay uniform and the final one is kept."""
+        interval = self.dt * self.save_every
+        limit = max(1, int(np.floor(max_interval / interval + 1e-9)))
+        n_intervals = self.arrays["t"].shape[-1] - 1
+        stride = max(s for s in range(1, limit + 1) if n_intervals % s == 0) if n_intervals else 1
+        if stride == 1:
+            return self
+        idx = np.arange(0, n_intervals + 1, stride)
+        axis = 1 if self.batched else 0
+        return dataclasses.replace(
+            self, arrays={k: np.take(v, idx, axis=axis) for k, v in self.arrays.items()},
+            save_every=self.save_every * stride)
