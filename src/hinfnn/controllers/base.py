@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._pytree import pytree_dataclass, static_field
+from .. import _linalg as la
 from ..errors import DesignError
 from ..model.reduced import reduced_model
 from .gains import Gains
@@ -95,7 +96,7 @@ class ReducedOrderController:
         x = self.arm.h(meas.q)
         x_dot = self.arm.J(meas.q) @ meas.qd
         A = self.surface.A_hat(x)
-        lam = jnp.linalg.solve(A @ A.T, A @ meas.F)
+        lam = la.solve(A @ A.T, A @ meas.F)
         return x[: self.m], x_dot[: self.m], lam
 
     def u1_ddot(self, q, qd, qdd):
@@ -126,7 +127,7 @@ class ReducedOrderController:
         rm = reduced_model(self.arm, self.surface, meas.q, meas.qd)
         u1, u1_dot = rm.x[:m], rm.x_dot[:m]
         A = rm.A_hat
-        lam = jnp.linalg.solve(A @ A.T, A @ meas.F)
+        lam = la.solve(A @ A.T, A @ meas.F)
         e_u1 = u1 - r.u1_d
         e_u1_dot = u1_dot - r.u1_d_dot
         e_lam = lam - r.lam_d
@@ -135,7 +136,7 @@ class ReducedOrderController:
 
         zeros_m, zeros_k = jnp.zeros_like(e_u1), jnp.zeros_like(e_lam)
         if self.robust:
-            v_p = -jnp.linalg.solve(g.R_p, s_p)  # eq. (33)
+            v_p = -la.solve(g.R_p, s_p)  # eq. (33)
             v_lam = -(g.beta_lam if self.augmented else 0.5 * g.beta_lam) * e_lam  # (41) / (32)
         else:
             v_p, v_lam = zeros_m, zeros_k
@@ -151,7 +152,7 @@ class ReducedOrderController:
         lam_p = rm.M11 @ a + rm.C11 @ u1_dot + rm.G1  # eq. (25)
         C_f, G_f = rm.force_terms()
         lam_f = rm.Pi.T @ (r.lam_d + xc.z + v_lam - nn_f) + C_f @ u1_dot + G_f  # eq. (26)
-        tau = jnp.linalg.solve(rm.decoupling_matrix(), jnp.concatenate([lam_p, lam_f]))  # (24)
+        tau = la.solve(rm.decoupling_matrix(), jnp.concatenate([lam_p, lam_f]))  # (24)
 
         dz = -g.mu_z * xc.z - g.alpha_z * e_lam  # eq. (27)
         if self.learning:

@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 
 from .._pytree import pytree_dataclass, static_field
+from .. import _linalg as la
 
 
 @pytree_dataclass
@@ -79,12 +80,12 @@ class ReducedModel:
     def force_terms(self):
         """The (k × m) and (k,) coefficients of eq. (14):
         C̄21 − M̄21 M̄11⁻¹ C̄11 and Ḡ2 − M̄21 M̄11⁻¹ Ḡ1."""
-        L = self.M21 @ jnp.linalg.inv(self.M11)
+        L = self.M21 @ la.inv(self.M11)
         return self.C21 - L @ self.C11, self.G2 - L @ self.G1
 
     def decoupling_matrix(self):
         """T = [B̄1; B̄2 − M̄21 M̄11⁻¹ B̄1] of eqs. (24), (51); τ = T⁻¹ [Λp; Λf]."""
-        L = self.M21 @ jnp.linalg.inv(self.M11)
+        L = self.M21 @ la.inv(self.M11)
         return jnp.concatenate([self.B1, self.B2 - L @ self.B1], axis=0)
 
 
@@ -101,7 +102,7 @@ def reduced_model(arm, surface, q, qd) -> ReducedModel:
     m = surface.m
     S = surface.S(x[:m])
     S_dot = surface.S_dot(x[:m], x_dot[:m])
-    J_inv = jnp.linalg.inv(J)
+    J_inv = la.inv(J)
     B_bar = S.T @ J_inv.T  # Sᵀ Ĵ⁻ᵀ
     MJi = M @ J_inv
     M_bar = B_bar @ MJi @ S

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from .._pytree import pytree_dataclass, static_field
+from .. import _linalg as la
 
 SCALINGS = ("paper", "unit")
 
@@ -48,18 +49,24 @@ class Surface:
 
     # --- (A4), eq. (4) ---------------------------------------------------------------------------
     def Omega(self, x1, iterations: int = 30):
-        """x2 = Ω(x1) on the surface, by Newton's method on θ̂(x1, x2) = 0 from x2 = 0."""
+        """x2 = Ω(x1) on the surface, by Newton's method on θ̂(x1, x2) = 0 from x2 = 0.
+
+        NaN where Newton has not converged (x1 outside the surface's domain): the simulator
+        then stops with a SimulationError instead of using a wrong Ω.
+        """
 
         def body(_, x2):
             x = jnp.concatenate([x1, x2])
-            return x2 - jnp.linalg.solve(self.Pi(x), self.theta(x))
+            return x2 - la.solve(self.Pi(x), self.theta(x))
 
-        return jax.lax.fori_loop(0, iterations, body, jnp.zeros(self.k, dtype=jnp.result_type(x1)))
+        x2 = jax.lax.fori_loop(0, iterations, body, jnp.zeros(self.k, dtype=jnp.result_type(x1)))
+        residual = jnp.max(jnp.abs(self.theta(jnp.concatenate([x1, x2]))))
+        return jnp.where(residual < 1e-9 * (1.0 + jnp.max(jnp.abs(x2))), x2, jnp.nan)
 
     def Gamma(self, x1):
         """Γ = ∂Ω/∂x1 = −Π⁻¹Σ at (x1, Ω(x1)), eq. (4)."""
         x = jnp.concatenate([x1, self.Omega(x1)])
-        return -jnp.linalg.solve(self.Pi(x), self.Sigma(x))
+        return -la.solve(self.Pi(x), self.Sigma(x))
 
     # --- eq. (6) ---------------------------------------------------------------------------------
     def S(self, x1):

@@ -137,7 +137,9 @@ def _run(plant, ctrl, ref, y0, limits, *, n_records, save_every, n_hold, dt):
     w_end = plant.disturbance(t_end - 0.5 * dt)
     _, aux_end = f(t_end, y_end, w_end, held if sampled else None)
     rec = jax.tree.map(lambda a, b: jnp.concatenate([a, b[None]], axis=0), rec, aux_end)
-    return rec, status, t_fail, dict(tau_peak=bad_tau, penetration=bad_pen)
+    final = dict(q=y_end.q, qd=y_end.qd, z=y_end.xc.z, theta_p=y_end.xc.theta_p,
+                 theta_f=y_end.xc.theta_f, J=y_end.acc.J, J_aug=y_end.acc.J_aug, supply=y_end.acc.supply)
+    return rec, status, t_fail, dict(tau_peak=bad_tau, penetration=bad_pen), final
 
 
 @functools.lru_cache(maxsize=64)
@@ -190,11 +192,12 @@ def check_start(controller, y0: SimState, min_abs_det: float = 1e-6):
                           f"(|det J| = {abs(det):.3g} < {min_abs_det:g})", key="initial.u1")
 
 
-def _to_numpy(rec, status, t_fail, details, *, config, dt, save_every) -> Trajectory:
+def _to_numpy(rec, status, t_fail, details, final, *, config, dt, save_every) -> Trajectory:
     arrays = {k: np.asarray(v) for k, v in rec.items()}
     return Trajectory(arrays=arrays, status=np.asarray(status), t_fail=np.asarray(t_fail),
                       fail_details={k: np.asarray(v) for k, v in details.items()},
-                      config=config or {}, dt=float(dt), save_every=int(save_every))
+                      config=config or {}, dt=float(dt), save_every=int(save_every),
+                      final={k: np.asarray(v) for k, v in final.items()})
 
 
 def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float = 1e-4,

@@ -52,6 +52,7 @@ class Trajectory:
     ``J`` is the H∞ index of eq. (34) integrated as a state; ``J_aug`` adds Remark 1's terms
     when the controller is augmented (else equals ``J``); ``supply`` is ∫(‖f_p‖² + ‖f_f‖²) dt
     with f_p, f_f the actual residuals of eqs. (28)–(29)/(52)–(53); ``V`` the storage function.
+    ``final`` holds the full state at t_final (q, qd, z, theta_p, theta_f and the accumulators).
     ``status``/``t_fail``: 0 and NaN for a completed run, else the code of :data:`STATUS` and the
     time of the failing step. ``config`` is the run's full configuration (a plain dict).
     """
@@ -63,6 +64,7 @@ class Trajectory:
     config: dict[str, Any]
     dt: float
     save_every: int
+    final: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
     def __getattr__(self, name):
         arrays = self.__dict__.get("arrays", {})
@@ -94,7 +96,8 @@ class Trajectory:
             arrays={k: v[i] for k, v in self.arrays.items()},
             status=self.status[i], t_fail=self.t_fail[i],
             fail_details={k: v[i] for k, v in self.fail_details.items()},
-            config=cfg, dt=self.dt, save_every=self.save_every)
+            config=cfg, dt=self.dt, save_every=self.save_every,
+            final={k: v[i] for k, v in self.final.items()})
 
     @property
     def ok(self):

@@ -1,0 +1,59 @@
+"""Shared fixtures: the paper's Sec. VI models. float64 is on (hinfnn sets it at import) and
+implicit rank promotion is an error, as in diffrax's test suite."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from hypothesis import settings  # noqa: E402
+
+import hinfnn as H  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_numpy_rank_promotion", "raise")
+
+settings.register_profile("ci", deadline=None, derandomize=True, print_blob=True)
+settings.load_profile("ci")
+
+DELTA_TRUE = 91.0 / 360.0 * np.pi
+DELTA_NOM = np.pi / 4
+
+
+@pytest.fixture(scope="session")
+def true_arm():
+    return H.TwoLinkArm(m1=1.2, m2=1.1, l1=1.02724, l2=0.98041)
+
+
+@pytest.fixture(scope="session")
+def nominal_arm():
+    return H.TwoLinkArm(m1=1.5, m2=1.0, l1=1.0, l2=1.0)
+
+
+@pytest.fixture(scope="session")
+def true_surface():
+    return H.InclinedLine(delta=DELTA_TRUE, d_G=0.8)
+
+
+@pytest.fixture(scope="session")
+def nominal_surface():
+    return H.InclinedLine(delta=DELTA_NOM, d_G=0.8)
+
+
+@pytest.fixture(scope="session")
+def reference():
+    return H.CosineReference.paper()
+
+
+def make_plant(true_arm, true_surface, damping=0.0, disturbance=True):
+    dist = H.SquareWave.paper() if disturbance else H.SquareWave.none()
+    return H.Plant(true_arm, true_surface, H.PenaltyContact(1e5, damping), dist)
+
+
+@pytest.fixture(scope="session")
+def paper_plant(true_arm, true_surface):
+    return make_plant(true_arm, true_surface)
