@@ -11,7 +11,7 @@ switching instants when dt divides them (checked by the scenario loader).
 
 Accumulated along the run as states (eq. 34 and the dissipation check of Theorems 1–2):
 ``J`` = ∫ integrand of (34), ``J_aug`` = J + Remark 1's extra terms (augmented designs),
-``supply`` = ∫ (‖f_p‖² + ‖f_f‖²) dt with f_p, f_f the actual residuals of (28)–(29)/(52)–(53).
+``supply`` = ρ² ∫ (‖f_p‖² + ‖f_f‖²) dt with f_p, f_f the actual residuals of (28)–(29)/(52)–(53).
 
 One run and a batch are the same program: :func:`simulate_batch` is :func:`jax.vmap` of it over
 stacked parameter pytrees.
@@ -67,7 +67,7 @@ def _rhs(plant, ctrl, ref, t, y: SimState, w, held_tau):
     qdd = plant.acceleration(y.q, y.qd, tau, w, F=F)
     j, j_extra = ctrl.performance_rate(y.xc, sig)
     f_p, f_f = ctrl.supply_residuals(t, y.xc, sig, ctrl.u1_ddot(y.q, y.qd, qdd), ref)
-    supply = f_p @ f_p + f_f @ f_f
+    supply = ctrl.gains.rho**2 * (f_p @ f_p + f_f @ f_f)
     dy = SimState(q=y.qd, qd=qdd, xc=dxc, acc=Accumulators(J=j, J_aug=j + j_extra, supply=supply))
     r = ref(t)
     aux = dict(
@@ -75,7 +75,7 @@ def _rhs(plant, ctrl, ref, t, y: SimState, w, held_tau):
         u1_d=r.u1_d, u1_d_dot=r.u1_d_dot, lam_d=r.lam_d,
         e_u1=sig.e_u1, e_u1_dot=sig.e_u1_dot, e_lam=sig.e_lam, z=y.xc.z,
         v_p=sig.v_p, v_lam=sig.v_lam, nn_p=sig.nn_p, nn_f=sig.nn_f,
-        tau=tau, F=F, normal_force=f_n, penetration=p, disturbance=w,
+        tau=tau, F=F, normal_force=f_n, penetration=p, disturbance=w, x_true=plant.arm.h(y.q),
         theta_p_norm=jnp.linalg.norm(y.xc.theta_p), theta_f_norm=jnp.linalg.norm(y.xc.theta_f),
         J=y.acc.J, J_aug=y.acc.J_aug, supply=y.acc.supply, V=ctrl.storage(y.xc, sig),
         f_p=f_p, f_f=f_f,
@@ -246,38 +246,43 @@ def stack(items):
 
 
 def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt: float = 1e-4,
-                   u1_0=1.6902, save_every: int = 1, control_period: float | None = None,
-                   limits: Limits | None = None, configs: list | None = None) -> Trajectory:
+                   u1_0=1.6902, q0=None, save_every: int = 1, control_period: float | None = None,
+                   limits=None, configs: list | None = None) -> Trajectory:
     """Simulate B runs as ONE program (``jax.vmap`` of :func:`simulate`'s run).
 
-    ``plants``, ``controllers``, ``references``: each either a list of B objects (stacked along
-    a new axis) or a single object shared by every member. Members that fail are marked in
-    ``status``/``t_fail`` and do not stop the others; nothing is raised for them.
+    ``plants``, ``controllers``, ``references`` (and ``limits``): each either a list of B objects
+    (stacked along a new axis) or a single object shared by every member. ``u1_0``/``q0`` may be
+    lists too. Members that fail are marked in ``status``/``t_fail`` and do not stop the others;
+    nothing is raised for them.
     """
-    given = [x for x in (plants, controllers, references) if isinstance(x, (list, tuple))]
-    if not given:
+    listed = [x for x in (plants, controllers, references, limits) if isinstance(x, (list, tuple))]
+    if not listed:
         raise ConfigError("simulate_batch needs at least one list of plants, controllers or references")
-    sizes = {len(x) for x in given}
+    sizes = {len(x) for x in listed}
     if len(sizes) != 1:
         raise ConfigError(f"batch lists have different lengths {sorted(sizes)}")
     (B,) = sizes
-    u1s = list(u1_0) if isinstance(u1_0, (list, tuple, np.ndarray)) else [u1_0] * B
-    pl = [plants[i] if isinstance(plants, (list, tuple)) else plants for i in range(B)]
-    ct = [controllers[i] if isinstance(controllers, (list, tuple)) else controllers for i in range(B)]
-    y0s = [initial_state(pl[i], ct[i], u1_0=u1s[i]) for i in range(B)]
+
+    def member(x, i):
+        return x[i] if isinstance(x, (list, tuple)) else x
+
+    u1s = u1_0 if isinstance(u1_0, (list, tuple, np.ndarray)) else [u1_0] * B
+    q0s = q0 if isinstance(q0, (list, tuple)) else [q0] * B
+    y0s = [initial_state(member(plants, i), member(controllers, i), u1_0=u1s[i], q0=q0s[i])
+           for i in range(B)]
     for i in range(B):
-        check_start(ct[i], y0s[i])
+        check_start(member(controllers, i), y0s[i])
     n_records, n_hold = _steps(t_final, dt, save_every, control_period)
     args, axes = [], []
-    for x in (plants, controllers, references):
+    for x in (plants, controllers, references, limits or Limits()):
         if isinstance(x, (list, tuple)):
             args.append(stack(list(x)))
             axes.append(0)
         else:
             args.append(x)
             axes.append(None)
-    args += [stack(y0s), limits or Limits()]
-    axes += [0, None]
+    args.insert(3, stack(y0s))
+    axes.insert(3, 0)
     run = _compiled(tuple(axes), n_records, save_every, n_hold, float(dt))
     out = run(*args)
     return _to_numpy(*out, config={"members": list(configs)} if configs else {}, dt=dt,

@@ -34,6 +34,7 @@ FIELDS = {
     "normal_force": "N",
     "penetration": "m",
     "disturbance": "N·m",
+    "x_true": "m",
     "theta_p_norm": "-",
     "theta_f_norm": "-",
     "J": "-",
@@ -50,7 +51,7 @@ class Trajectory:
     """A simulated run (or a batch, with a leading batch axis on every array).
 
     ``J`` is the H∞ index of eq. (34) integrated as a state; ``J_aug`` adds Remark 1's terms
-    when the controller is augmented (else equals ``J``); ``supply`` is ∫(‖f_p‖² + ‖f_f‖²) dt
+    when the controller is augmented (else equals ``J``); ``supply`` is ρ²∫(‖f_p‖² + ‖f_f‖²) dt
     with f_p, f_f the actual residuals of eqs. (28)–(29)/(52)–(53); ``V`` the storage function.
     ``final`` holds the full state at t_final (q, qd, z, theta_p, theta_f and the accumulators).
     ``status``/``t_fail``: 0 and NaN for a completed run, else the code of :data:`STATUS` and the
