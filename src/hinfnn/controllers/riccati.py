@@ -33,7 +33,7 @@ class RiccatiSolution:
     P: np.ndarray
     equation: str  # "35" or "40"
     W: np.ndarray
-    residual: float  # ‖A'P + PA − PBWB'P + Q‖_F / max(1, ‖Q‖_F)
+    residual: float  # ‖A'P + PA − PBWB'P + Q‖_F relative to the sum of the terms' norms
     min_eig_P: float
     hamiltonian_eigs: np.ndarray
     closed_loop_eigs: np.ndarray  # eig(A_p − B_p R_p⁻¹ B_pᵀ P)
@@ -75,7 +75,29 @@ def solve_riccati_like(A, B, Q, W) -> np.ndarray:
     if not np.isfinite(cond) or cond > 1e12:
         raise DesignError(f"no stabilising solution: the stable subspace is not a graph (cond {cond:.3g})")
     P = np.linalg.solve(X1.T, X2.T).T  # X2 X1⁻¹
-    return 0.5 * (P + P.T)
+    P = 0.5 * (P + P.T)
+    return _newton_refine(A, B, Q, W, P)
+
+
+def _newton_refine(A, B, Q, W, P, steps: int = 6):
+    """Newton (Kleinman) steps on the Riccati residual: (A − BWBᵀP)ᵀΔ + Δ(A − BWBᵀP) = −Res(P).
+
+    The Schur solution loses digits when P's entries span many decades (large gains); a few
+    Newton steps restore the residual to round-off. Stops when the residual stops decreasing.
+    """
+    best, best_norm = P, np.linalg.norm(riccati_residual(A, B, Q, W, P))
+    for _ in range(steps):
+        Ac = A - B @ W @ B.T @ best
+        try:
+            delta = scipy.linalg.solve_continuous_lyapunov(Ac.T, -riccati_residual(A, B, Q, W, best))
+        except (np.linalg.LinAlgError, ValueError):
+            break
+        cand = best + 0.5 * (delta + delta.T)
+        norm = np.linalg.norm(riccati_residual(A, B, Q, W, cand))
+        if not norm < best_norm:
+            break
+        best, best_norm = cand, norm
+    return best
 
 
 def design_riccati(gains, equation: str = "35") -> RiccatiSolution:
@@ -99,7 +121,8 @@ def design_riccati(gains, equation: str = "35") -> RiccatiSolution:
             f"{'holds' if remark4 else 'fails'}: increase rho or R_p", key="rho", value=rho,
             bound=rho_suff) from None
     res = riccati_residual(A, B, Q, W, P)
-    residual = float(np.linalg.norm(res) / max(1.0, np.linalg.norm(Q)))
+    scale = 2 * np.linalg.norm(A.T @ P) + np.linalg.norm(P @ B @ W @ B.T @ P) + np.linalg.norm(Q)
+    residual = float(np.linalg.norm(res) / scale)
     if not residual < RESIDUAL_TOL:
         raise DesignError(f"Riccati residual {residual:.3g} above {RESIDUAL_TOL:g} for {where}",
                           key="rho", value=rho)

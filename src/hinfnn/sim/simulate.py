@@ -88,20 +88,26 @@ def _all_finite(tree):
     return functools.reduce(jnp.logical_and, leaves)
 
 
-def _run(plant, ctrl, ref, y0, limits, *, n_records, save_every, n_hold, dt):
-    """The whole run as nested scans: n_records records, each after ``save_every`` steps."""
-    sampled = n_hold > 0
+#: Steps per compiled chunk: a run is a Python loop over chunks of one jit-compiled ``lax.scan``
+#: (progress, Ctrl-C and one compilation for every horizon), never a loop over time steps.
+CHUNK_STEPS = 2000
+
+
+def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
+    """One RK4 step k -> k + 1 with failure detection; a no-op for k ≥ n_steps (padding)."""
 
     def f(t, y, w, held):
         return _rhs(plant, ctrl, ref, t, y, w, held)
 
     def step(carry, k):
         y, held, status, t_fail, bad_tau, bad_pen = carry
+        active = k < n_steps
         t = k * dt
+        y_in = y
         if sampled:
             meas = plant.measure(y.q, y.qd)
             tau_s, dxc_s, _ = ctrl.step_terms(t, y.xc, meas, ref)
-            is_sample = jnp.mod(k, n_hold) == 0
+            is_sample = (jnp.mod(k, n_hold) == 0) & active & (status == 0)
             held = jnp.where(is_sample, tau_s, held)
             xc = jax.tree.map(lambda a, d: jnp.where(is_sample, a + (n_hold * dt) * d, a), y.xc, dxc_s)
             y = SimState(q=y.q, qd=y.qd, xc=xc, acc=y.acc)
@@ -112,42 +118,93 @@ def _run(plant, ctrl, ref, y0, limits, *, n_records, save_every, n_hold, dt):
         code = jnp.where(~_all_finite(y_new), 1,
                          jnp.where(tau_peak > limits.torque, 2,
                                    jnp.where(pen > limits.penetration, 3, 0)))
+        code = jnp.where(active, code, 0)
         first = (status == 0) & (code != 0)
         t_fail = jnp.where(first, jnp.where(code == 1, t + dt, t), t_fail)
         bad_tau = jnp.where(first, tau_peak, bad_tau)
         bad_pen = jnp.where(first, pen, bad_pen)
         status = jnp.where(status == 0, code, status)
-        y_next = jax.tree.map(lambda a, b: jnp.where(status == 0, b, a), y, y_new)
+        keep_old = (status != 0) | ~active
+        y_next = jax.tree.map(lambda a, b: jnp.where(keep_old, a, b), y_in, y_new)
         return (y_next, held, status, t_fail, bad_tau, bad_pen), aux
 
-    def record(carry, i):
-        k0 = i * save_every
-        carry, aux = step(carry, k0)
-        if save_every > 1:
-            carry = jax.lax.fori_loop(k0 + 1, k0 + save_every, lambda k, c: step(c, k)[0], carry)
-        return carry, aux
+    return f, step
 
-    n = plant.arm.n
-    held0 = jnp.zeros(n)
-    zero = jnp.zeros(())
-    carry0 = (y0, held0, jnp.zeros((), jnp.int32), jnp.full((), jnp.nan), zero, zero)
-    carry, rec = jax.lax.scan(record, carry0, jnp.arange(n_records))
+
+def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, *, n_records, save_every, sampled):
+    """``n_records · save_every`` steps from step ``k0``, keeping every ``save_every``-th record.
+
+    One scan over steps (one copy of the step in the compiled program), then the records are
+    subsampled: cheaper to compile than a nested loop, and a chunk's records are small."""
+    _, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
+    carry, rec = jax.lax.scan(step, carry, k0 + jnp.arange(n_records * save_every))
+    if save_every > 1:
+        rec = jax.tree.map(lambda a: a[::save_every], rec)
+    return carry, rec
+
+
+def _finish(plant, ctrl, ref, limits, carry, n_steps, dt, n_hold, *, sampled):
+    """The record at t_final and the full final state."""
+    f, _ = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
     y_end, held, status, t_fail, bad_tau, bad_pen = carry
-    t_end = n_records * save_every * dt
-    w_end = plant.disturbance(t_end - 0.5 * dt)
-    _, aux_end = f(t_end, y_end, w_end, held if sampled else None)
-    rec = jax.tree.map(lambda a, b: jnp.concatenate([a, b[None]], axis=0), rec, aux_end)
+    t_end = n_steps * dt
+    _, aux_end = f(t_end, y_end, plant.disturbance(t_end - 0.5 * dt), held if sampled else None)
     final = dict(q=y_end.q, qd=y_end.qd, z=y_end.xc.z, theta_p=y_end.xc.theta_p,
                  theta_f=y_end.xc.theta_f, J=y_end.acc.J, J_aug=y_end.acc.J_aug, supply=y_end.acc.supply)
-    return rec, status, t_fail, dict(tau_peak=bad_tau, penetration=bad_pen), final
+    return aux_end, status, t_fail, dict(tau_peak=bad_tau, penetration=bad_pen), final
 
 
-@functools.lru_cache(maxsize=64)
-def _compiled(in_axes, n_records, save_every, n_hold, dt):
-    fn = functools.partial(_run, n_records=n_records, save_every=save_every, n_hold=n_hold, dt=dt)
+def _init_carry(y0, n):
+    """(state, held torque, status, t_fail, τ and penetration at failure), strongly typed so that
+    the carry a chunk returns has the same types (no second compilation)."""
+    f64 = jnp.float64
+    zero = jnp.zeros((), f64)
+    return (y0, jnp.zeros(n, f64), jnp.zeros((), jnp.int32), jnp.array(jnp.nan, dtype=f64), zero, zero)
+
+
+@functools.lru_cache(maxsize=128)
+def _compiled(in_axes, n_records, save_every, sampled):
+    """(chunk, finish, init) compiled for one structure; in_axes=None for a single run.
+
+    Horizon, dt and the hold period are traced arguments, so a new t_final or dt reuses the
+    compiled program."""
+    chunk = functools.partial(_chunk, n_records=n_records, save_every=save_every, sampled=sampled)
+    finish = functools.partial(_finish, sampled=sampled)
+    init = _init_carry
     if in_axes is not None:
-        fn = jax.vmap(fn, in_axes=in_axes)
-    return jax.jit(fn)
+        p, c, r, lim = in_axes
+        chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None))
+        finish = jax.vmap(finish, in_axes=(p, c, r, lim, 0, None, None, None))
+        init = jax.vmap(_init_carry, in_axes=(0, None))
+    return jax.jit(chunk), jax.jit(finish), jax.jit(init, static_argnums=1)
+
+
+def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold, dt, n_joints,
+           progress=None):
+    """Run the chunks from Python; returns the outputs of :func:`_finish` plus all records."""
+    n_records = n_steps // save_every
+    per_chunk = min(n_records, max(1, CHUNK_STEPS // save_every))
+    chunk, finish, init = _compiled(in_axes, per_chunk, save_every, n_hold > 0)
+    carry = init(y0, n_joints)
+    dt_a = jnp.asarray(dt, dtype=float)
+    n_steps_a = jnp.asarray(n_steps, dtype=jnp.int64)
+    hold_a = jnp.asarray(max(n_hold, 1), dtype=jnp.int64)
+    pieces = []
+    n_chunks = -(-n_records // per_chunk)
+    for c in range(n_chunks):
+        k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)
+        carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, n_steps_a, dt_a, hold_a)
+        pieces.append(rec)
+        if progress is not None:
+            jax.block_until_ready(rec)
+            progress(min((c + 1) * per_chunk, n_records) * save_every, n_steps)
+    axis = 0 if in_axes is None else 1
+    rec = {k: np.concatenate([np.asarray(p[k]) for p in pieces], axis=axis) for k in pieces[0]}
+    rec = {k: (v[:n_records] if axis == 0 else v[:, :n_records]) for k, v in rec.items()}
+    aux_end, status, t_fail, details, final = finish(plant, ctrl, ref, limits, carry, n_steps_a, dt_a, hold_a)
+    rec = {k: np.concatenate([v, np.expand_dims(np.asarray(aux_end[k]), axis)], axis=axis)
+           for k, v in rec.items()}
+    return rec, status, t_fail, details, final
 
 
 def _steps(t_final, dt, save_every, control_period):
@@ -167,7 +224,7 @@ def _steps(t_final, dt, save_every, control_period):
         if n_hold < 1 or abs(n_hold * dt - control_period) > 1e-9 * control_period:
             raise ConfigError(f"control period {control_period:g} must be a whole multiple of dt = {dt:g}",
                               key="simulation.control_period")
-    return n_steps // save_every, n_hold
+    return n_steps, n_hold
 
 
 def initial_state(plant, ctrl, *, u1_0=1.6902, q0=None, qd0=None, xc0=None) -> SimState:
@@ -203,19 +260,22 @@ def _to_numpy(rec, status, t_fail, details, final, *, config, dt, save_every) ->
 def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float = 1e-4,
              u1_0: float = 1.6902, q0=None, qd0=None, xc0=None, save_every: int = 1,
              control_period: float | None = None, limits: Limits | None = None,
-             config: dict | None = None, raise_on_failure: bool = True) -> Trajectory:
+             config: dict | None = None, raise_on_failure: bool = True, progress=None) -> Trajectory:
     """Simulate one closed-loop run; returns a :class:`Trajectory` sampled every ``save_every``
     steps (t = 0, …, t_final).
 
     Raises :class:`~hinfnn.errors.SimulationError` with the time and the offending quantities
     if the state becomes non-finite or a limit is passed (unless ``raise_on_failure=False``;
     the trajectory is then frozen at its last good state from the failing step on).
+    ``progress(steps_done, steps_total)``, if given, is called after each compiled chunk of
+    :data:`CHUNK_STEPS` steps.
     """
-    n_records, n_hold = _steps(t_final, dt, save_every, control_period)
+    n_steps, n_hold = _steps(t_final, dt, save_every, control_period)
     y0 = initial_state(plant, controller, u1_0=u1_0, q0=q0, qd0=qd0, xc0=xc0)
     check_start(controller, y0)
-    run = _compiled(None, n_records, save_every, n_hold, float(dt))
-    out = run(plant, controller, reference, y0, limits or Limits())
+    out = _drive(plant, controller, reference, limits or Limits(), y0, None, n_steps=n_steps,
+                 save_every=save_every, n_hold=n_hold, dt=float(dt), n_joints=plant.arm.n,
+                 progress=progress)
     traj = _to_numpy(*out, config=config, dt=dt, save_every=save_every)
     if raise_on_failure and int(traj.status) != 0:
         raise failure_error(traj)
@@ -247,13 +307,13 @@ def stack(items):
 
 def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt: float = 1e-4,
                    u1_0=1.6902, q0=None, save_every: int = 1, control_period: float | None = None,
-                   limits=None, configs: list | None = None) -> Trajectory:
+                   limits=None, configs: list | None = None, progress=None) -> Trajectory:
     """Simulate B runs as ONE program (``jax.vmap`` of :func:`simulate`'s run).
 
     ``plants``, ``controllers``, ``references`` (and ``limits``): each either a list of B objects
     (stacked along a new axis) or a single object shared by every member. ``u1_0``/``q0`` may be
     lists too. Members that fail are marked in ``status``/``t_fail`` and do not stop the others;
-    nothing is raised for them.
+    nothing is raised for them. ``progress`` as for :func:`simulate`.
     """
     listed = [x for x in (plants, controllers, references, limits) if isinstance(x, (list, tuple))]
     if not listed:
@@ -272,7 +332,7 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
            for i in range(B)]
     for i in range(B):
         check_start(member(controllers, i), y0s[i])
-    n_records, n_hold = _steps(t_final, dt, save_every, control_period)
+    n_steps, n_hold = _steps(t_final, dt, save_every, control_period)
     args, axes = [], []
     for x in (plants, controllers, references, limits or Limits()):
         if isinstance(x, (list, tuple)):
@@ -281,9 +341,7 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
         else:
             args.append(x)
             axes.append(None)
-    args.insert(3, stack(y0s))
-    axes.insert(3, 0)
-    run = _compiled(tuple(axes), n_records, save_every, n_hold, float(dt))
-    out = run(*args)
+    out = _drive(*args, stack(y0s), tuple(axes), n_steps=n_steps, save_every=save_every, n_hold=n_hold,
+                 dt=float(dt), n_joints=member(plants, 0).arm.n, progress=progress)
     return _to_numpy(*out, config={"members": list(configs)} if configs else {}, dt=dt,
                      save_every=save_every)

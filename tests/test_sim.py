@@ -1,0 +1,116 @@
+"""Simulator: RK4 order, dt sensitivity, vmap batches, divergence handling, sampled control."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import hinfnn as H
+from conftest import make_plant
+
+
+def _preloaded_q0(plant, depth=5e-4):
+    """Start 0.5 mm inside the surface so the contact force is positive (and smooth) throughout."""
+    q0 = plant.initial_q(1.6902)
+    x = plant.arm.h(q0)
+    return plant.arm.inverse_kinematics_closed(x + depth * plant.surface.inward_normal(x))
+
+
+@pytest.mark.parametrize("kind", ["hinf", "hinf_nn"])
+def test_rk4_convergence_order_is_four(kind, true_arm, true_surface, nominal_arm, nominal_surface, reference):
+    """Smooth scenario (damped contact kept closed, no disturbance): the end-state error against a
+    dt = 1e-5 run falls as dt⁴."""
+    plant = make_plant(true_arm, true_surface, damping=200.0, disturbance=False)
+    ctrl = (H.HinfController if kind == "hinf" else H.HinfNNController).design(nominal_arm, nominal_surface)
+    q0 = _preloaded_q0(plant)
+    T = 0.5
+    fine = H.simulate(plant, ctrl, reference, t_final=T, dt=1e-5, q0=q0, save_every=50)
+    assert fine.normal_force.min() > 0  # contact never opens: the right-hand side is smooth
+    dts = np.array([8e-4, 4e-4, 2e-4])
+    errs = []
+    for dt in dts:
+        tr = H.simulate(plant, ctrl, reference, t_final=T, dt=dt, q0=q0)
+        errs.append(np.abs(tr.final["q"] - fine.final["q"]).max() + np.abs(tr.final["qd"] - fine.final["qd"]).max())
+    order = np.polyfit(np.log(dts), np.log(errs), 1)[0]
+    assert 3.6 < order < 4.4, (errs, order)
+
+
+@pytest.mark.slow
+def test_halving_dt_changes_J10_of_paper_hinf_run_by_under_0_1_percent(paper_plant, nominal_arm,
+                                                                         nominal_surface, reference):
+    ctrl = H.HinfController.design(nominal_arm, nominal_surface)
+    J = [H.simulate(paper_plant, ctrl, reference, t_final=10.0, dt=dt, save_every=s).J[-1]
+         for dt, s in ((1e-4, 100), (5e-5, 200))]
+    assert abs(J[1] - J[0]) / J[0] < 1e-3, J
+
+
+def _member_params(i):
+    rng = np.random.default_rng(100 + i)
+    arm = H.TwoLinkArm(m1=1.2 * rng.uniform(0.8, 1.2), m2=1.1 * rng.uniform(0.8, 1.2),
+                       l1=1.02724 * rng.uniform(0.98, 1.02), l2=0.98041 * rng.uniform(0.98, 1.02))
+    surface = H.InclinedLine(delta=np.deg2rad(45.5 + rng.uniform(-1, 1)), d_G=0.8)
+    plant = H.Plant(arm, surface, H.PenaltyContact(1e5 * rng.uniform(0.5, 2), 200 * rng.uniform(0.5, 2)),
+                    H.SquareWave(amplitude=np.full(2, rng.uniform(0, 4)), period=1.0, phase=0.0))
+    gains = H.Gains(K_p=18 * rng.uniform(0.7, 1.3), K_v=9 * rng.uniform(0.7, 1.3))
+    return plant, gains
+
+
+def test_batch_of_8_under_vmap_equals_8_single_runs(nominal_arm, nominal_surface, reference):
+    members = [_member_params(i) for i in range(8)]
+    plants = [p for p, _ in members]
+    ctrls = [H.HinfNNController.design(nominal_arm, nominal_surface, g) for _, g in members]
+    batch = H.simulate_batch(plants, ctrls, reference, t_final=0.5, dt=1e-4, save_every=10)
+    assert batch.batched and batch.batch_size == 8
+    for i in range(8):
+        single = H.simulate(plants[i], ctrls[i], reference, t_final=0.5, dt=1e-4, save_every=10)
+        b = batch.member(i)
+        for name in ("q", "qd", "tau", "lam", "z", "J", "theta_f_norm", "V", "supply"):
+            np.testing.assert_allclose(b.arrays[name], single.arrays[name], rtol=1e-9, atol=1e-11,
+                                       err_msg=f"member {i}: {name}")
+    # and the members really differ
+    assert np.ptp([batch.member(i).J[-1] for i in range(8)]) > 1e-3
+
+
+def test_absurd_gain_raises_simulation_error_with_time(paper_plant, nominal_arm, nominal_surface, reference):
+    ctrl = H.HinfController.design(nominal_arm, nominal_surface, H.Gains(K_p=1e7, K_v=1e3))
+    with pytest.raises(H.SimulationError) as err:
+        H.simulate(paper_plant, ctrl, reference, t_final=0.5, dt=1e-4)
+    assert err.value.t_fail is not None and 0 <= err.value.t_fail < 0.5
+    assert "t =" in str(err.value)
+
+
+def test_batch_with_one_diverging_member_finishes_and_marks_only_it(paper_plant, nominal_arm,
+                                                                     nominal_surface, reference):
+    gains = [H.Gains(), H.Gains(K_p=1e7, K_v=1e3), H.Gains(K_p=20.0)]
+    ctrls = [H.HinfController.design(nominal_arm, nominal_surface, g) for g in gains]
+    tr = H.simulate_batch(paper_plant, ctrls, reference, t_final=0.3, dt=1e-4, save_every=10)
+    assert list(tr.status != 0) == [False, True, False]
+    assert np.isfinite(tr.t_fail[1]) and np.all(np.isnan(tr.t_fail[[0, 2]]))
+    ok = H.simulate(paper_plant, ctrls[0], reference, t_final=0.3, dt=1e-4, save_every=10)
+    np.testing.assert_allclose(tr.member(0).q, ok.q, rtol=1e-9)
+    assert np.all(np.isfinite(tr.member(1).q))  # frozen at its last good state
+
+
+def test_penetration_limit_stops_a_run(paper_plant, nominal_arm, nominal_surface, reference):
+    ctrl = H.HinfController.design(nominal_arm, nominal_surface)
+    tr = H.simulate(paper_plant, ctrl, reference, t_final=0.2, dt=1e-4,
+                    limits=H.Limits(torque=1e5, penetration=1e-4), raise_on_failure=False)
+    assert int(tr.status) == 3 and 0 < float(tr.t_fail) < 0.2
+
+
+def test_sampled_control_at_high_rate_approaches_continuous(true_arm, true_surface, nominal_arm,
+                                                          nominal_surface, reference):
+    """Zero-order hold at 10 kHz (every step) vs 1 kHz vs continuous, damped contact."""
+    plant = make_plant(true_arm, true_surface, damping=200.0)
+    ctrl = H.HinfController.design(nominal_arm, nominal_surface)
+    cont = H.simulate(plant, ctrl, reference, t_final=2.0, dt=1e-4, save_every=10)
+    fast = H.simulate(plant, ctrl, reference, t_final=2.0, dt=1e-4, save_every=10, control_period=1e-4)
+    slow = H.simulate(plant, ctrl, reference, t_final=2.0, dt=1e-4, save_every=10, control_period=1e-3)
+    err_fast = np.abs(fast.e_u1 - cont.e_u1).max()
+    err_slow = np.abs(slow.e_u1 - cont.e_u1).max()
+    assert err_fast < 1e-3 and err_fast < err_slow
+    # the held torque is piecewise constant over each 1 ms (10-step) period
+    short = H.simulate(plant, ctrl, reference, t_final=0.05, dt=1e-4, control_period=1e-3)
+    blocks = short.tau[:-1].reshape(-1, 10, 2)
+    np.testing.assert_array_equal(blocks, np.repeat(blocks[:, :1], 10, axis=1))
+    assert np.abs(np.diff(blocks[:, 0], axis=0)).max() > 0
