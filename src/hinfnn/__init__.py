@@ -19,6 +19,9 @@ from .model import ImplicitSurface, InclinedLine, PlanarPointMassArm, TwoLinkArm
 from .plant import PenaltyContact, Plant, SquareWave
 from .reference import CosineReference
 from .sim import Limits, Trajectory, simulate, simulate_batch
+from .metrics import compute_metrics
+from .scenario import Scenario, load_scenario
+from .io import LoadError, load
 
 __version__ = "0.1.0"
 
@@ -27,5 +30,6 @@ __all__ = [
     "ConfigError", "DesignError", "SimulationError", "HinfnnError",
     "Measurement", "TwoLinkArm", "PlanarPointMassArm", "InclinedLine", "ImplicitSurface",
     "reduced_model", "Plant", "PenaltyContact", "SquareWave", "CosineReference",
-    "simulate", "simulate_batch", "Limits", "Trajectory", "__version__",
+    "simulate", "simulate_batch", "Limits", "Trajectory", "compute_metrics", "Scenario",
+    "load_scenario", "load", "LoadError", "__version__",
 ]

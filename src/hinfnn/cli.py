@@ -1,0 +1,288 @@
+"""The ``hinfnn`` command: argument parsing and printing only; the work is in the library.
+
+Exit codes: 0 success; 2 user error (bad scenario, bad override, infeasible design, unreadable
+result) with a one-line message; 1 anything else (including a run that diverged); 130 when
+interrupted. ``--debug`` shows tracebacks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+EXAMPLES_RUN = """examples:
+  hinfnn run paper
+  hinfnn run paper --set controller.kind=hinf --set plant.contact.damping=200
+  hinfnn run paper --set 'controller.kind=["fl", "hinf", "hinf_nn"]' --out results/three
+  hinfnn run my_scenario.toml --set simulation.t_final=2 --force
+"""
+EXAMPLES_REPRODUCE = """examples:
+  hinfnn reproduce                       # writes results/paper/ (report.md, figures, metrics.json)
+  hinfnn reproduce --out /tmp/study --force
+  hinfnn reproduce --set simulation.t_final=2   # a quick look (claims are judged on whatever ran)
+"""
+EXAMPLES_MAIN = """examples:
+  hinfnn reproduce                 the paper's Sec. VI study into results/paper/
+  hinfnn run paper --set controller.kind=hinf --set plant.contact.damping=200
+  hinfnn keys                      every scenario key, its meaning and allowed values
+  hinfnn show results/paper        the metrics of a saved result
+
+Exit codes: 0 ok, 2 bad input (scenario, override, infeasible gains), 1 other failures, 130 interrupted.
+"""
+
+
+def _parser() -> argparse.ArgumentParser:
+    from . import __version__
+
+    fmt = argparse.RawDescriptionHelpFormatter
+    p = argparse.ArgumentParser(
+        prog="hinfnn", formatter_class=fmt, epilog=EXAMPLES_MAIN,
+        description="Robust position/force learning control of constrained manipulators "
+                    "(Hwang & Hu: nonlinear H-infinity control with online neural networks).")
+    p.add_argument("--version", action="version", version=f"hinfnn {__version__}")
+    p.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    def common(sp):
+        sp.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a scenario value (repeatable); VALUE is read as TOML, bare words "
+                             "as strings; see `hinfnn keys`")
+        sp.add_argument("--force", action="store_true",
+                        help="replace a non-empty output folder (default: write to OUT-2, OUT-3, ...)")
+        sp.add_argument("--quiet", action="store_true", help="no progress or tables, only errors")
+        sp.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show full tracebacks on errors")
+
+    r = sub.add_parser(
+        "run", formatter_class=fmt, epilog=EXAMPLES_RUN,
+        help="simulate one scenario (one run per listed controller)",
+        description="Simulate SCENARIO (a shipped name such as 'paper', or a .toml file) and write "
+                    "OUT/metrics.json, OUT/trajectory.npz, OUT/scenario.toml and figures. Several "
+                    "controllers (controller.kind = [...]) give one run each.")
+    r.add_argument("scenario", help="shipped scenario name (see `hinfnn scenarios`) or path to a .toml file")
+    r.add_argument("--out", type=Path, default=None, help="output folder (default: results/<scenario name>)")
+    common(r)
+
+    rp = sub.add_parser(
+        "reproduce", formatter_class=fmt, epilog=EXAMPLES_REPRODUCE,
+        help="reproduce the paper's Sec. VI study: figures, metrics, claims, report",
+        description="Run FL-like, H-infinity-only and adaptive H-infinity NN (both F_f centre presets) "
+                    "on the paper scenario, with the paper's undamped contact and with a damped one, "
+                    "and write OUT/report.md, fig3..fig9 PNGs, metrics.json, trajectory.npz, scenario.toml.")
+    rp.add_argument("--out", type=Path, default=Path("results/paper"), help="output folder (default: results/paper)")
+    rp.add_argument("--scenario", default="paper", help="base scenario (default: paper)")
+    common(rp)
+
+    k = sub.add_parser("keys", formatter_class=fmt, help="list every scenario key with its meaning and range",
+                       description="Every key a scenario file or --set accepts.",
+                       epilog="example:\n  hinfnn keys | grep contact\n")
+    k.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    s = sub.add_parser("scenarios", formatter_class=fmt, help="list the shipped scenarios",
+                       description="The scenarios shipped with hinfnn (usable by name).",
+                       epilog="example:\n  hinfnn scenarios\n")
+    s.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    sh = sub.add_parser("show", formatter_class=fmt, help="print the metrics table of a saved result",
+                        description="Load a result folder written by `hinfnn run` or `reproduce` and print "
+                                    "its metrics.", epilog="example:\n  hinfnn show results/paper\n")
+    sh.add_argument("folder", type=Path)
+    sh.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    return p
+
+
+# --- printing -----------------------------------------------------------------------------------
+
+
+class Progress:
+    """A one-line progress display on stderr, shown only for runs longer than a few seconds."""
+
+    def __init__(self, quiet: bool, label: str):
+        self.quiet = quiet
+        self.label = label
+        self.t0 = time.perf_counter()
+        self.shown = False
+        self.tty = sys.stderr.isatty()
+        self.last = 0.0
+
+    def __call__(self, done: int, total: int, names=None):
+        if self.quiet:
+            return
+        now = time.perf_counter()
+        elapsed = now - self.t0
+        if elapsed < 3.0 or (now - self.last < (0.5 if self.tty else 10.0) and done < total):
+            return
+        self.last = now
+        frac = done / max(total, 1)
+        msg = f"{self.label}: {100 * frac:5.1f} %  ({elapsed:.0f} s)"
+        if names:
+            msg += f"  [{', '.join(names)}]"
+        if self.tty:
+            sys.stderr.write("\r" + msg[:120].ljust(120))
+        else:
+            sys.stderr.write(msg + "\n")
+        sys.stderr.flush()
+        self.shown = True
+
+    def done(self):
+        if self.shown and self.tty and not self.quiet:
+            sys.stderr.write("\n")
+
+
+def _num(x, w=10) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "n/a".rjust(w)
+    ax = abs(x)
+    s = f"{x:.3e}" if ax != 0 and (ax < 1e-3 or ax >= 1e5) else f"{x:.4g}"
+    return s.rjust(w)
+
+
+def metrics_table(runs: list[dict]) -> str:
+    """A short terminal table from metrics.json's "runs" entries."""
+    head = (f"{'run':<24}{'status':>9}{'RMS e_u1':>10}{'last 2s':>10}{'RMS e_λ':>10}{'last 2s':>10}"
+            f"{'J(T)':>10}{'peak τ1':>10}{'peak τ2':>10}{'no contact':>11}{'dissip.':>8}")
+    lines = [head, "-" * len(head)]
+    for r in runs:
+        m = r["metrics"]
+        status = r.get("status", "ok")
+        if status != "ok":
+            status = f"t={r['t_fail']:.3g}"
+        holds = m.get("dissipation_holds_for_all_t")
+        frac = m.get("fraction_out_of_contact")
+        lines.append(
+            f"{r['name'][:23]:<24}{status:>9}{_num(m['rms_e_u1'])}{_num(m['rms_e_u1_last2s'])}"
+            f"{_num(m['rms_e_lam'])}{_num(m['rms_e_lam_last2s'])}{_num(m['J_T'])}"
+            f"{_num(m['peak_abs_tau'][0])}{_num(m['peak_abs_tau'][1])}"
+            f"{(f'{100 * frac:.1f} %' if frac is not None and math.isfinite(frac) else 'n/a'):>11}"
+            f"{('n/a' if holds is None else ('yes' if holds else 'NO')):>8}")
+    return "\n".join(lines)
+
+
+# --- commands -----------------------------------------------------------------------------------
+
+
+def cmd_run(args) -> int:
+    from .io import OutputFolder, atomic_write_bytes, atomic_write_text, choose_output, dumps_json, \
+        trajectory_npz_bytes
+    from .metrics import compute_metrics
+    from .report import run_figures
+    from .scenario import Scenario, simulate_many
+    from .study import metrics_document
+
+    sc = Scenario.load(args.scenario, args.overrides)
+    out = args.out or Path("results") / sc.name
+    target, note = choose_output(out, args.force)
+    if note and not args.quiet:
+        print(note, file=sys.stderr)
+    kinds = sc.kinds
+    progress = Progress(args.quiet, f"simulating {', '.join(kinds)}")
+    with OutputFolder(target) as folder:
+        trajs = simulate_many([(k, sc, k) for k in kinds], progress=progress)
+        progress.done()
+        entries = []
+        for kind in kinds:
+            m = compute_metrics(trajs[kind])
+            entries.append((kind, kind, dict(o.split("=", 1) for o in sc.overrides), m, trajs[kind]))
+        doc = metrics_document(sc, entries)
+        atomic_write_text(folder.path / "metrics.json", dumps_json(doc))
+        atomic_write_bytes(folder.path / "trajectory.npz",
+                           trajectory_npz_bytes(trajs, sc.data["simulation"]["output_interval"]))
+        atomic_write_text(folder.path / "scenario.toml", sc.to_toml())
+        run_figures(trajs, folder.path)
+    if not args.quiet:
+        print(metrics_table(doc["runs"]))
+        print(f"results: {target}/ (metrics.json, trajectory.npz, scenario.toml, *.png)")
+    failed = [r for r in doc["runs"] if r["status"] != "ok"]
+    for r in failed:
+        print(f"hinfnn: run {r['name']!r} diverged at t = {r['t_fail']:.6g} s ({r['reason']}); "
+              f"its metrics are null in {target}/metrics.json", file=sys.stderr)
+    return 1 if failed else 0
+
+
+def cmd_reproduce(args) -> int:
+    from .scenario import Scenario
+    from .study import reproduce
+
+    base = Scenario.load(args.scenario, args.overrides)
+    progress = Progress(args.quiet, "reproducing the paper study")
+    t0 = time.perf_counter()
+    target = reproduce(args.out, base=base, force=args.force, progress=progress,
+                       log=(lambda *a: None) if args.quiet else (lambda m: print(m, file=sys.stderr)))
+    progress.done()
+    if not args.quiet:
+        import json
+
+        doc = json.loads((target / "metrics.json").read_text())
+        print(metrics_table(doc["runs"]))
+        print(f"report: {target}/report.md  ({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+def cmd_keys(args) -> int:
+    from .scenario import SCHEMA, _walk
+
+    for key, f in _walk(SCHEMA):
+        print(f"{key:<40} {f.doc}  [{f.allowed()}]")
+    return 0
+
+
+def cmd_scenarios(args) -> int:
+    from .scenario import Scenario, scenario_names
+
+    for name in scenario_names():
+        sc = Scenario.load(name, check=False)
+        print(f"{name:<16} {sc.data.get('description', '')}")
+    return 0
+
+
+def cmd_show(args) -> int:
+    from .io import load
+
+    res = load(args.folder)
+    if res.metrics is None:
+        print(f"{args.folder}: no metrics.json", file=sys.stderr)
+        return 2
+    print(metrics_table(res.metrics["runs"]))
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "keys": cmd_keys, "scenarios": cmd_scenarios,
+            "show": cmd_show}
+
+
+def main(argv=None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    from .errors import ConfigError, DesignError
+    from .io import LoadError
+
+    try:
+        return COMMANDS[args.command](args)
+    except (ConfigError, DesignError, LoadError) as err:
+        if getattr(args, "debug", False):
+            raise
+        kind = type(err).__name__
+        print(f"hinfnn: {kind}: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("hinfnn: interrupted; no output was written", file=sys.stderr)
+        return 130
+    except BaseException as err:  # noqa: BLE001 - the CLI's last line of defence
+        if isinstance(err, SystemExit):
+            raise
+        if getattr(args, "debug", False) or type(err).__name__ == "_Interrupted":
+            if type(err).__name__ == "_Interrupted":
+                print("hinfnn: terminated; no output was written", file=sys.stderr)
+                return 143
+            raise
+        print(f"hinfnn: error: {type(err).__name__}: {err} (run with --debug for the traceback)",
+              file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
