@@ -569,19 +569,19 @@ class Scenario:
         s = self.data["simulation"]
         dt, t_final = s["dt"], s["t_final"]
         _require_multiple("simulation.t_final", t_final, dt,
-                          f"= {t_final:g} must be a whole number of steps dt = {dt:g}")
+                          f"{t_final:g} s is not a whole number of steps dt = {dt:g} s")
         d = self.data["plant"]["disturbance"]
         if any(a != 0.0 for a in d["amplitude"]):
             half = 0.5 * d["period"]
             _require_multiple("simulation.dt", half, dt,
-                              f"= {dt:g} must divide the disturbance's half-period {half:g} s, so that "
-                              "steps land on its switching instants")
+                              f"{dt:g} s does not divide the disturbance's half-period {half:g} s; steps must "
+                              "land on its switching instants")
             _require_multiple("plant.disturbance.phase", d["phase"] % half, dt,
-                              f"= {d['phase']:g} (modulo the half-period {half:g} s) must be a multiple "
-                              f"of dt = {dt:g}, so that steps land on the switching instants")
+                              f"{d['phase']:g} s (modulo the half-period {half:g} s) is not a multiple of "
+                              f"dt = {dt:g} s; steps must land on the switching instants")
         if s["control"] == "sampled":
             _require_multiple("simulation.control_period", s["control_period"], dt,
-                              f"= {s['control_period']:g} must be a whole multiple of dt = {dt:g}")
+                              f"{s['control_period']:g} s is not a whole multiple of dt = {dt:g} s")
         if s["output_interval"] < dt:
             raise ConfigError(f"must be >= dt = {dt:g}, got {s['output_interval']:g}",
                               key="simulation.output_interval")
@@ -701,7 +701,7 @@ def _normalise_presets(data: dict, explicit: set) -> None:
     values = dict(zip(("centre_start", "centre_step", "centre_count"), PRESETS_F[preset]))
     for key, value in values.items():
         if key in explicit and not math.isclose(nf[key], value, rel_tol=1e-12, abs_tol=1e-12):
-            raise ConfigError(f"= {nf[key]:g} conflicts with preset {preset!r} ({key} = {value:g}); "
+            raise ConfigError(f"{nf[key]:g} conflicts with preset {preset!r} ({key} = {value:g}); "
                               "set controller.network_f.preset = \"custom\" to choose the centres",
                               key=f"controller.network_f.{key}")
         nf[key] = int(value) if key == "centre_count" else float(value)

@@ -1,0 +1,192 @@
+"""The command line: files written, JSON schema, PNGs, overrides, exit codes, help texts."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+
+import matplotlib.image
+import numpy as np
+import pytest
+
+import hinfnn as H
+from hinfnn import cli
+from hinfnn.scenario import SCHEMA, Scenario, _walk
+
+METRIC_KEYS = {"rms_e_u1", "max_abs_e_u1", "rms_e_u1_last2s", "rms_e_lam", "max_abs_e_lam",
+               "rms_e_lam_last2s", "J_T", "peak_abs_tau", "rms_tau_last2s", "fraction_out_of_contact",
+               "dissipation_lhs", "dissipation_rhs", "dissipation_holds"}
+PAPER_FIGURES = ["fig3_u1_fl", "fig4_lambda_fl", "fig5_u1", "fig6_lambda", "fig7_tau1", "fig8_tau2", "fig9_J"]
+
+
+def _check_metrics_json(path, names):
+    doc = json.loads(path.read_text())
+    assert set(doc) >= {"scenario", "runs"}
+    assert [r["name"] for r in doc["runs"]] == names
+    for r in doc["runs"]:
+        assert set(r) >= {"name", "controller", "overrides", "metrics", "status", "t_fail"}
+        assert r["controller"] in ("fl", "hinf", "hinf_nn")
+        assert METRIC_KEYS <= set(r["metrics"])
+        assert len(r["metrics"]["peak_abs_tau"]) == 2 and len(r["metrics"]["rms_tau_last2s"]) == 2
+        assert isinstance(r["metrics"]["dissipation_holds"], bool)
+    return doc
+
+
+def _check_png(path):
+    img = matplotlib.image.imread(path)
+    assert img.ndim == 3 and img.shape[0] >= 600 and img.shape[1] >= 1000
+
+
+def test_run_writes_every_file(tmp_path, capsys):
+    out = tmp_path / "r"
+    code = cli.main(["run", "paper", "--set", "simulation.t_final=0.2", "--set",
+                     'controller.kind=["fl", "hinf", "hinf_nn"]', "--out", str(out)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "RMS e_u1" in printed and "hinf_nn" in printed
+    doc = _check_metrics_json(out / "metrics.json", ["fl", "hinf", "hinf_nn"])
+    assert doc["scenario"]["simulation"]["t_final"] == 0.2
+    for name in ("u1", "lambda", "tau", "J", "contact", "weights"):
+        _check_png(out / f"{name}.png")
+    sc = tomllib.loads((out / "scenario.toml").read_text())
+    assert sc["controller"]["kind"] == ["fl", "hinf", "hinf_nn"]
+    res = H.load(out)
+    assert set(res.trajectories) == {"fl", "hinf", "hinf_nn"}
+    tr = res.trajectories["hinf"]
+    assert np.all(np.diff(tr.t) <= 1e-3 + 1e-12)  # decimated to at most 1 ms
+    assert tr.t[-1] == pytest.approx(0.2)
+    assert res.version == H.__version__
+    assert not list(tmp_path.glob(".*"))  # no temporary folders left
+
+
+def test_reproduce_short_horizon_writes_every_file(tmp_path, capsys):
+    out = tmp_path / "paper"
+    assert cli.main(["reproduce", "--set", "simulation.t_final=0.3", "--out", str(out)]) == 0
+    names = ["fl", "hinf", "hinf_nn", "hinf_nn_printed", "hinf_exact"]
+    _check_metrics_json(out / "metrics.json", names + [n + "_damped" for n in names])
+    for stem in PAPER_FIGURES:
+        _check_png(out / f"{stem}.png")
+        _check_png(out / f"{stem}_damped.png")
+    report = (out / "report.md").read_text()
+    for needle in ("## Claims", "held", "NOTES.md", "fig5_u1.png", "### Summary"):
+        assert needle in report
+    assert (out / "scenario.toml").exists() and (out / "trajectory.npz").exists()
+    # writing again without --force picks a new numbered folder and says so
+    assert cli.main(["reproduce", "--set", "simulation.t_final=0.02", "--out", str(out), "--quiet"]) == 0
+    assert (tmp_path / "paper-2" / "report.md").exists()
+
+
+def _alternative(key, field, value):
+    """A different valid-typed value for every kind of key."""
+    if field.type == "float":
+        for cand in (value * 1.1, value * 0.9, value + 0.125, value - 0.125):
+            if cand != value and (field.lo is None or cand > field.lo) and (field.hi is None or cand < field.hi):
+                return cand
+        raise AssertionError(key)
+    if field.type == "int":
+        return value + 1
+    if field.type == "bool":
+        return not value
+    if field.type == "str":
+        if field.choices and len(field.choices) > 1:
+            return next(c for c in field.choices if c != value)
+        return value + "-x" if not field.choices else value
+    if field.type == "float_or_min":
+        return 5.0
+    if field.type == "kinds":
+        return ["fl", "hinf"]
+    if field.type == "float_list":
+        return [v + 0.5 for v in value]
+    if field.type == "matrix":
+        return [[2.0, 0.0], [0.0, 2.0]] if isinstance(value, list) else value * 1.5
+    raise AssertionError(field.type)
+
+
+def test_every_key_can_be_overridden_and_appears_in_scenario_toml():
+    base = Scenario.load("paper", check=False)
+    for key, field in _walk(SCHEMA):
+        value = base.get(key)
+        new = _alternative(key, field, value)
+        if new == value:
+            continue
+        if key == "controller.network_f.preset":
+            sc = Scenario.load("paper", {key: new}, check=False)
+        elif key.startswith("controller.network_f.centre_"):
+            sc = Scenario.load("paper", {"controller.network_f.preset": "custom", key: new}, check=False)
+        else:
+            sc = Scenario.load("paper", {key: new}, check=False)
+        back = Scenario.from_dict(tomllib.loads(sc.to_toml()), check=False)
+        got = back.get(key)
+        if key == "controller.network_f.preset":
+            assert got == new
+        else:
+            assert got == new or (isinstance(new, float) and got == pytest.approx(new)), key
+
+
+def test_every_key_override_through_the_cli_shows_in_scenario_toml(tmp_path):
+    out = tmp_path / "o"
+    code = cli.main(["run", "paper", "--set", "simulation.t_final=0.01", "--set", "controller.kind=hinf",
+                     "--set", "plant.contact.damping=200", "--set", "reference.lam_offset=55",
+                     "--out", str(out), "--quiet"])
+    assert code == 0
+    sc = tomllib.loads((out / "scenario.toml").read_text())
+    assert sc["plant"]["contact"]["damping"] == 200.0 and sc["reference"]["lam_offset"] == 55.0
+    assert sc["controller"]["kind"] == "hinf"
+    doc = json.loads((out / "metrics.json").read_text())
+    assert doc["runs"][0]["overrides"]["plant.contact.damping"] == "200"
+
+
+@pytest.mark.parametrize("override,key,words", [
+    ("plant.contact.dampnig=3", "plant.contact.dampnig", ["unknown key", "plant.contact.damping"]),
+    ("controler.kind=hinf", "controler.kind", ["unknown key", "controller.kind"]),
+    ("plant.arm.m1=heavy", "plant.arm.m1", ["must be"]),
+    ("plant.arm.m1=-1.2", "plant.arm.m1", ["> 0", "-1.2"]),
+    ("simulation.dt=0", "simulation.dt", ["> 0"]),
+    ("simulation.dt=-1e-4", "simulation.dt", ["> 0"]),
+    ("controller.gains.rho=0.1", "controller.gains.rho", ["no stabilising solution", "0.4975"]),
+    ("controller.gains.beta_lam=1.0", "controller.gains.beta_lam", ["below its bound", "1.7777"]),
+    ("controller.kind=hinff", "controller.kind", ["hinf"]),
+    ("simulation.t_final=0.00035", "simulation.t_final", ["whole number of steps"]),
+    ("initial.u1=5", "initial.u1", ["reach"]),
+    ("plant.arm.m1=nan", "plant.arm.m1", ["finite"]),
+])
+def test_bad_input_exits_2_with_one_line_naming_the_key(tmp_path, capsys, override, key, words):
+    code = cli.main(["run", "paper", "--set", override, "--out", str(tmp_path / "x")])
+    if code != 2:
+        raise AssertionError(capsys.readouterr())
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert key in err
+    for w in words:
+        assert w in err
+    assert not (tmp_path / "x").exists()
+
+
+def test_dt_not_dividing_the_disturbance_half_period(tmp_path, capsys):
+    code = cli.main(["run", "paper", "--set", "simulation.dt=3e-4", "--set", "simulation.t_final=0.3",
+                     "--out", str(tmp_path / "x")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "simulation.dt" in err and "half-period 0.5 s" in err
+
+
+def test_missing_file_and_bad_toml_exit_2(tmp_path, capsys):
+    assert cli.main(["run", str(tmp_path / "nope.toml")]) == 2
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[plant\nm1 = 1")
+    assert cli.main(["run", str(bad)]) == 2
+    assert "not valid TOML" in capsys.readouterr().err
+
+
+def test_help_texts_are_complete(capsys):
+    for argv in (["--help"], ["run", "--help"], ["reproduce", "--help"], ["keys", "--help"],
+                 ["scenarios", "--help"], ["show", "--help"]):
+        with pytest.raises(SystemExit) as ex:
+            cli.main(argv)
+        assert ex.value.code == 0
+        text = capsys.readouterr().out
+        assert "example" in text, argv
+    assert cli.main(["keys"]) == 0
+    keys = capsys.readouterr().out
+    assert "plant.contact.damping" in keys and "controller.gains.beta_lam" in keys
