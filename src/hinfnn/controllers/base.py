@@ -115,6 +115,23 @@ class ReducedOrderController:
             theta_f=zeros(n_f) if theta_f is None else jnp.asarray(theta_f, float).reshape(n_f),
         )
 
+    def constrain(self, xc: ControllerState) -> ControllerState:
+        """Applied by the simulator after each integration step: with Remark 2's projection, put
+        Θ̂ back on the ball ‖Θ̂‖ ≤ d if the step overshot it. The projected flow is tangent to the
+        sphere, but its switch at ‖Θ̂‖ = d lets a fixed RK4 step cross by O(dt); the radial clip
+        makes the guarantee ‖Θ̂(t)‖ ≤ d hold exactly (it only shrinks V). Identity otherwise."""
+        if not self.learning:
+            return xc
+
+        def clip(net, theta):
+            if not net.project:
+                return theta
+            norm = jnp.sqrt(jnp.dot(theta, theta))
+            return theta * jnp.minimum(1.0, net.radius / jnp.maximum(norm, 1e-300))
+
+        return ControllerState(z=xc.z, theta_p=clip(self.network_p, xc.theta_p),
+                               theta_f=clip(self.network_f, xc.theta_f))
+
     # --- the control law ---------------------------------------------------------------------
     def step_terms(self, t, xc: ControllerState, meas, ref):
         """Torque, state derivative and signals at one instant. Implements Eqs. (24)–(33), (41), (51).

@@ -110,9 +110,11 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
             is_sample = (jnp.mod(k, n_hold) == 0) & active & (status == 0)
             held = jnp.where(is_sample, tau_s, held)
             xc = jax.tree.map(lambda a, d: jnp.where(is_sample, a + (n_hold * dt) * d, a), y.xc, dxc_s)
+            xc = ctrl.constrain(xc)
             y = SimState(q=y.q, qd=y.qd, xc=xc, acc=y.acc)
         w = plant.disturbance(t + 0.5 * dt)
         y_new, aux = rk4_step(lambda tt, yy: f(tt, yy, w, held if sampled else None), t, y, dt)
+        y_new = SimState(q=y_new.q, qd=y_new.qd, xc=ctrl.constrain(y_new.xc), acc=y_new.acc)
         tau_peak = jnp.max(jnp.abs(aux["tau"]))
         pen = aux["penetration"]
         code = jnp.where(~_all_finite(y_new), 1,
