@@ -190,3 +190,13 @@ def test_help_texts_are_complete(capsys):
     assert cli.main(["keys"]) == 0
     keys = capsys.readouterr().out
     assert "plant.contact.damping" in keys and "controller.gains.beta_lam" in keys
+
+
+def test_docs_scenario_table_is_current():
+    """docs/scenarios.md lists exactly the schema's keys (regenerate with hinfnn.scenario.schema_table)."""
+    from pathlib import Path
+
+    from hinfnn.scenario import schema_table
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "scenarios.md").read_text()
+    assert schema_table() in doc

@@ -732,8 +732,8 @@ def simulate_many(runs, *, progress=None):
     that shares a compiled program (same controller structure and simulation settings).
 
     Returns ``{name: Trajectory}`` in the order given. Runs that diverge are marked in their
-    Trajectory's ``status``; they never stop the others. ``progress(done, total, names)`` is
-    called after each group.
+    Trajectory's ``status``; they never stop the others. ``progress(steps_done, steps_total,
+    names)`` is called after every compiled chunk (steps summed over all runs).
     """
     import jax
 
@@ -752,17 +752,23 @@ def simulate_many(runs, *, progress=None):
     for item in built:
         groups.setdefault(item[-1], []).append(item)
     out = {}
-    done = 0
+    total = sum(round(i[5]["t_final"] / i[5]["dt"]) for i in built)
+    finished = 0
     for items in groups.values():
         opts = items[0][5]
+        names = [i[0] for i in items]
+        steps = round(opts["t_final"] / opts["dt"])
+
+        def report(done, _total, names=names, base=finished, width=len(items)):
+            if progress:
+                progress(base + done * width, total, names)
+
         traj = simulate_batch([i[2] for i in items], [i[3] for i in items], [i[4] for i in items],
                               q0=[i[5]["q0"] for i in items], t_final=opts["t_final"], dt=opts["dt"],
                               control_period=opts["control_period"],
                               limits=[i[5]["limits"] for i in items],
-                              configs=[i[1].data for i in items])
+                              configs=[i[1].data for i in items], progress=report if progress else None)
         for j, item in enumerate(items):
             out[item[0]] = traj.member(j)
-        done += len(items)
-        if progress:
-            progress(done, len(built), [i[0] for i in items])
+        finished += steps * len(items)
     return {name: out[name] for name, *_ in runs}
