@@ -133,7 +133,7 @@ def test_every_key_override_through_the_cli_shows_in_scenario_toml(tmp_path):
     assert sc["plant"]["contact"]["damping"] == 200.0 and sc["reference"]["lam_offset"] == 55.0
     assert sc["controller"]["kind"] == "hinf"
     doc = json.loads((out / "metrics.json").read_text())
-    assert doc["runs"][0]["overrides"]["plant.contact.damping"] == "200"
+    assert doc["runs"][0]["overrides"]["plant.contact.damping"] == 200
 
 
 @pytest.mark.parametrize("override,key,words", [

@@ -183,7 +183,7 @@ def cmd_run(args) -> int:
         entries = []
         for kind in kinds:
             m = compute_metrics(trajs[kind])
-            entries.append((kind, kind, dict(o.split("=", 1) for o in sc.overrides), m, trajs[kind]))
+            entries.append((kind, kind, dict(sc.overrides), m, trajs[kind]))
         doc = metrics_document(sc, entries)
         atomic_write_text(folder.path / "metrics.json", dumps_json(doc))
         atomic_write_bytes(folder.path / "trajectory.npz",

@@ -397,7 +397,7 @@ class Scenario:
 
     data: dict
     source: str = "<dict>"
-    overrides: tuple = ()
+    overrides: tuple = ()  # ((dotted key, value), ...) applied on top of the source, in order
 
     # --- construction --------------------------------------------------------------------------
     @classmethod
@@ -436,14 +436,15 @@ class Scenario:
             set_key(data, key, value)
         data = validate(data)
         _normalise_presets(data, explicit=_preset_keys(raw, items))
-        sc = cls(data=data, source=source, overrides=tuple(f"{k}={_fmt(v)}" for k, v in items))
+        sc = cls(data=data, source=source, overrides=tuple((k, v) for k, v in items))
         if check:
             sc.check()
         return sc
 
     def with_overrides(self, overrides) -> "Scenario":
-        """A new scenario with more overrides applied."""
-        return Scenario.from_dict(self.data, overrides, source=self.source)
+        """A new scenario with more overrides applied (``overrides`` lists all of them)."""
+        new = Scenario.from_dict(self.data, overrides, source=self.source)
+        return dataclasses.replace(new, overrides=self.overrides + new.overrides)
 
     def to_toml(self) -> str:
         """The resolved scenario as TOML text (loads back to the same scenario)."""
@@ -650,12 +651,6 @@ def _only(kinds):
         raise ConfigError(f"the scenario lists {len(kinds)} controllers {kinds}; name one",
                           key="controller.kind")
     return kinds[0]
-
-
-def _fmt(v) -> str:
-    if isinstance(v, str):
-        return v
-    return _to_toml({"v": v})[4:].strip()
 
 
 def _require_multiple(key, value, step, message):
