@@ -173,7 +173,7 @@ def cmd_run(args) -> int:
     sc = Scenario.load(args.scenario, args.overrides)
     out = args.out or Path("results") / sc.name
     target, note = choose_output(out, args.force)
-    if note and not args.quiet:
+    if note:  # even with --quiet: the result is not where the user asked
         print(note, file=sys.stderr)
     kinds = sc.kinds
     progress = Progress(args.quiet, f"simulating {', '.join(kinds)}")
@@ -208,7 +208,7 @@ def cmd_reproduce(args) -> int:
     progress = Progress(args.quiet, "reproducing the paper study")
     t0 = time.perf_counter()
     target = reproduce(args.out, base=base, force=args.force, progress=progress,
-                       log=(lambda *a: None) if args.quiet else (lambda m: print(m, file=sys.stderr)))
+                       log=lambda m: print(m, file=sys.stderr))
     progress.done()
     if not args.quiet:
         import json
@@ -251,6 +251,19 @@ COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "keys": cmd_keys, "scena
             "show": cmd_show}
 
 
+def _interrupted_exit(code: int, argv) -> int:
+    """An interrupt that arrives while XLA compiles leaves its compiler threads running, and
+    interpreter finalisation then crashes (SIGSEGV). The output is already cleaned up: a program
+    run (argv None) leaves at once; an in-process call returns the code."""
+    if argv is None:
+        import os
+
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
 def main(argv=None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
@@ -266,18 +279,19 @@ def main(argv=None) -> int:
         if getattr(args, "debug", False):
             raise
         kind = type(err).__name__
-        print(f"hinfnn: {kind}: {err}", file=sys.stderr)
+        text = "\\n".join(str(err).splitlines())
+        print(f"hinfnn: {kind}: {text}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("hinfnn: interrupted; no output was written", file=sys.stderr)
-        return 130
+        return _interrupted_exit(130, argv)
     except BaseException as err:  # noqa: BLE001 - the CLI's last line of defence
         if isinstance(err, SystemExit):
             raise
         if getattr(args, "debug", False) or type(err).__name__ == "_Interrupted":
             if type(err).__name__ == "_Interrupted":
                 print("hinfnn: terminated; no output was written", file=sys.stderr)
-                return 143
+                return _interrupted_exit(143, argv)
             raise
         print(f"hinfnn: error: {type(err).__name__}: {err} (run with --debug for the traceback)",
               file=sys.stderr)

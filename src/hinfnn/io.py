@@ -22,7 +22,6 @@ import os
 import shutil
 import signal
 import tempfile
-import zipfile
 from pathlib import Path
 from typing import Any, Callable
 
@@ -252,15 +251,17 @@ def load_npz(path: Path) -> tuple[dict, str]:
             data = {k: z[k] for k in z.files}
     except FileNotFoundError:
         raise LoadError(f"{path} does not exist") from None
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as err:
+    except Exception as err:  # BadZipFile, zlib.error, NotImplementedError, ValueError, OSError ...
         raise LoadError(f"{path} is not a readable hinfnn trajectory file (truncated or foreign): "
                         f"{type(err).__name__}: {err}") from None
     fmt = str(data.get("__format__", ""))
     if fmt != FORMAT:
         raise LoadError(f"{path} is not a hinfnn trajectory file (format {fmt or 'missing'!r}, "
                         f"expected {FORMAT!r})")
+    if "__runs__" not in data or "__hinfnn_version__" not in data:
+        raise LoadError(f"{path} is incomplete: no __runs__ or __hinfnn_version__")
     out = {}
-    for name in [str(n) for n in data["__runs__"]]:
+    for name in [str(n) for n in np.atleast_1d(data["__runs__"])]:
         prefix = f"{name}/"
         try:
             arrays = {k[len(prefix):]: v for k, v in data.items()
@@ -310,4 +311,6 @@ def load(path: str | Path) -> SavedResult:
             metrics = json.loads(m_file.read_text(encoding="utf-8"))
         except (json.JSONDecodeError, UnicodeDecodeError) as err:
             raise LoadError(f"{m_file} is not valid JSON (truncated?): {err}") from None
+        if not isinstance(metrics, dict) or not isinstance(metrics.get("runs"), list):
+            raise LoadError(f"{m_file} is not a hinfnn metrics file (no \"runs\" list)")
     return SavedResult(trajectories=runs, scenario=scenario, metrics=metrics, version=ver, path=path)

@@ -401,7 +401,8 @@ class Scenario:
 
     # --- construction --------------------------------------------------------------------------
     @classmethod
-    def load(cls, name_or_path: str | Path = "paper", overrides=(), *, check: bool = True) -> "Scenario":
+    def load(cls, name_or_path: str | Path = "paper", overrides=(), *, check: bool = True,
+             _chain: tuple = ()) -> "Scenario":
         """Read a shipped scenario by name or a TOML file, apply ``overrides`` (``"k=v"``
         strings or a mapping of dotted keys to values) and validate everything.
 
@@ -410,10 +411,11 @@ class Scenario:
         """
         text, source = _read_source(name_or_path)
         raw = parse_toml(text, source)
-        return cls.from_dict(raw, overrides, source=source, check=check)
+        return cls.from_dict(raw, overrides, source=source, check=check, _chain=_chain)
 
     @classmethod
-    def from_dict(cls, raw: dict, overrides=(), *, source: str = "<dict>", check: bool = True) -> "Scenario":
+    def from_dict(cls, raw: dict, overrides=(), *, source: str = "<dict>", check: bool = True,
+                  _chain: tuple = ()) -> "Scenario":
         items = list(overrides.items()) if isinstance(overrides, dict) else [
             parse_override(o) if isinstance(o, str) else tuple(o) for o in overrides]
         raw = dict(raw)
@@ -429,7 +431,17 @@ class Scenario:
             if (base_path.suffix == ".toml" or "/" in base) and not base_path.is_absolute() \
                     and source not in ("<dict>",) and Path(source).exists():
                 base = str(Path(source).parent / base_path)
-            data = _deep_merge(Scenario.load(base, check=False).data, raw)
+            chain = _chain + (_identity(source),)
+            if _identity(base) in chain:
+                raise ConfigError(f"{base!r} makes a cycle: {' -> '.join(chain + (_identity(base),))}",
+                                  key="base")
+            try:
+                base_data = Scenario.load(base, check=False, _chain=chain).data
+            except ConfigError as err:
+                if err.key is not None:
+                    raise
+                raise ConfigError(str(err), key="base") from None
+            data = _deep_merge(base_data, raw)
         else:
             data = copy.deepcopy(raw)
         for key, value in items:
@@ -579,7 +591,7 @@ class Scenario:
                               "land on its switching instants")
             _require_multiple("plant.disturbance.phase", d["phase"] % half, dt,
                               f"{d['phase']:g} s (modulo the half-period {half:g} s) is not a multiple of "
-                              f"dt = {dt:g} s; steps must land on the switching instants")
+                              f"dt = {dt:g} s; steps must land on the switching instants", allow_zero=True)
         if s["control"] == "sampled":
             _require_multiple("simulation.control_period", s["control_period"], dt,
                               f"{s['control_period']:g} s is not a whole multiple of dt = {dt:g} s")
@@ -653,11 +665,18 @@ def _only(kinds):
     return kinds[0]
 
 
-def _require_multiple(key, value, step, message):
-    """value must be a whole multiple (≥ 1, or 0 when value is 0) of step."""
+def _identity(source: str) -> str:
+    """A scenario's identity for cycle detection: the resolved path of a file, else its name."""
+    return str(Path(source).resolve()) if Path(source).exists() else str(source)
+
+
+def _require_multiple(key, value, step, message, allow_zero=False):
+    """value must be a whole multiple (≥ 1, or 0 when allow_zero) of step."""
     ratio = value / step
+    if not math.isfinite(ratio):
+        raise ConfigError(message, key=key)
     n = round(ratio)
-    if abs(ratio - n) > 1e-6 * max(1.0, abs(ratio)) or (n < 1 and value != 0):
+    if abs(ratio - n) > 1e-6 * max(1.0, abs(ratio)) or (n < 1 and not (allow_zero and value == 0)):
         raise ConfigError(message, key=key)
 
 

@@ -67,6 +67,9 @@ class Gains:
         Q_p = np.eye(n2) if self.Q_p is None else self.Q_p
         Q_p = _spd("Q_p", Q_p, n2)
 
+        if not (rho**2 > 0 and math.isfinite(alpha_lam * alpha_z / (2.0 * rho**2))):
+            raise DesignError(f"rho = {rho:g} is too small: alpha_lam alpha_z / (2 rho^2) (Theorem 1's bound "
+                              "on beta_lam) is not a finite number", key="rho", value=rho, bound=0.0)
         alpha_bound = 2.0 * rho**2 / alpha_z
         beta_bound = alpha_lam * alpha_z / (2.0 * rho**2) - 1.0
         if self.beta_lam is None:

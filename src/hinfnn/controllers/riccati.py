@@ -109,6 +109,11 @@ def design_riccati(gains, equation: str = "35") -> RiccatiSolution:
     R_p = np.atleast_2d(np.asarray(gains.R_p, dtype=float))
     A, B, Q = gains.A_p(), gains.B_p(), np.asarray(gains.Q_p, dtype=float)
     W = riccati_weight(R_p, rho, equation)
+    if not np.all(np.isfinite(W)):
+        bad_R = not np.all(np.isfinite(np.linalg.inv(R_p)))
+        raise DesignError(f"the weight W of eq. ({equation}) is not finite for rho = {rho:g}, R_p = "
+                          f"{R_p.tolist()}: {'R_p is numerically singular' if bad_R else 'rho is too small'}",
+                          key="R_p" if bad_R else "rho", value=R_p.tolist() if bad_R else rho)
     factor = 2.0 if equation == "35" else 1.0
     remark4 = bool(np.linalg.eigvalsh(factor * rho**2 * np.eye(R_p.shape[0]) - R_p).min() > 0)
     rho_suff = float(np.sqrt(np.linalg.eigvalsh(R_p).max() / factor))

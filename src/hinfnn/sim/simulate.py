@@ -47,6 +47,10 @@ class SimState:
     acc: Accumulators
 
 
+#: Bits of ``fail_details["nonfinite_parts"]``: which part of the state became non-finite.
+NONFINITE_PARTS = ("joint angles/rates q, q̇", "controller state z, Θ̂", "accumulated J, V-supply")
+
+
 @pytree_dataclass
 class Limits:
     """A run stops (status ≠ 0) when |τ_i| or the penetration passes these."""
@@ -100,7 +104,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
         return _rhs(plant, ctrl, ref, t, y, w, held)
 
     def step(carry, k):
-        y, held, status, t_fail, bad_tau, bad_pen = carry
+        y, held, status, t_fail, bad_tau, bad_pen, bad_parts = carry
         active = k < n_steps
         t = k * dt
         y_in = y
@@ -117,7 +121,9 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
         y_new = SimState(q=y_new.q, qd=y_new.qd, xc=ctrl.constrain(y_new.xc), acc=y_new.acc)
         tau_peak = jnp.max(jnp.abs(aux["tau"]))
         pen = aux["penetration"]
-        code = jnp.where(~_all_finite(y_new), 1,
+        finite_parts = (_all_finite((y_new.q, y_new.qd)), _all_finite(y_new.xc), _all_finite(y_new.acc))
+        parts = sum(jnp.where(ok, 0, 1 << i) for i, ok in enumerate(finite_parts)).astype(jnp.int32)
+        code = jnp.where(parts != 0, 1,
                          jnp.where(tau_peak > limits.torque, 2,
                                    jnp.where(pen > limits.penetration, 3, 0)))
         code = jnp.where(active, code, 0)
@@ -125,10 +131,11 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
         t_fail = jnp.where(first, jnp.where(code == 1, t + dt, t), t_fail)
         bad_tau = jnp.where(first, tau_peak, bad_tau)
         bad_pen = jnp.where(first, pen, bad_pen)
+        bad_parts = jnp.where(first, parts, bad_parts)
         status = jnp.where(status == 0, code, status)
         keep_old = (status != 0) | ~active
         y_next = jax.tree.map(lambda a, b: jnp.where(keep_old, a, b), y_in, y_new)
-        return (y_next, held, status, t_fail, bad_tau, bad_pen), aux
+        return (y_next, held, status, t_fail, bad_tau, bad_pen, bad_parts), aux
 
     return f, step
 
@@ -148,20 +155,22 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, *, n_record
 def _finish(plant, ctrl, ref, limits, carry, n_steps, dt, n_hold, *, sampled):
     """The record at t_final and the full final state."""
     f, _ = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
-    y_end, held, status, t_fail, bad_tau, bad_pen = carry
+    y_end, held, status, t_fail, bad_tau, bad_pen, bad_parts = carry
     t_end = n_steps * dt
     _, aux_end = f(t_end, y_end, plant.disturbance(t_end - 0.5 * dt), held if sampled else None)
     final = dict(q=y_end.q, qd=y_end.qd, z=y_end.xc.z, theta_p=y_end.xc.theta_p,
                  theta_f=y_end.xc.theta_f, J=y_end.acc.J, J_aug=y_end.acc.J_aug, supply=y_end.acc.supply)
-    return aux_end, status, t_fail, dict(tau_peak=bad_tau, penetration=bad_pen), final
+    return aux_end, status, t_fail, dict(tau_peak=bad_tau, penetration=bad_pen,
+                                         nonfinite_parts=bad_parts), final
 
 
 def _init_carry(y0, n):
-    """(state, held torque, status, t_fail, τ and penetration at failure), strongly typed so that
-    the carry a chunk returns has the same types (no second compilation)."""
+    """(state, held torque, status, t_fail, τ, penetration and non-finite parts at failure),
+    strongly typed so that the carry a chunk returns has the same types (no second compile)."""
     f64 = jnp.float64
     zero = jnp.zeros((), f64)
-    return (y0, jnp.zeros(n, f64), jnp.zeros((), jnp.int32), jnp.array(jnp.nan, dtype=f64), zero, zero)
+    return (y0, jnp.zeros(n, f64), jnp.zeros((), jnp.int32), jnp.array(jnp.nan, dtype=f64), zero, zero,
+            jnp.zeros((), jnp.int32))
 
 
 @functools.lru_cache(maxsize=128)
@@ -291,7 +300,11 @@ def failure_error(traj: Trajectory) -> SimulationError:
     details = {k: float(v) for k, v in traj.fail_details.items()}
     what = STATUS.get(code, f"status {code}")
     msg = f"run stopped at t = {t:.6g} s: {what}"
-    if code == 2:
+    if code == 1:
+        parts = int(details.get("nonfinite_parts", 0))
+        names = [n for i, n in enumerate(NONFINITE_PARTS) if parts & (1 << i)]
+        msg += f" ({', '.join(names) or 'state'}; peak |tau| at the step before = {details['tau_peak']:.4g} N·m)"
+    elif code == 2:
         msg += f" (peak |tau| = {details['tau_peak']:.4g} N·m)"
     elif code == 3:
         msg += f" (penetration = {details['penetration']:.4g} m)"
