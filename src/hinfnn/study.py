@@ -58,6 +58,19 @@ def run_label(name: str, scenario: Scenario, kind: str) -> str:
     return label
 
 
+def design_facts(base: Scenario) -> dict:
+    """Numbers of the H∞ design the report quotes: v_p's gains R_p⁻¹B_pᵀP_p, F_p's drive B_pᵀP_p."""
+    import numpy as np
+
+    ctrl = base.build_controller("hinf")
+    g = ctrl.gains
+    s_p = np.asarray(ctrl.P_p)[1]  # B_pᵀP_p for m = 1
+    return {"s_p": s_p.tolist(), "v_p_gain": (s_p / float(np.asarray(g.R_p).reshape(-1)[0])).tolist(),
+            "K_p": float(np.asarray(g.K_p).reshape(-1)[0]), "K_v": float(np.asarray(g.K_v).reshape(-1)[0]),
+            "gamma_1": float(g.gamma_1), "damping_damped": DAMPED,
+            "u1_amplitude": base.data["reference"]["u1_amplitude"]}
+
+
 def run_study(base: Scenario, progress=None):
     """Simulate the study. Returns (runs, trajectories, metrics, seconds)."""
     from .metrics import compute_metrics
@@ -117,6 +130,7 @@ def reproduce(out: Path, *, base: Scenario | None = None, force: bool = False, p
         labels = {n: run_label(n, sc, k) for n, sc, k, _ in runs}
         text = study_report(base, metrics, labels, [Path(f).name for f in figures],
                             timings={"simulation (compile + run, all runs)": sim_seconds,
-                                     "figures": fig_seconds})
+                                     "figures": fig_seconds},
+                            design=design_facts(base), is_paper=base.source == "paper" and not base.overrides)
         atomic_write_text(root / "report.md", text)
     return target
