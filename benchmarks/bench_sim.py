@@ -70,17 +70,17 @@ def main():
 
     print(f"hinfnn {H.__version__}, jax {jax.__version__}, dt = {DT:g} s, horizon {args.horizon:g} s, "
           f"device {jax.devices()[0].platform}")
-    header = f"{'controller':<10}{'mode':<22}{'steps/s':>14}{'µs/step':>10}{'× NumPy':>10}{'compile s':>11}"
+    header = f"{'controller':<12}{'mode':<22}{'steps/s':>14}{'µs/step':>10}{'× NumPy':>10}{'compile s':>11}"
     print(header)
     print("-" * len(header))
     for kind in KINDS:
         base = bench_numpy(kind)
-        print(f"{kind:<10}{'NumPy oracle (loop)':<22}{base:>14,.0f}{1e6 / base:>10.1f}{1.0:>10.1f}{'':>11}")
+        print(f"{kind:<12}{'NumPy oracle (loop)':<22}{base:>14,.0f}{1e6 / base:>10.1f}{1.0:>10.1f}{'':>11}")
         rate, comp = bench_single(kind, args.horizon)
-        print(f"{kind:<10}{'JAX, 1 run':<22}{rate:>14,.0f}{1e6 / rate:>10.2f}{rate / base:>10.1f}{comp:>11.1f}")
+        print(f"{kind:<12}{'JAX, 1 run':<22}{rate:>14,.0f}{1e6 / rate:>10.2f}{rate / base:>10.1f}{comp:>11.1f}")
         for B in args.batches:
             rate_b = bench_batch(kind, args.horizon, B)
-            print(f"{kind:<10}{f'JAX, vmap batch {B}':<22}{rate_b:>14,.0f}{1e6 / rate_b:>10.2f}"
+            print(f"{kind:<12}{f'JAX, vmap batch {B}':<22}{rate_b:>14,.0f}{1e6 / rate_b:>10.2f}"
                   f"{rate_b / base:>10.1f}{'':>11}")
     print("\nsteps/s for batches counts run-steps (B runs × steps) per wall-clock second.")
 
