@@ -1,4 +1,8 @@
-"""Closed-loop simulation: plant and controller state integrated together, one ``lax.scan``.
+"""Closed-loop simulation: plant and controller state integrated together in ``lax.scan``.
+
+A run is a jit-compiled ``lax.scan`` over a chunk of :data:`CHUNK_STEPS` steps, called from a
+Python loop over chunks (never over steps): the compiled program is the same for every horizon
+and dt, progress is reported and Ctrl-C is honoured between chunks.
 
 The state y = (q, q̇, controller state, accumulators) is advanced by fixed-step RK4
 (:func:`~hinfnn.sim.integrate.rk4_step`) with the controller evaluated at every stage from that
