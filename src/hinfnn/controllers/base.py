@@ -36,6 +36,12 @@ from .riccati import design_riccati
 from .network import TanhNetwork
 
 
+def force_multiplier(A_hat, F):
+    """λ = (Â Âᵀ)⁻¹ Â F: the force sensor's reading on the NOMINAL constraint gradient
+    (NOTES.md, Measurements)."""
+    return la.solve(A_hat @ A_hat.T, A_hat @ F)
+
+
 @pytree_dataclass
 class ControllerState:
     """Internal state integrated with the plant: z (k,), Θ̂p (m·j_p,), Θ̂f (k·j_f,).
@@ -95,9 +101,7 @@ class ReducedOrderController:
         """u1 = ĥ1(q), u̇1 = (Ĵ q̇)_1 and λ = (Â Âᵀ)⁻¹ Â F from the nominal model."""
         x = self.arm.h(meas.q)
         x_dot = self.arm.J(meas.q) @ meas.qd
-        A = self.surface.A_hat(x)
-        lam = la.solve(A @ A.T, A @ meas.F)
-        return x[: self.m], x_dot[: self.m], lam
+        return x[: self.m], x_dot[: self.m], force_multiplier(self.surface.A_hat(x), meas.F)
 
     def u1_ddot(self, q, qd, qdd):
         """d²/dt² of the measured u1 = ĥ1(q): (Ĵ q̈ + J̇̂ q̇)_1 (used by the dissipation check)."""
@@ -143,8 +147,7 @@ class ReducedOrderController:
         r = ref(t)
         rm = reduced_model(self.arm, self.surface, meas.q, meas.qd)
         u1, u1_dot = rm.x[:m], rm.x_dot[:m]
-        A = rm.A_hat
-        lam = la.solve(A @ A.T, A @ meas.F)
+        lam = force_multiplier(rm.A_hat, meas.F)
         e_u1 = u1 - r.u1_d
         e_u1_dot = u1_dot - r.u1_d_dot
         e_lam = lam - r.lam_d

@@ -32,6 +32,7 @@ import numpy as np
 
 from .._pytree import pytree_dataclass
 from ..errors import ConfigError, DesignError, SimulationError
+from ..measurement import Measurement
 from .integrate import rk4_step
 from .trajectory import STATUS, Trajectory
 
@@ -64,14 +65,14 @@ class Limits:
 
 
 def _rhs(plant, ctrl, ref, t, y: SimState, w, held_tau):
-    meas = plant.measure(y.q, y.qd)
+    F, f_n, p = plant.contact_state(y.q, y.qd)  # once: the sensor reading and the dynamics share it
+    meas = Measurement(q=y.q, qd=y.qd, F=F)
     tau_c, dxc, sig = ctrl.step_terms(t, y.xc, meas, ref)
     if held_tau is None:
         tau = tau_c
     else:
         tau = held_tau
         dxc = jax.tree.map(jnp.zeros_like, dxc)
-    F, f_n, p = plant.contact_state(y.q, y.qd)
     qdd = plant.acceleration(y.q, y.qd, tau, w, F=F)
     j, j_extra = ctrl.performance_rate(y.xc, sig)
     f_p, f_f = ctrl.supply_residuals(t, y.xc, sig, ctrl.u1_ddot(y.q, y.qd, qdd), ref)
