@@ -36,7 +36,7 @@ def test_jax_matches_numpy_oracle(kind, preset, step, scaling, true_arm, nominal
     ref = oracle.simulate(kind, {"centre_step_f": step, "scaling": scaling}, t_final=T, dt=DT)
     surf = H.InclinedLine(delta=np.pi / 4, d_G=0.8, scaling=scaling)
     ctrl = KINDS[kind](nominal_arm, surf, preset)
-    tr = H.simulate(paper_plant, ctrl, H.CosineReference.paper(), t_final=T, dt=DT)
+    tr = H.simulate(paper_plant, ctrl, H.CosineReference.paper(), t_final=T, dt=DT, save_every=1)
     y = ref["y"]
     np.testing.assert_allclose(tr.t, ref["t"], rtol=0, atol=1e-15)
     _close("q", tr.q, y[:, 0:2])

@@ -110,7 +110,54 @@ def test_sampled_control_at_high_rate_approaches_continuous(true_arm, true_surfa
     err_slow = np.abs(slow.e_u1 - cont.e_u1).max()
     assert err_fast < 1e-3 and err_fast < err_slow
     # the held torque is piecewise constant over each 1 ms (10-step) period
-    short = H.simulate(plant, ctrl, reference, t_final=0.05, dt=1e-4, control_period=1e-3)
+    short = H.simulate(plant, ctrl, reference, t_final=0.05, dt=1e-4, control_period=1e-3, save_every=1)
     blocks = short.tau[:-1].reshape(-1, 10, 2)
     np.testing.assert_array_equal(blocks, np.repeat(blocks[:, :1], 10, axis=1))
     assert np.abs(np.diff(blocks[:, 0], axis=0)).max() > 0
+
+
+# --- storage: decimated records, exact step statistics, field selection ------------------------
+
+def test_default_storage_is_one_sample_per_ms_and_size_follows_the_decimation(paper_plant, nominal_arm,
+                                                                               nominal_surface, reference):
+    ctrl = H.HinfNNController.design(nominal_arm, nominal_surface)
+    full = H.simulate(paper_plant, ctrl, reference, t_final=0.3, dt=1e-4, save_every=1)
+    dec = H.simulate(paper_plant, ctrl, reference, t_final=0.3, dt=1e-4)  # save_interval = 1 ms
+    coarse = H.simulate(paper_plant, ctrl, reference, t_final=0.3, dt=1e-4, save_interval=0.05)
+    assert (full.save_every, dec.save_every, coarse.save_every) == (1, 10, 500)
+    assert full.t.shape == (3001,) and dec.t.shape == (301,) and coarse.t.shape == (7,)
+    for name, v in dec.arrays.items():  # every stored array shrinks by the same factor
+        assert v.shape[0] == 301 and v.nbytes * 10 - full.arrays[name].nbytes == 9 * v[0].nbytes, name
+    # the decimated samples are the same numbers as every 10th step of the full run
+    for name in ("q", "tau", "lam", "z", "J", "V", "supply", "theta_f_norm"):
+        np.testing.assert_allclose(dec.arrays[name], full.arrays[name][::10], rtol=1e-12, atol=1e-13,
+                                   err_msg=name)
+
+
+def test_peak_and_total_variation_of_tau_cover_every_step_whatever_the_storage(
+        paper_plant, nominal_arm, nominal_surface, reference):
+    """tau_abs_max / tau_variation summarise the steps between samples, so the metrics built on
+    them do not depend on the decimation; Trajectory.decimated merges them the same way."""
+    ctrl = H.HinfController.design(nominal_arm, nominal_surface)
+    full = H.simulate(paper_plant, ctrl, reference, t_final=3.0, dt=1e-4, save_every=1)
+    dec = H.simulate(paper_plant, ctrl, reference, t_final=3.0, dt=1e-4, save_every=50)
+    np.testing.assert_array_equal(full.tau_abs_max, np.abs(full.tau))
+    np.testing.assert_allclose(full.tau_variation[1:], np.abs(np.diff(full.tau, axis=0)), rtol=1e-12)
+    m_full, m_dec = H.compute_metrics(full), H.compute_metrics(dec)
+    for key in ("peak_abs_tau", "peak_abs_tau_last2s", "tv_rate_tau_last2s"):
+        np.testing.assert_allclose(m_dec[key], m_full[key], rtol=1e-9, err_msg=key)
+    # subsampling alone would not give them
+    assert np.max(np.abs(dec.tau), axis=0).tolist() != m_full["peak_abs_tau"]
+    merged = full.decimated(50 * 1e-4)
+    np.testing.assert_allclose(merged.tau_abs_max, dec.tau_abs_max, rtol=1e-12)
+    np.testing.assert_allclose(merged.tau_variation, dec.tau_variation, rtol=1e-9, atol=1e-9)
+
+
+def test_fields_selects_what_is_stored(paper_plant, nominal_arm, nominal_surface, reference):
+    ctrl = H.HinfController.design(nominal_arm, nominal_surface)
+    tr = H.simulate(paper_plant, ctrl, reference, t_final=0.1, dt=1e-4, fields=("e_u1", "tau"))
+    assert set(tr.arrays) == {"t", "e_u1", "tau"}
+    allf = H.simulate(paper_plant, ctrl, reference, t_final=0.1, dt=1e-4)
+    np.testing.assert_array_equal(tr.tau, allf.tau)
+    with pytest.raises(H.ConfigError, match="unknown trajectory field.*'torque'"):
+        H.simulate(paper_plant, ctrl, reference, t_final=0.1, dt=1e-4, fields=("torque",))

@@ -11,6 +11,26 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 
+def mm(a, b):
+    """``a @ b`` for vectors and matrices. For contractions over at most :data:`SMALL` terms it
+    is written as multiply-and-sum, which XLA fuses with the neighbouring arithmetic; a ``dot``
+    of 2 × 2 operands is a kernel of its own (measured on the paper's adaptive run: 1.9 s vs
+    2.5 s per 100,000 steps). An unrolled sum of slices was slower still (many slice kernels)."""
+    if a.ndim > 2 or b.ndim > 2 or a.shape[-1] != b.shape[0] or a.shape[-1] > SMALL:
+        return a @ b
+    if a.ndim == 1 and b.ndim == 1:
+        return jnp.sum(a * b)
+    if a.ndim == 2 and b.ndim == 1:
+        return jnp.sum(a * b[None, :], axis=1)
+    if a.ndim == 1:
+        return jnp.sum(a[:, None] * b, axis=0)
+    return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
+
+
+#: Longest contraction :func:`mm` writes as multiply-and-sum.
+SMALL = 4
+
+
 def inv(A):
     """A⁻¹ (cofactor formula for n ≤ 2, LAPACK otherwise)."""
     n = A.shape[-1]
@@ -26,5 +46,5 @@ def inv(A):
 def solve(A, b):
     """A⁻¹ b for a vector or matrix right-hand side."""
     if A.shape[-1] <= 2:
-        return inv(A) @ b
+        return mm(inv(A), b)
     return jnp.linalg.solve(A, b)

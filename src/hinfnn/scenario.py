@@ -565,7 +565,7 @@ class Scenario:
         from .sim import Limits
 
         s = self.data["simulation"]
-        return dict(t_final=s["t_final"], dt=s["dt"], q0=self.initial_q(),
+        return dict(t_final=s["t_final"], dt=s["dt"], q0=self.initial_q(), save_interval=s["output_interval"],
                     control_period=s["control_period"] if s["control"] == "sampled" else None,
                     limits=Limits(torque=s["torque_limit"], penetration=s["penetration_limit"]))
 
@@ -764,7 +764,7 @@ def simulate_many(runs, *, progress=None):
 
         traj = simulate_batch([i[2] for i in items], [i[3] for i in items], [i[4] for i in items],
                               q0=[i[5]["q0"] for i in items], t_final=opts["t_final"], dt=opts["dt"],
-                              control_period=opts["control_period"],
+                              control_period=opts["control_period"], save_interval=opts["save_interval"],
                               limits=[i[5]["limits"] for i in items],
                               configs=[i[1].data for i in items], progress=report if progress else None)
         for j, item in enumerate(items):

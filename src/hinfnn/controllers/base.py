@@ -33,13 +33,13 @@ from ..errors import DesignError
 from ..model.reduced import reduced_model
 from .gains import Gains
 from .riccati import design_riccati
-from .network import TanhNetwork
+from .network import TanhNetwork, sq_norm
 
 
 def force_multiplier(A_hat, F):
     """λ = (Â Âᵀ)⁻¹ Â F: the force sensor's reading on the NOMINAL constraint gradient
     (NOTES.md, Measurements)."""
-    return la.solve(A_hat @ A_hat.T, A_hat @ F)
+    return la.solve(la.mm(A_hat, A_hat.T), la.mm(A_hat, F))
 
 
 @pytree_dataclass
@@ -47,7 +47,9 @@ class ControllerState:
     """Internal state integrated with the plant: z (k,), Θ̂p (m·j_p,), Θ̂f (k·j_f,).
 
     Controllers without networks carry empty weight vectors, so every controller has the same
-    state structure.
+    state structure. Inside the simulator the weights are carried as tuples of blocks
+    (:meth:`ReducedOrderController.blocked`, see :mod:`hinfnn.controllers.network`); every
+    method of a controller accepts either form and returns the form it was given.
     """
 
     z: jax.Array
@@ -100,12 +102,12 @@ class ReducedOrderController:
     def observe(self, meas):
         """u1 = ĥ1(q), u̇1 = (Ĵ q̇)_1 and λ = (Â Âᵀ)⁻¹ Â F from the nominal model."""
         x = self.arm.h(meas.q)
-        x_dot = self.arm.J(meas.q) @ meas.qd
+        x_dot = la.mm(self.arm.J(meas.q), meas.qd)
         return x[: self.m], x_dot[: self.m], force_multiplier(self.surface.A_hat(x), meas.F)
 
     def u1_ddot(self, q, qd, qdd):
         """d²/dt² of the measured u1 = ĥ1(q): (Ĵ q̈ + J̇̂ q̇)_1 (used by the dissipation check)."""
-        return (self.arm.J(q) @ qdd + self.arm.J_dot(q, qd) @ qd)[: self.m]
+        return (la.mm(self.arm.J(q), qdd) + la.mm(self.arm.J_dot(q, qd), qd))[: self.m]
 
     # --- state -----------------------------------------------------------------------------------
     def init(self, theta_p=None, theta_f=None) -> ControllerState:
@@ -119,6 +121,18 @@ class ReducedOrderController:
             theta_f=zeros(n_f) if theta_f is None else jnp.asarray(theta_f, float).reshape(n_f),
         )
 
+    def blocked(self, xc: ControllerState) -> ControllerState:
+        """The same state with Θ̂p, Θ̂f as tuples of ≤ 64-unit blocks (what the simulator carries)."""
+        if not self.learning:
+            return xc
+        return ControllerState(z=xc.z, theta_p=self.network_p.split(xc.theta_p),
+                               theta_f=self.network_f.split(xc.theta_f))
+
+    def flat(self, xc: ControllerState) -> ControllerState:
+        """Inverse of :meth:`blocked`: Θ̂p, Θ̂f as flat vectors."""
+        return ControllerState(z=xc.z, theta_p=TanhNetwork.join(xc.theta_p),
+                               theta_f=TanhNetwork.join(xc.theta_f))
+
     def constrain(self, xc: ControllerState) -> ControllerState:
         """Applied by the simulator after each integration step: with Remark 2's projection, put
         Θ̂ back on the ball ‖Θ̂‖ ≤ d if the step overshot it. The projected flow is tangent to the
@@ -130,8 +144,8 @@ class ReducedOrderController:
         def clip(net, theta):
             if not net.project:
                 return theta
-            norm = jnp.sqrt(jnp.dot(theta, theta))
-            return theta * jnp.minimum(1.0, net.radius / jnp.maximum(norm, 1e-300))
+            scale = jnp.minimum(1.0, net.radius / jnp.maximum(jnp.sqrt(sq_norm(theta)), 1e-300))
+            return tuple(t * scale for t in theta) if isinstance(theta, tuple) else theta * scale
 
         return ControllerState(z=xc.z, theta_p=clip(self.network_p, xc.theta_p),
                                theta_f=clip(self.network_f, xc.theta_f))
@@ -152,7 +166,7 @@ class ReducedOrderController:
         e_u1_dot = u1_dot - r.u1_d_dot
         e_lam = lam - r.lam_d
         x_p = jnp.concatenate([e_u1, e_u1_dot])
-        s_p = (self.P_p @ x_p)[m:]  # B_pᵀ P_p x_p
+        s_p = la.mm(self.P_p[m:], x_p)  # B_pᵀ P_p x_p
 
         zeros_m, zeros_k = jnp.zeros_like(e_u1), jnp.zeros_like(e_lam)
         if self.robust:
@@ -161,23 +175,24 @@ class ReducedOrderController:
         else:
             v_p, v_lam = zeros_m, zeros_k
         if self.learning:
-            xi_p = self.network_p.features(e_u1, e_u1_dot)
-            xi_f = self.network_f.features(e_lam, xc.z)
-            nn_p = self.network_p.output(xi_p, xc.theta_p)
-            nn_f = self.network_f.output(xi_f, xc.theta_f)
+            xi_p = self.network_p.features_blocks(e_u1, e_u1_dot)
+            xi_f = self.network_f.features_blocks(e_lam, xc.z)
+            nn_p = self.network_p.output_blocks(xi_p, xc.theta_p)
+            nn_f = self.network_f.output_blocks(xi_f, xc.theta_f)
         else:
             nn_p, nn_f = zeros_m, zeros_k
 
-        a = r.u1_d_ddot - g.K_v @ e_u1_dot - g.K_p @ e_u1 + v_p - nn_p
-        lam_p = rm.M11 @ a + rm.C11 @ u1_dot + rm.G1  # eq. (25)
+        mm = la.mm
+        a = r.u1_d_ddot - mm(g.K_v, e_u1_dot) - mm(g.K_p, e_u1) + v_p - nn_p
+        lam_p = mm(rm.M11, a) + mm(rm.C11, u1_dot) + rm.G1  # eq. (25)
         C_f, G_f = rm.force_terms()
-        lam_f = rm.Pi.T @ (r.lam_d + xc.z + v_lam - nn_f) + C_f @ u1_dot + G_f  # eq. (26)
+        lam_f = mm(rm.Pi.T, r.lam_d + xc.z + v_lam - nn_f) + mm(C_f, u1_dot) + G_f  # eq. (26)
         tau = la.solve(rm.decoupling_matrix(), jnp.concatenate([lam_p, lam_f]))  # (24)
 
         dz = -g.mu_z * xc.z - g.alpha_z * e_lam  # eq. (27)
         if self.learning:
-            d_theta_p = self.network_p.update(xi_p, s_p, xc.theta_p, g.gamma_1)  # eq. (30)
-            d_theta_f = self.network_f.update(xi_f, e_lam, xc.theta_f, g.gamma_2)  # eq. (31)
+            d_theta_p = self.network_p.update_blocks(xi_p, s_p, xc.theta_p, g.gamma_1)  # eq. (30)
+            d_theta_f = self.network_f.update_blocks(xi_f, e_lam, xc.theta_f, g.gamma_2)  # eq. (31)
         else:
             d_theta_p, d_theta_f = xc.theta_p, xc.theta_f  # empty arrays
         dxc = ControllerState(z=dz, theta_p=d_theta_p, theta_f=d_theta_f)
@@ -204,11 +219,12 @@ class ReducedOrderController:
         """
         g = self.gains
         x_p = jnp.concatenate([sig.e_u1, sig.e_u1_dot])
-        j = (x_p @ g.Q_p @ x_p + 0.5 * g.alpha_lam * g.alpha_z * sig.e_lam @ sig.e_lam
-             + g.alpha_lam * g.mu_z / (1.0 + g.beta_lam) * xc.z @ xc.z)
+        mm = la.mm
+        j = (mm(x_p, mm(g.Q_p, x_p)) + 0.5 * g.alpha_lam * g.alpha_z * mm(sig.e_lam, sig.e_lam)
+             + g.alpha_lam * g.mu_z / (1.0 + g.beta_lam) * mm(xc.z, xc.z))
         if self.augmented:
-            extra = sig.v_p @ g.R_p @ sig.v_p + (
-                g.alpha_lam * g.alpha_z / (2.0 * g.beta_lam * (1.0 + g.beta_lam)) * sig.v_lam @ sig.v_lam)
+            extra = mm(sig.v_p, mm(g.R_p, sig.v_p)) + (
+                g.alpha_lam * g.alpha_z / (2.0 * g.beta_lam * (1.0 + g.beta_lam)) * mm(sig.v_lam, sig.v_lam))
         else:
             extra = jnp.zeros_like(j)
         return j, extra
@@ -222,8 +238,8 @@ class ReducedOrderController:
         g = self.gains
         x_p = jnp.concatenate([sig.e_u1, sig.e_u1_dot])
         c = g.alpha_lam / (1.0 + g.beta_lam)
-        return (x_p @ self.P_p @ x_p + 0.5 * c * xc.z @ xc.z + xc.theta_p @ xc.theta_p / g.gamma_1
-                + 0.5 * c * g.alpha_z / g.gamma_2 * xc.theta_f @ xc.theta_f)
+        return (la.mm(x_p, la.mm(self.P_p, x_p)) + 0.5 * c * la.mm(xc.z, xc.z) + sq_norm(xc.theta_p) / g.gamma_1
+                + 0.5 * c * g.alpha_z / g.gamma_2 * sq_norm(xc.theta_f))
 
     def supply_residuals(self, t, xc, sig, u1_ddot, ref):
         """f_p, f_f as the actual residuals of the error systems (28)–(29) / (52)–(53).
@@ -233,7 +249,7 @@ class ReducedOrderController:
         """
         g = self.gains
         r = ref(t)
-        f_p = (u1_ddot - r.u1_d_ddot) + g.K_p @ sig.e_u1 + g.K_v @ sig.e_u1_dot - sig.v_p + sig.nn_p
+        f_p = (u1_ddot - r.u1_d_ddot) + la.mm(g.K_p, sig.e_u1) + la.mm(g.K_v, sig.e_u1_dot) - sig.v_p + sig.nn_p
         f_f = sig.e_lam - xc.z - sig.v_lam + sig.nn_f
         return f_p, f_f
 

@@ -75,7 +75,7 @@ class Arm:
 
     def forward_dynamics(self, q, qd, tau_total):
         """q̈ = M⁻¹ (τ_total − C q̇ − G); τ_total already includes −JᵀF and disturbances."""
-        return la.solve(self.M(q), tau_total - self.C(q, qd) @ qd - self.G(q))
+        return la.solve(self.M(q), tau_total - la.mm(self.C(q, qd), qd) - self.G(q))
 
     def inverse_kinematics(self, x, q_guess, iterations: int = 50):
         """Solve h(q) = x by Newton's method from ``q_guess`` (square arms, n = dim x)."""

@@ -80,13 +80,13 @@ class ReducedModel:
     def force_terms(self):
         """The (k × m) and (k,) coefficients of eq. (14):
         C̄21 − M̄21 M̄11⁻¹ C̄11 and Ḡ2 − M̄21 M̄11⁻¹ Ḡ1."""
-        L = self.M21 @ la.inv(self.M11)
-        return self.C21 - L @ self.C11, self.G2 - L @ self.G1
+        L = la.mm(self.M21, la.inv(self.M11))
+        return self.C21 - la.mm(L, self.C11), self.G2 - la.mm(L, self.G1)
 
     def decoupling_matrix(self):
         """T = [B̄1; B̄2 − M̄21 M̄11⁻¹ B̄1] of eqs. (24), (51); τ = T⁻¹ [Λp; Λf]."""
-        L = self.M21 @ la.inv(self.M11)
-        return jnp.concatenate([self.B1, self.B2 - L @ self.B1], axis=0)
+        L = la.mm(self.M21, la.inv(self.M11))
+        return jnp.concatenate([self.B1, self.B2 - la.mm(L, self.B1)], axis=0)
 
 
 def reduced_model(arm, surface, q, qd) -> ReducedModel:
@@ -98,16 +98,18 @@ def reduced_model(arm, surface, q, qd) -> ReducedModel:
     J = arm.J(q)
     J_dot = arm.J_dot(q, qd)
     M = arm.M(q)
-    x_dot = J @ qd
+    x_dot = la.mm(J, qd)
     m = surface.m
     S = surface.S(x[:m])
     S_dot = surface.S_dot(x[:m], x_dot[:m])
     J_inv = la.inv(J)
-    B_bar = S.T @ J_inv.T  # Sᵀ Ĵ⁻ᵀ
-    MJi = M @ J_inv
-    M_bar = B_bar @ MJi @ S
-    C_bar = B_bar @ (MJi @ S_dot + (arm.C(q, qd) - MJi @ J_dot) @ J_inv @ S)
-    G_bar = B_bar @ arm.G(q)
+    mm = la.mm
+    B_bar = mm(S.T, J_inv.T)  # Sᵀ Ĵ⁻ᵀ
+    MJi = mm(M, J_inv)
+    JiS = mm(J_inv, S)
+    M_bar = mm(B_bar, mm(M, JiS))
+    C_bar = mm(B_bar, mm(MJi, S_dot) + mm(arm.C(q, qd) - mm(MJi, J_dot), JiS))
+    G_bar = mm(B_bar, arm.G(q))
     return ReducedModel(
         M_bar=M_bar,
         C_bar=C_bar,

@@ -9,6 +9,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from .. import _linalg as la
 from .._pytree import pytree_dataclass
 from ..measurement import Measurement
 from .contact import PenaltyContact
@@ -27,7 +28,7 @@ class Plant:
     def contact_state(self, q, qd):
         """(F, f_n, p): force vector on the surface, normal force, penetration depth."""
         x = self.arm.h(q)
-        x_dot = self.arm.J(q) @ qd
+        x_dot = la.mm(self.arm.J(q), qd)
         p, p_dot = jax.jvp(self.surface.signed_distance, (x,), (x_dot,))
         f_n = self.contact.normal_force(p, p_dot)
         return f_n * self.surface.inward_normal(x), f_n, p
@@ -41,7 +42,7 @@ class Plant:
         """q̈ from eq. (1): M q̈ + C q̇ + G + Jᵀ F = τ + ω with the TRUE parameters."""
         if F is None:
             F = self.contact_state(q, qd)[0]
-        return self.arm.forward_dynamics(q, qd, tau + w - self.arm.J(q).T @ F)
+        return self.arm.forward_dynamics(q, qd, tau + w - la.mm(self.arm.J(q).T, F))
 
     def initial_q(self, u1_0, elbow_up: bool = True):
         """Joint angles with the TRUE end-effector at x1 = u1_0 on the TRUE surface, zero

@@ -23,6 +23,7 @@ stacked parameter pytrees.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 
@@ -32,9 +33,11 @@ import numpy as np
 
 from .._pytree import pytree_dataclass
 from ..errors import ConfigError, DesignError, SimulationError
+from .. import _linalg as la
+from ..controllers.network import sq_norm
 from ..measurement import Measurement
 from .integrate import rk4_step
-from .trajectory import STATUS, Trajectory
+from .trajectory import FIELDS, STATUS, Trajectory
 
 
 @pytree_dataclass
@@ -76,7 +79,7 @@ def _rhs(plant, ctrl, ref, t, y: SimState, w, held_tau):
     qdd = plant.acceleration(y.q, y.qd, tau, w, F=F)
     j, j_extra = ctrl.performance_rate(y.xc, sig)
     f_p, f_f = ctrl.supply_residuals(t, y.xc, sig, ctrl.u1_ddot(y.q, y.qd, qdd), ref)
-    supply = ctrl.gains.rho**2 * (f_p @ f_p + f_f @ f_f)
+    supply = ctrl.gains.rho**2 * (la.mm(f_p, f_p) + la.mm(f_f, f_f))
     dy = SimState(q=y.qd, qd=qdd, xc=dxc, acc=Accumulators(J=j, J_aug=j + j_extra, supply=supply))
     r = ref(t)
     aux = dict(
@@ -85,7 +88,7 @@ def _rhs(plant, ctrl, ref, t, y: SimState, w, held_tau):
         e_u1=sig.e_u1, e_u1_dot=sig.e_u1_dot, e_lam=sig.e_lam, z=y.xc.z,
         v_p=sig.v_p, v_lam=sig.v_lam, nn_p=sig.nn_p, nn_f=sig.nn_f,
         tau=tau, F=F, normal_force=f_n, penetration=p, disturbance=w, x_true=plant.arm.h(y.q),
-        theta_p_norm=jnp.linalg.norm(y.xc.theta_p), theta_f_norm=jnp.linalg.norm(y.xc.theta_f),
+        theta_p_norm=jnp.sqrt(sq_norm(y.xc.theta_p)), theta_f_norm=jnp.sqrt(sq_norm(y.xc.theta_f)),
         J=y.acc.J, J_aug=y.acc.J_aug, supply=y.acc.supply, V=ctrl.storage(y.xc, sig),
         f_p=f_p, f_f=f_f,
     )
@@ -102,29 +105,59 @@ def _all_finite(tree):
 CHUNK_STEPS = 2000
 
 
+@pytree_dataclass
+class Carry:
+    """What the compiled loop carries from step to step.
+
+    ``tau_peak``/``tau_tv``/``tau_prev``: max |τ_i| and Σ|τ_i(t_k) − τ_i(t_{k−1})| over the steps
+    since the last record, and τ at the previous step (NaN before the first), so that records
+    taken every ``save_every`` steps still give the exact peak and total variation of τ.
+    """
+
+    y: SimState
+    held: jax.Array  # the zero-order-held torque (sampled mode)
+    status: jax.Array
+    t_fail: jax.Array
+    bad_tau: jax.Array
+    bad_pen: jax.Array
+    bad_parts: jax.Array
+    tau_peak: jax.Array
+    tau_tv: jax.Array
+    tau_prev: jax.Array
+
+
 def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
-    """One RK4 step k -> k + 1 with failure detection; a no-op for k ≥ n_steps (padding)."""
+    """(f, sample, step): the right-hand side, the sampled-mode controller update at step k, and
+    one RK4 step k -> k + 1 with failure detection (a no-op for k ≥ n_steps: padding)."""
 
     def f(t, y, w, held):
-        return _rhs(plant, ctrl, ref, t, y, w, held)
+        return _rhs(plant, ctrl, ref, t, y, w, held if sampled else None)
 
-    def step(carry, k):
-        y, held, status, t_fail, bad_tau, bad_pen, bad_parts = carry
+    def sample(c: Carry, k, skip=False):
+        """At a sample instant: τ held from now on, controller state advanced by Euler."""
+        if not sampled:
+            return c
+        t = k * dt
+        y = c.y
+        tau_s, dxc_s, _ = ctrl.step_terms(t, y.xc, plant.measure(y.q, y.qd), ref)
+        is_sample = (jnp.mod(k, n_hold) == 0) & (k < n_steps) & (c.status == 0) & ~skip
+        held = jnp.where(is_sample, tau_s, c.held)
+        xc = jax.tree.map(lambda a, d: jnp.where(is_sample, a + (n_hold * dt) * d, a), y.xc, dxc_s)
+        xc = ctrl.constrain(xc)
+        return dataclasses.replace(c, y=SimState(q=y.q, qd=y.qd, xc=xc, acc=y.acc), held=held)
+
+    def step(c: Carry, k, first):
+        """Step k; ``first``: the record of step k was just taken (its sample update and its τ
+        statistics are already done)."""
         active = k < n_steps
         t = k * dt
-        y_in = y
-        if sampled:
-            meas = plant.measure(y.q, y.qd)
-            tau_s, dxc_s, _ = ctrl.step_terms(t, y.xc, meas, ref)
-            is_sample = (jnp.mod(k, n_hold) == 0) & active & (status == 0)
-            held = jnp.where(is_sample, tau_s, held)
-            xc = jax.tree.map(lambda a, d: jnp.where(is_sample, a + (n_hold * dt) * d, a), y.xc, dxc_s)
-            xc = ctrl.constrain(xc)
-            y = SimState(q=y.q, qd=y.qd, xc=xc, acc=y.acc)
+        c = sample(c, k, skip=first)
+        y_in = c.y
         w = plant.disturbance(t + 0.5 * dt)
-        y_new, aux = rk4_step(lambda tt, yy: f(tt, yy, w, held if sampled else None), t, y, dt)
+        y_new, aux = rk4_step(lambda tt, yy: f(tt, yy, w, c.held), t, y_in, dt)
         y_new = SimState(q=y_new.q, qd=y_new.qd, xc=ctrl.constrain(y_new.xc), acc=y_new.acc)
-        tau_peak = jnp.max(jnp.abs(aux["tau"]))
+        tau = aux["tau"]
+        tau_peak = jnp.max(jnp.abs(tau))
         pen = aux["penetration"]
         finite_parts = (_all_finite((y_new.q, y_new.qd)), _all_finite(y_new.xc), _all_finite(y_new.acc))
         parts = sum(jnp.where(ok, 0, 1 << i) for i, ok in enumerate(finite_parts)).astype(jnp.int32)
@@ -132,98 +165,151 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
                          jnp.where(tau_peak > limits.torque, 2,
                                    jnp.where(pen > limits.penetration, 3, 0)))
         code = jnp.where(active, code, 0)
-        first = (status == 0) & (code != 0)
-        t_fail = jnp.where(first, jnp.where(code == 1, t + dt, t), t_fail)
-        bad_tau = jnp.where(first, tau_peak, bad_tau)
-        bad_pen = jnp.where(first, pen, bad_pen)
-        bad_parts = jnp.where(first, parts, bad_parts)
+        status = c.status
+        first_fail = (status == 0) & (code != 0)
         status = jnp.where(status == 0, code, status)
         keep_old = (status != 0) | ~active
-        y_next = jax.tree.map(lambda a, b: jnp.where(keep_old, a, b), y_in, y_new)
-        return (y_next, held, status, t_fail, bad_tau, bad_pen, bad_parts), aux
+        count = active & ~first
+        return Carry(
+            y=jax.tree.map(lambda a, b: jnp.where(keep_old, a, b), y_in, y_new), held=c.held,
+            status=status,
+            t_fail=jnp.where(first_fail, jnp.where(code == 1, t + dt, t), c.t_fail),
+            bad_tau=jnp.where(first_fail, tau_peak, c.bad_tau),
+            bad_pen=jnp.where(first_fail, pen, c.bad_pen),
+            bad_parts=jnp.where(first_fail, parts, c.bad_parts),
+            tau_peak=jnp.where(count, jnp.maximum(c.tau_peak, jnp.abs(tau)), c.tau_peak),
+            tau_tv=jnp.where(count, c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
+            tau_prev=jnp.where(count | first, tau, c.tau_prev))
 
-    return f, step
-
-
-def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, *, n_records, save_every, sampled):
-    """``n_records · save_every`` steps from step ``k0``, keeping every ``save_every``-th record.
-
-    One scan over steps (one copy of the step in the compiled program), then the records are
-    subsampled: cheaper to compile than a nested loop, and a chunk's records are small."""
-    _, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
-    carry, rec = jax.lax.scan(step, carry, k0 + jnp.arange(n_records * save_every))
-    if save_every > 1:
-        rec = jax.tree.map(lambda a: a[::save_every], rec)
-    return carry, rec
+    return f, sample, step
 
 
-def _finish(plant, ctrl, ref, limits, carry, n_steps, dt, n_hold, *, sampled):
-    """The record at t_final and the full final state."""
-    f, _ = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
-    y_end, held, status, t_fail, bad_tau, bad_pen, bad_parts = carry
+def _record(f, c: Carry, t, w, fields):
+    """The record at t (the state at the start of step k) and the carry with the τ statistics
+    restarted; ``tau_abs_max``/``tau_variation`` cover the steps since the previous record."""
+    _, aux = f(t, c.y, w, c.held)
+    tau = aux["tau"]
+    aux["tau_abs_max"] = jnp.maximum(c.tau_peak, jnp.abs(tau))
+    aux["tau_variation"] = c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev))
+    c = dataclasses.replace(c, tau_peak=jnp.zeros_like(c.tau_peak), tau_tv=jnp.zeros_like(c.tau_tv),
+                            tau_prev=tau)
+    return c, {k: aux[k] for k in fields}
+
+
+def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, *, n_records, save_every, sampled,
+           fields):
+    """``n_records · save_every`` steps from step ``k0``; a record every ``save_every`` steps.
+
+    An outer scan over records, an inner loop over the steps between them with no output: the
+    inner loop body touches only small buffers, so XLA runs its kernels inline (see
+    :mod:`hinfnn.controllers.network`, BLOCK)."""
+    f, sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
+
+    def one_record(c, r):
+        k = k0 + r * save_every
+        c = sample(c, k)
+        c, rec = _record(f, c, k * dt, plant.disturbance(k * dt + 0.5 * dt), fields)
+        c = jax.lax.fori_loop(0, save_every, lambda i, cc: step(cc, k + i, i == 0), c)
+        return c, rec
+
+    return jax.lax.scan(one_record, carry, jnp.arange(n_records))
+
+
+def _finish(plant, ctrl, ref, limits, carry, n_steps, dt, n_hold, *, sampled, fields):
+    """The record at t_final and the full final state (controller state flat again)."""
+    f, _, _ = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
     t_end = n_steps * dt
-    _, aux_end = f(t_end, y_end, plant.disturbance(t_end - 0.5 * dt), held if sampled else None)
-    final = dict(q=y_end.q, qd=y_end.qd, z=y_end.xc.z, theta_p=y_end.xc.theta_p,
-                 theta_f=y_end.xc.theta_f, J=y_end.acc.J, J_aug=y_end.acc.J_aug, supply=y_end.acc.supply)
-    return aux_end, status, t_fail, dict(tau_peak=bad_tau, penetration=bad_pen,
-                                         nonfinite_parts=bad_parts), final
+    _, rec = _record(f, carry, t_end, plant.disturbance(t_end - 0.5 * dt), fields)
+    y_end = carry.y
+    xc = ctrl.flat(y_end.xc)
+    final = dict(q=y_end.q, qd=y_end.qd, z=xc.z, theta_p=xc.theta_p,
+                 theta_f=xc.theta_f, J=y_end.acc.J, J_aug=y_end.acc.J_aug, supply=y_end.acc.supply)
+    details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts)
+    return rec, carry.status, carry.t_fail, details, final
 
 
-def _init_carry(y0, n):
-    """(state, held torque, status, t_fail, τ, penetration and non-finite parts at failure),
-    strongly typed so that the carry a chunk returns has the same types (no second compile)."""
+def _init_carry(ctrl, y0, n):
+    """The first carry, with the controller state in blocks, strongly typed so that the carry a
+    chunk returns has the same types (no second compile)."""
     f64 = jnp.float64
     zero = jnp.zeros((), f64)
-    return (y0, jnp.zeros(n, f64), jnp.zeros((), jnp.int32), jnp.array(jnp.nan, dtype=f64), zero, zero,
-            jnp.zeros((), jnp.int32))
+    y0 = SimState(q=y0.q, qd=y0.qd, xc=ctrl.blocked(y0.xc), acc=y0.acc)
+    return Carry(y=y0, held=jnp.zeros(n, f64), status=jnp.zeros((), jnp.int32),
+                 t_fail=jnp.array(jnp.nan, dtype=f64), bad_tau=zero, bad_pen=zero,
+                 bad_parts=jnp.zeros((), jnp.int32), tau_peak=jnp.zeros(n, f64), tau_tv=jnp.zeros(n, f64),
+                 tau_prev=jnp.full(n, jnp.nan, f64))
 
 
 @functools.lru_cache(maxsize=128)
-def _compiled(in_axes, n_records, save_every, sampled):
+def _compiled(in_axes, n_records, save_every, sampled, fields):
     """(chunk, finish, init) compiled for one structure; in_axes=None for a single run.
 
     Horizon, dt and the hold period are traced arguments, so a new t_final or dt reuses the
     compiled program."""
-    chunk = functools.partial(_chunk, n_records=n_records, save_every=save_every, sampled=sampled)
-    finish = functools.partial(_finish, sampled=sampled)
+    chunk = functools.partial(_chunk, n_records=n_records, save_every=save_every, sampled=sampled,
+                              fields=fields)
+    finish = functools.partial(_finish, sampled=sampled, fields=fields)
     init = _init_carry
     if in_axes is not None:
         p, c, r, lim = in_axes
         chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None))
         finish = jax.vmap(finish, in_axes=(p, c, r, lim, 0, None, None, None))
-        init = jax.vmap(_init_carry, in_axes=(0, None))
-    return jax.jit(chunk), jax.jit(finish), jax.jit(init, static_argnums=1)
+        init = jax.vmap(_init_carry, in_axes=(c, 0, None))
+    return jax.jit(chunk), jax.jit(finish), jax.jit(init, static_argnums=2)
 
 
 def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold, dt, n_joints,
-           progress=None):
-    """Run the chunks from Python; returns the outputs of :func:`_finish` plus all records."""
+           fields, progress=None):
+    """Run the chunks from Python; returns the outputs of :func:`_finish` with all records.
+
+    The records are copied chunk by chunk into arrays allocated once (n_records + 1 samples),
+    so memory is what is stored, never proportional to the steps."""
     n_records = n_steps // save_every
     per_chunk = max(1, CHUNK_STEPS // save_every)  # independent of the horizon: one compilation
-    chunk, finish, init = _compiled(in_axes, per_chunk, save_every, n_hold > 0)
-    carry = init(y0, n_joints)
+    chunk, finish, init = _compiled(in_axes, per_chunk, save_every, n_hold > 0, fields)
+    carry = init(ctrl, y0, n_joints)
     dt_a = jnp.asarray(dt, dtype=float)
     n_steps_a = jnp.asarray(n_steps, dtype=jnp.int64)
     hold_a = jnp.asarray(max(n_hold, 1), dtype=jnp.int64)
-    pieces = []
-    n_chunks = -(-n_records // per_chunk)
-    for c in range(n_chunks):
+    axis = 0 if in_axes is None else 1
+    out = {}
+
+    def store(c, rec):
+        lo = c * per_chunk
+        n = min(per_chunk, n_records - lo)
+        for k, v in rec.items():
+            v = np.asarray(v)  # waits for that chunk
+            if k not in out:
+                out[k] = np.empty(v.shape[:axis] + (n_records + 1,) + v.shape[axis + 1:], v.dtype)
+            if axis == 0:
+                out[k][lo:lo + n] = v[:n]
+            else:
+                out[k][:, lo:lo + n] = v[:, :n]
+        if progress is not None:
+            progress(min((c + 1) * per_chunk, n_records) * save_every, n_steps)
+
+    pending = None  # the previous chunk's records, copied while the next chunk runs
+    for c in range(-(-n_records // per_chunk)):
         k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)
         carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, n_steps_a, dt_a, hold_a)
-        pieces.append(rec)
-        if progress is not None:
-            jax.block_until_ready(rec)
-            progress(min((c + 1) * per_chunk, n_records) * save_every, n_steps)
-    axis = 0 if in_axes is None else 1
-    rec = {k: np.concatenate([np.asarray(p[k]) for p in pieces], axis=axis) for k in pieces[0]}
-    rec = {k: (v[:n_records] if axis == 0 else v[:, :n_records]) for k, v in rec.items()}
-    aux_end, status, t_fail, details, final = finish(plant, ctrl, ref, limits, carry, n_steps_a, dt_a, hold_a)
-    rec = {k: np.concatenate([v, np.expand_dims(np.asarray(aux_end[k]), axis)], axis=axis)
-           for k, v in rec.items()}
-    return rec, status, t_fail, details, final
+        if pending is not None:
+            store(*pending)
+        pending = (c, rec)
+    if pending is not None:
+        store(*pending)
+    del pending
+    rec_end, status, t_fail, details, final = finish(plant, ctrl, ref, limits, carry, n_steps_a, dt_a, hold_a)
+    for k, v in rec_end.items():
+        if k not in out:  # no chunk (n_records = 0 cannot happen, n_steps >= 1)
+            out[k] = np.empty(np.shape(v)[:axis] + (n_records + 1,) + np.shape(v)[axis:], np.asarray(v).dtype)
+        if axis == 0:
+            out[k][n_records] = np.asarray(v)
+        else:
+            out[k][:, n_records] = np.asarray(v)
+    return out, status, t_fail, details, final
 
 
-def _steps(t_final, dt, save_every, control_period):
+def _steps(t_final, dt, save_every, control_period, save_interval=None):
     for name, v in (("t_final", t_final), ("dt", dt)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise ConfigError(f"must be a finite number > 0, got {v!r}", key=f"simulation.{name}")
@@ -231,6 +317,8 @@ def _steps(t_final, dt, save_every, control_period):
     if abs(n_steps * dt - t_final) > 1e-9 * max(1.0, t_final):
         raise ConfigError(f"t_final = {t_final:g} is not a whole number of steps dt = {dt:g}",
                           key="simulation.t_final")
+    if save_every is None:
+        save_every = save_every_for(n_steps, dt, DEFAULT_SAVE_INTERVAL if save_interval is None else save_interval)
     if not (isinstance(save_every, int) and save_every >= 1 and n_steps % save_every == 0):
         raise ConfigError(f"must be a positive integer dividing the {n_steps} steps, got {save_every!r}",
                           key="simulation.save_every")
@@ -240,7 +328,31 @@ def _steps(t_final, dt, save_every, control_period):
         if n_hold < 1 or abs(n_hold * dt - control_period) > 1e-9 * control_period:
             raise ConfigError(f"control period {control_period:g} must be a whole multiple of dt = {dt:g}",
                               key="simulation.control_period")
-    return n_steps, n_hold
+    return n_steps, n_hold, save_every
+
+
+#: Default interval between stored samples, s (``save_interval``).
+DEFAULT_SAVE_INTERVAL = 1e-3
+
+
+def save_every_for(n_steps: int, dt: float, save_interval: float) -> int:
+    """The largest divisor s of ``n_steps`` with s·dt ≤ ``save_interval`` (at least 1): samples
+    stay uniform and the last one falls on t_final."""
+    if not (isinstance(save_interval, (int, float)) and math.isfinite(save_interval) and save_interval > 0):
+        raise ConfigError(f"must be a finite number > 0, got {save_interval!r}", key="simulation.output_interval")
+    limit = max(1, min(n_steps, int(math.floor(save_interval / dt * (1 + 1e-9)))))
+    return max(s for s in range(1, limit + 1) if n_steps % s == 0)
+
+
+def _fields(fields) -> tuple:
+    """The record fields to store: all of :data:`FIELDS` (``None``) or the names given, plus t."""
+    if fields is None:
+        return tuple(FIELDS)
+    names = [fields] if isinstance(fields, str) else list(fields)
+    unknown = [n for n in names if n not in FIELDS]
+    if unknown:
+        raise ConfigError(f"unknown trajectory field(s) {unknown}; allowed: {', '.join(FIELDS)}", key="fields")
+    return tuple(n for n in FIELDS if n == "t" or n in names)
 
 
 def initial_state(plant, ctrl, *, u1_0=1.6902, q0=None, qd0=None, xc0=None) -> SimState:
@@ -274,11 +386,18 @@ def _to_numpy(rec, status, t_fail, details, final, *, config, dt, save_every) ->
 
 
 def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float = 1e-4,
-             u1_0: float = 1.6902, q0=None, qd0=None, xc0=None, save_every: int = 1,
+             u1_0: float = 1.6902, q0=None, qd0=None, xc0=None, save_every: int | None = None,
+             save_interval: float = DEFAULT_SAVE_INTERVAL, fields=None,
              control_period: float | None = None, limits: Limits | None = None,
              config: dict | None = None, raise_on_failure: bool = True, progress=None) -> Trajectory:
     """Simulate one closed-loop run; returns a :class:`Trajectory` sampled every ``save_every``
     steps (t = 0, …, t_final).
+
+    Storage: a sample every ``save_every`` steps; by default the largest divisor of the step
+    count with ``save_every · dt ≤ save_interval`` (1 ms: every 10th step at dt = 1e-4).
+    ``tau_abs_max`` and ``tau_variation`` still cover every step (max |τ_i| and Σ|Δτ_i| since
+    the previous sample). ``fields``: the trajectory fields to store (default all of
+    :data:`~hinfnn.sim.trajectory.FIELDS`; ``t`` always); memory is what is stored.
 
     Raises :class:`~hinfnn.errors.SimulationError` with the time and the offending quantities
     if the state becomes non-finite or a limit is passed (unless ``raise_on_failure=False``;
@@ -286,12 +405,13 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     ``progress(steps_done, steps_total)``, if given, is called after each compiled chunk of
     :data:`CHUNK_STEPS` steps.
     """
-    n_steps, n_hold = _steps(t_final, dt, save_every, control_period)
+    n_steps, n_hold, save_every = _steps(t_final, dt, save_every, control_period, save_interval)
+    fields = _fields(fields)
     y0 = initial_state(plant, controller, u1_0=u1_0, q0=q0, qd0=qd0, xc0=xc0)
     check_start(controller, y0)
     out = _drive(plant, controller, reference, limits or Limits(), y0, None, n_steps=n_steps,
                  save_every=save_every, n_hold=n_hold, dt=float(dt), n_joints=plant.arm.n,
-                 progress=progress)
+                 fields=fields, progress=progress)
     traj = _to_numpy(*out, config=config, dt=dt, save_every=save_every)
     if raise_on_failure and int(traj.status) != 0:
         raise failure_error(traj)
@@ -326,14 +446,17 @@ def stack(items):
 
 
 def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt: float = 1e-4,
-                   u1_0=1.6902, q0=None, save_every: int = 1, control_period: float | None = None,
-                   limits=None, configs: list | None = None, progress=None) -> Trajectory:
+                   u1_0=1.6902, q0=None, save_every: int | None = None,
+                   save_interval: float = DEFAULT_SAVE_INTERVAL, fields=None,
+                   control_period: float | None = None, limits=None, configs: list | None = None,
+                   progress=None) -> Trajectory:
     """Simulate B runs as ONE program (``jax.vmap`` of :func:`simulate`'s run).
 
     ``plants``, ``controllers``, ``references`` (and ``limits``): each either a list of B objects
     (stacked along a new axis) or a single object shared by every member. ``u1_0``/``q0`` may be
     lists too. Members that fail are marked in ``status``/``t_fail`` and do not stop the others;
-    nothing is raised for them. ``progress`` as for :func:`simulate`.
+    nothing is raised for them. ``save_every``, ``save_interval``, ``fields`` and ``progress``
+    as for :func:`simulate`; a batch of B runs stores B times what one run stores.
     """
     listed = [x for x in (plants, controllers, references, limits) if isinstance(x, (list, tuple))]
     if not listed:
@@ -352,7 +475,8 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
            for i in range(B)]
     for i in range(B):
         check_start(member(controllers, i), y0s[i])
-    n_steps, n_hold = _steps(t_final, dt, save_every, control_period)
+    n_steps, n_hold, save_every = _steps(t_final, dt, save_every, control_period, save_interval)
+    fields = _fields(fields)
     args, axes = [], []
     for x in (plants, controllers, references, limits or Limits()):
         if isinstance(x, (list, tuple)):
@@ -362,6 +486,6 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
             args.append(x)
             axes.append(None)
     out = _drive(*args, stack(y0s), tuple(axes), n_steps=n_steps, save_every=save_every, n_hold=n_hold,
-                 dt=float(dt), n_joints=member(plants, 0).arm.n, progress=progress)
+                 dt=float(dt), n_joints=member(plants, 0).arm.n, fields=fields, progress=progress)
     return _to_numpy(*out, config={"members": list(configs)} if configs else {}, dt=dt,
                      save_every=save_every)

@@ -10,6 +10,9 @@ import numpy as np
 #: Status codes of a run (``Trajectory.status``).
 STATUS = {0: "ok", 1: "non-finite state", 2: "torque limit exceeded", 3: "penetration limit exceeded"}
 
+#: Fields that summarise the steps since the previous sample, and how to merge two intervals.
+INTERVAL_FIELDS = {"tau_abs_max": np.maximum, "tau_variation": np.add}
+
 #: Arrays a Trajectory carries, with their units, for files and figures.
 FIELDS = {
     "t": "s",
@@ -30,6 +33,8 @@ FIELDS = {
     "nn_p": "m/s²",
     "nn_f": "λ units",
     "tau": "N·m",
+    "tau_abs_max": "N·m (max |τ_i| over the steps since the previous sample)",
+    "tau_variation": "N·m (Σ|τ_i(t_k) − τ_i(t_k−1)| over the steps since the previous sample)",
     "F": "N",
     "normal_force": "N",
     "penetration": "m",
@@ -115,6 +120,12 @@ class Trajectory:
             return self
         idx = np.arange(0, n_intervals + 1, stride)
         axis = 1 if self.batched else 0
-        return dataclasses.replace(
-            self, arrays={k: np.take(v, idx, axis=axis) for k, v in self.arrays.items()},
-            save_every=self.save_every * stride)
+        arrays = {}
+        for k, v in self.arrays.items():
+            if k in INTERVAL_FIELDS:  # sample i covers (t_{i-1}, t_i]: merge the stride intervals
+                merged = INTERVAL_FIELDS[k].reduceat(np.take(v, np.arange(1, n_intervals + 1), axis=axis),
+                                                     np.arange(0, n_intervals, stride), axis=axis)
+                arrays[k] = np.concatenate([np.take(v, [0], axis=axis), merged], axis=axis)
+            else:
+                arrays[k] = np.take(v, idx, axis=axis)
+        return dataclasses.replace(self, arrays=arrays, save_every=self.save_every * stride)
