@@ -8,6 +8,7 @@ choice is made at trace time.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 
@@ -29,6 +30,11 @@ def mm(a, b):
 
 #: Longest contraction :func:`mm` writes as multiply-and-sum.
 SMALL = 4
+
+
+def sincos(x):
+    """(sin x, cos x) of a vector of angles, as one vectorised pair of calls."""
+    return jnp.sin(x), jnp.cos(x)
 
 
 def inv(A):

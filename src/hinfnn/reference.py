@@ -9,6 +9,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from . import _linalg as la
 from ._pytree import pytree_dataclass
 
 
@@ -54,10 +55,11 @@ class CosineReference:
 
     def __call__(self, t) -> RefSample:
         arg = self.u1_omega * t + self.u1_phase
-        c, s = jnp.cos(arg), jnp.sin(arg)
+        s, c = la.sincos(arg)  # computed once and shared, see hinfnn._linalg.sincos
+        _, c_lam = la.sincos(self.lam_omega * t + self.lam_phase)
         return RefSample(
             u1_d=self.u1_offset + self.u1_amplitude * c,
             u1_d_dot=-self.u1_amplitude * self.u1_omega * s,
             u1_d_ddot=-self.u1_amplitude * self.u1_omega**2 * c,
-            lam_d=self.lam_offset + self.lam_amplitude * jnp.cos(self.lam_omega * t + self.lam_phase),
+            lam_d=self.lam_offset + self.lam_amplitude * c_lam,
         )

@@ -107,7 +107,8 @@ class ReducedOrderController:
 
     def u1_ddot(self, q, qd, qdd):
         """d²/dt² of the measured u1 = ĥ1(q): (Ĵ q̈ + J̇̂ q̇)_1 (used by the dissipation check)."""
-        return (la.mm(self.arm.J(q), qdd) + la.mm(self.arm.J_dot(q, qd), qd))[: self.m]
+        at = self.arm.terms(q, qd)
+        return (la.mm(at.J, qdd) + la.mm(at.J_dot, qd))[: self.m]
 
     # --- state -----------------------------------------------------------------------------------
     def init(self, theta_p=None, theta_f=None) -> ControllerState:

@@ -23,6 +23,19 @@ from .._pytree import pytree_dataclass, static_field
 from .. import _linalg as la
 
 
+@pytree_dataclass
+class ArmTerms:
+    """Everything the dynamics and the reduced model need at one (q, q̇), computed together
+    (:meth:`Arm.terms`): x = h(q), J, J̇, M, C, G."""
+
+    x: jax.Array
+    J: jax.Array
+    J_dot: jax.Array
+    M: jax.Array
+    C: jax.Array
+    G: jax.Array
+
+
 class Arm:
     """Base class of serial arms. Subclasses are pytree dataclasses with the parameters as data.
 
@@ -73,9 +86,15 @@ class Arm:
         """Ṁ along q̇ (autodiff), used to check the skew-symmetry of Ṁ − 2C."""
         return jax.jvp(self.M, (q,), (qd,))[1]
 
-    def forward_dynamics(self, q, qd, tau_total):
+    def terms(self, q, qd) -> ArmTerms:
+        """h, J, J̇, M, C, G at (q, q̇) in one call (closed-form arms share their trigonometry)."""
+        return ArmTerms(x=self.h(q), J=self.J(q), J_dot=self.J_dot(q, qd), M=self.M(q), C=self.C(q, qd),
+                        G=self.G(q))
+
+    def forward_dynamics(self, q, qd, tau_total, terms: ArmTerms | None = None):
         """q̈ = M⁻¹ (τ_total − C q̇ − G); τ_total already includes −JᵀF and disturbances."""
-        return la.solve(self.M(q), tau_total - la.mm(self.C(q, qd), qd) - self.G(q))
+        t = terms if terms is not None else self.terms(q, qd)
+        return la.solve(t.M, tau_total - la.mm(t.C, qd) - t.G)
 
     def inverse_kinematics(self, x, q_guess, iterations: int = 50):
         """Solve h(q) = x by Newton's method from ``q_guess`` (square arms, n = dim x)."""

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from .. import _linalg as la
+
 from .._pytree import pytree_dataclass, static_field
 from .arm import Arm
 
@@ -25,59 +27,76 @@ class TwoLinkArm(Arm):
     g: float = 9.8
     n: int = static_field(default=2)
 
-    def h(self, q):
-        """Forward kinematics x = (l1 c1 + l2 c12, l1 s1 + l2 s12)."""
-        q12 = q[0] + q[1]
-        return jnp.stack(
-            [
-                self.l1 * jnp.cos(q[0]) + self.l2 * jnp.cos(q12),
-                self.l1 * jnp.sin(q[0]) + self.l2 * jnp.sin(q12),
-            ]
-        )
+    # Each closed form is written once, on the sines and cosines of q1, q2, q1 + q2 (one
+    # vectorised sine and cosine of three angles); terms() evaluates them once for all six.
+    @staticmethod
+    def _trig(q):
+        s, c = la.sincos(jnp.stack([q[0], q[1], q[0] + q[1]]))
+        return s[0], c[0], s[1], c[1], s[2], c[2]
 
-    def J(self, q):
-        """Sec. VI Jacobian J = [[−l1 s1 − l2 s12, −l2 s12], [l1 c1 + l2 c12, l2 c12]]."""
-        s1, c1 = jnp.sin(q[0]), jnp.cos(q[0])
-        s12, c12 = jnp.sin(q[0] + q[1]), jnp.cos(q[0] + q[1])
-        return jnp.array(
-            [
-                [-self.l1 * s1 - self.l2 * s12, -self.l2 * s12],
-                [self.l1 * c1 + self.l2 * c12, self.l2 * c12],
-            ]
-        )
+    def _h(self, tr):
+        s1, c1, _, _, s12, c12 = tr
+        return jnp.stack([self.l1 * c1 + self.l2 * c12, self.l1 * s1 + self.l2 * s12])
 
-    def J_dot(self, q, qd):
-        """Closed-form time derivative of the Sec. VI Jacobian."""
-        s1, c1 = jnp.sin(q[0]), jnp.cos(q[0])
-        s12, c12 = jnp.sin(q[0] + q[1]), jnp.cos(q[0] + q[1])
+    def _J(self, tr):
+        s1, c1, _, _, s12, c12 = tr
+        return jnp.array([[-self.l1 * s1 - self.l2 * s12, -self.l2 * s12],
+                          [self.l1 * c1 + self.l2 * c12, self.l2 * c12]])
+
+    def _J_dot(self, tr, qd):
+        s1, c1, _, _, s12, c12 = tr
         w1, w12 = qd[0], qd[0] + qd[1]
-        return jnp.array(
-            [
-                [-self.l1 * c1 * w1 - self.l2 * c12 * w12, -self.l2 * c12 * w12],
-                [-self.l1 * s1 * w1 - self.l2 * s12 * w12, -self.l2 * s12 * w12],
-            ]
-        )
+        return jnp.array([[-self.l1 * c1 * w1 - self.l2 * c12 * w12, -self.l2 * c12 * w12],
+                          [-self.l1 * s1 * w1 - self.l2 * s12 * w12, -self.l2 * s12 * w12]])
 
-    def M(self, q):
-        """Sec. VI inertia matrix."""
+    def _M(self, tr):
         m1, m2, l1, l2 = self.m1, self.m2, self.l1, self.l2
-        c2 = jnp.cos(q[1])
+        c2 = tr[3]
         m11 = (m1 + m2) * l1**2 + m2 * l2**2 + 2 * m2 * l1 * l2 * c2
         m12 = m2 * l2**2 + m2 * l1 * l2 * c2
         m22 = m2 * l2**2
         return jnp.array([[m11, m12], [m12, m22]])
 
+    def _C(self, tr, qd):
+        hs = self.m2 * self.l1 * self.l2 * tr[2]
+        return hs * jnp.array([[-qd[1], -(qd[0] + qd[1])], [qd[0], 0.0 * qd[0]]])
+
+    def _G(self, tr):
+        c1, c12 = tr[1], tr[5]
+        return self.g * jnp.stack([(self.m1 + self.m2) * self.l1 * c1 + self.m2 * self.l2 * c12,
+                                   self.m2 * self.l2 * c12])
+
+    def h(self, q):
+        """Forward kinematics x = (l1 c1 + l2 c12, l1 s1 + l2 s12)."""
+        return self._h(self._trig(q))
+
+    def J(self, q):
+        """Sec. VI Jacobian J = [[−l1 s1 − l2 s12, −l2 s12], [l1 c1 + l2 c12, l2 c12]]."""
+        return self._J(self._trig(q))
+
+    def J_dot(self, q, qd):
+        """Closed-form time derivative of the Sec. VI Jacobian."""
+        return self._J_dot(self._trig(q), qd)
+
+    def M(self, q):
+        """Sec. VI inertia matrix."""
+        return self._M(self._trig(q))
+
     def C(self, q, qd):
         """Sec. VI Coriolis matrix, m2 l1 l2 s2 [[−q̇2, −(q̇1+q̇2)], [+q̇1, 0]] (sign fixed)."""
-        hs = self.m2 * self.l1 * self.l2 * jnp.sin(q[1])
-        return hs * jnp.array([[-qd[1], -(qd[0] + qd[1])], [qd[0], 0.0 * qd[0]]])
+        return self._C(self._trig(q), qd)
 
     def G(self, q):
         """Sec. VI gravity vector g [(m1+m2) l1 c1 + m2 l2 c12, m2 l2 c12]."""
-        c1, c12 = jnp.cos(q[0]), jnp.cos(q[0] + q[1])
-        return self.g * jnp.stack(
-            [(self.m1 + self.m2) * self.l1 * c1 + self.m2 * self.l2 * c12, self.m2 * self.l2 * c12]
-        )
+        return self._G(self._trig(q))
+
+    def terms(self, q, qd):
+        """h, J, J̇, M, C, G from one set of sines and cosines."""
+        from .arm import ArmTerms
+
+        tr = self._trig(q)
+        return ArmTerms(x=self._h(tr), J=self._J(tr), J_dot=self._J_dot(tr, qd), M=self._M(tr),
+                        C=self._C(tr, qd), G=self._G(tr))
 
     def potential(self, q):
         y1 = self.l1 * jnp.sin(q[0])

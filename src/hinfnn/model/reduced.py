@@ -94,10 +94,8 @@ def reduced_model(arm, surface, q, qd) -> ReducedModel:
 
     Implements Eq. (9). ``arm`` and ``surface`` are the controller's nominal models.
     """
-    x = arm.h(q)
-    J = arm.J(q)
-    J_dot = arm.J_dot(q, qd)
-    M = arm.M(q)
+    at = arm.terms(q, qd)
+    x, J, J_dot, M = at.x, at.J, at.J_dot, at.M
     x_dot = la.mm(J, qd)
     m = surface.m
     S = surface.S(x[:m])
@@ -108,8 +106,8 @@ def reduced_model(arm, surface, q, qd) -> ReducedModel:
     MJi = mm(M, J_inv)
     JiS = mm(J_inv, S)
     M_bar = mm(B_bar, mm(M, JiS))
-    C_bar = mm(B_bar, mm(MJi, S_dot) + mm(arm.C(q, qd) - mm(MJi, J_dot), JiS))
-    G_bar = mm(B_bar, arm.G(q))
+    C_bar = mm(B_bar, mm(MJi, S_dot) + mm(at.C - mm(MJi, J_dot), JiS))
+    G_bar = mm(B_bar, at.G)
     return ReducedModel(
         M_bar=M_bar,
         C_bar=C_bar,

@@ -25,10 +25,11 @@ class Plant:
     contact: PenaltyContact
     disturbance: SquareWave
 
-    def contact_state(self, q, qd):
+    def contact_state(self, q, qd, terms=None):
         """(F, f_n, p): force vector on the surface, normal force, penetration depth."""
-        x = self.arm.h(q)
-        x_dot = la.mm(self.arm.J(q), qd)
+        t = terms if terms is not None else self.arm.terms(q, qd)
+        x = t.x
+        x_dot = la.mm(t.J, qd)
         p, p_dot = jax.jvp(self.surface.signed_distance, (x,), (x_dot,))
         f_n = self.contact.normal_force(p, p_dot)
         return f_n * self.surface.inward_normal(x), f_n, p
@@ -38,11 +39,12 @@ class Plant:
         F, _, _ = self.contact_state(q, qd)
         return Measurement(q=q, qd=qd, F=F)
 
-    def acceleration(self, q, qd, tau, w, F=None):
+    def acceleration(self, q, qd, tau, w, F=None, terms=None):
         """q̈ from eq. (1): M q̈ + C q̇ + G + Jᵀ F = τ + ω with the TRUE parameters."""
+        t = terms if terms is not None else self.arm.terms(q, qd)
         if F is None:
-            F = self.contact_state(q, qd)[0]
-        return self.arm.forward_dynamics(q, qd, tau + w - la.mm(self.arm.J(q).T, F))
+            F = self.contact_state(q, qd, t)[0]
+        return self.arm.forward_dynamics(q, qd, tau + w - la.mm(t.J.T, F), terms=t)
 
     def initial_q(self, u1_0, elbow_up: bool = True):
         """Joint angles with the TRUE end-effector at x1 = u1_0 on the TRUE surface, zero

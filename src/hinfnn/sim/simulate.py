@@ -68,7 +68,8 @@ class Limits:
 
 
 def _rhs(plant, ctrl, ref, t, y: SimState, w, held_tau):
-    F, f_n, p = plant.contact_state(y.q, y.qd)  # once: the sensor reading and the dynamics share it
+    at = plant.arm.terms(y.q, y.qd)  # the true arm's kinematics and dynamics, once per stage
+    F, f_n, p = plant.contact_state(y.q, y.qd, at)  # the sensor reading and the dynamics share it
     meas = Measurement(q=y.q, qd=y.qd, F=F)
     tau_c, dxc, sig = ctrl.step_terms(t, y.xc, meas, ref)
     if held_tau is None:
@@ -76,7 +77,7 @@ def _rhs(plant, ctrl, ref, t, y: SimState, w, held_tau):
     else:
         tau = held_tau
         dxc = jax.tree.map(jnp.zeros_like, dxc)
-    qdd = plant.acceleration(y.q, y.qd, tau, w, F=F)
+    qdd = plant.acceleration(y.q, y.qd, tau, w, F=F, terms=at)
     j, j_extra = ctrl.performance_rate(y.xc, sig)
     f_p, f_f = ctrl.supply_residuals(t, y.xc, sig, ctrl.u1_ddot(y.q, y.qd, qdd), ref)
     supply = ctrl.gains.rho**2 * (la.mm(f_p, f_p) + la.mm(f_f, f_f))
@@ -87,7 +88,7 @@ def _rhs(plant, ctrl, ref, t, y: SimState, w, held_tau):
         u1_d=r.u1_d, u1_d_dot=r.u1_d_dot, lam_d=r.lam_d,
         e_u1=sig.e_u1, e_u1_dot=sig.e_u1_dot, e_lam=sig.e_lam, z=y.xc.z,
         v_p=sig.v_p, v_lam=sig.v_lam, nn_p=sig.nn_p, nn_f=sig.nn_f,
-        tau=tau, F=F, normal_force=f_n, penetration=p, disturbance=w, x_true=plant.arm.h(y.q),
+        tau=tau, F=F, normal_force=f_n, penetration=p, disturbance=w, x_true=at.x,
         theta_p_norm=jnp.sqrt(sq_norm(y.xc.theta_p)), theta_f_norm=jnp.sqrt(sq_norm(y.xc.theta_f)),
         J=y.acc.J, J_aug=y.acc.J_aug, supply=y.acc.supply, V=ctrl.storage(y.xc, sig),
         f_p=f_p, f_f=f_f,
