@@ -732,11 +732,12 @@ def simulate_many(runs, *, progress=None):
 
     Returns ``{name: Trajectory}`` in the order given. Runs that diverge are marked in their
     Trajectory's ``status``; they never stop the others. ``progress(steps_done, steps_total,
-    names)`` is called after every compiled chunk (steps summed over all runs).
+    names)`` is called after every compiled chunk (steps summed over all runs). A group of one
+    runs without ``vmap`` (faster to trace and to run: see :mod:`hinfnn.sim.simulate`).
     """
     import jax
 
-    from .sim import simulate_batch
+    from .sim import simulate, simulate_batch
 
     built = []
     for name, sc, kind in runs:
@@ -762,6 +763,14 @@ def simulate_many(runs, *, progress=None):
             if progress:
                 progress(base + done * width, total, names)
 
+        if len(items) == 1:
+            _, one, plant, ctrl, ref, o, _ = items[0]
+            out[names[0]] = simulate(plant, ctrl, ref, t_final=o["t_final"], dt=o["dt"], q0=o["q0"],
+                                     control_period=o["control_period"], save_interval=o["save_interval"],
+                                     limits=o["limits"], config=one.data, raise_on_failure=False,
+                                     progress=report if progress else None)
+            finished += steps
+            continue
         traj = simulate_batch([i[2] for i in items], [i[3] for i in items], [i[4] for i in items],
                               q0=[i[5]["q0"] for i in items], t_final=opts["t_final"], dt=opts["dt"],
                               control_period=opts["control_period"], save_interval=opts["save_interval"],

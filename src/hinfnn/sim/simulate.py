@@ -111,8 +111,9 @@ class Carry:
     """What the compiled loop carries from step to step.
 
     ``tau_peak``/``tau_tv``/``tau_prev``: max |τ_i| and Σ|τ_i(t_k) − τ_i(t_{k−1})| over the steps
-    since the last record, and τ at the previous step (NaN before the first), so that records
-    taken every ``save_every`` steps still give the exact peak and total variation of τ.
+    since the last record, and τ at the previous step (NaN before the first); ``sums``: the
+    :data:`STEP_SUMS` over those steps. Records taken every ``save_every`` steps thus still give
+    the exact peak, total variation and RMS values over every step.
     """
 
     y: SimState
@@ -125,6 +126,23 @@ class Carry:
     tau_peak: jax.Array
     tau_tv: jax.Array
     tau_prev: jax.Array
+    sums: dict
+    maxes: dict
+
+
+#: Per-step quantities summed between records (``Trajectory`` fields of the same names): the
+#: metrics' RMS values and contact fraction then cover every step, whatever the storage.
+STEP_SUMS = {
+    "e_u1_sq": lambda a: jnp.sum(a["e_u1"] ** 2),
+    "e_lam_sq": lambda a: jnp.sum(a["e_lam"] ** 2),
+    "tau_sq": lambda a: a["tau"] ** 2,
+    "steps_out_of_contact": lambda a: jnp.where(a["normal_force"] <= 0.0, 1.0, 0.0),
+}
+#: Per-step quantities whose maximum between records is kept.
+STEP_MAXES = {
+    "e_u1_abs_max": lambda a: jnp.sqrt(jnp.sum(a["e_u1"] ** 2)),
+    "e_lam_abs_max": lambda a: jnp.sqrt(jnp.sum(a["e_lam"] ** 2)),
+}
 
 
 def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
@@ -180,7 +198,10 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
             bad_parts=jnp.where(first_fail, parts, c.bad_parts),
             tau_peak=jnp.where(count, jnp.maximum(c.tau_peak, jnp.abs(tau)), c.tau_peak),
             tau_tv=jnp.where(count, c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
-            tau_prev=jnp.where(count | first, tau, c.tau_prev))
+            tau_prev=jnp.where(count | first, tau, c.tau_prev),
+            sums={k: jnp.where(count, c.sums[k] + fn(aux), c.sums[k]) for k, fn in STEP_SUMS.items()},
+            maxes={k: jnp.where(count, jnp.maximum(c.maxes[k], fn(aux)), c.maxes[k])
+                   for k, fn in STEP_MAXES.items()})
 
     return f, sample, step
 
@@ -192,8 +213,13 @@ def _record(f, c: Carry, t, w, fields):
     tau = aux["tau"]
     aux["tau_abs_max"] = jnp.maximum(c.tau_peak, jnp.abs(tau))
     aux["tau_variation"] = c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev))
+    for k, fn in STEP_SUMS.items():
+        aux[k] = c.sums[k] + fn(aux)
+    for k, fn in STEP_MAXES.items():
+        aux[k] = jnp.maximum(c.maxes[k], fn(aux))
     c = dataclasses.replace(c, tau_peak=jnp.zeros_like(c.tau_peak), tau_tv=jnp.zeros_like(c.tau_tv),
-                            tau_prev=tau)
+                            tau_prev=tau, sums=jax.tree.map(jnp.zeros_like, c.sums),
+                            maxes=jax.tree.map(jnp.zeros_like, c.maxes))
     return c, {k: aux[k] for k in fields}
 
 
@@ -238,7 +264,9 @@ def _init_carry(ctrl, y0, n):
     return Carry(y=y0, held=jnp.zeros(n, f64), status=jnp.zeros((), jnp.int32),
                  t_fail=jnp.array(jnp.nan, dtype=f64), bad_tau=zero, bad_pen=zero,
                  bad_parts=jnp.zeros((), jnp.int32), tau_peak=jnp.zeros(n, f64), tau_tv=jnp.zeros(n, f64),
-                 tau_prev=jnp.full(n, jnp.nan, f64))
+                 tau_prev=jnp.full(n, jnp.nan, f64),
+                 sums={k: jnp.zeros(n if k == "tau_sq" else (), f64) for k in STEP_SUMS},
+                 maxes={k: jnp.zeros((), f64) for k in STEP_MAXES})
 
 
 @functools.lru_cache(maxsize=128)

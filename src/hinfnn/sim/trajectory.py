@@ -11,7 +11,9 @@ import numpy as np
 STATUS = {0: "ok", 1: "non-finite state", 2: "torque limit exceeded", 3: "penetration limit exceeded"}
 
 #: Fields that summarise the steps since the previous sample, and how to merge two intervals.
-INTERVAL_FIELDS = {"tau_abs_max": np.maximum, "tau_variation": np.add}
+INTERVAL_FIELDS = {"tau_abs_max": np.maximum, "tau_variation": np.add, "e_u1_sq": np.add,
+                   "e_lam_sq": np.add, "tau_sq": np.add, "steps_out_of_contact": np.add,
+                   "e_u1_abs_max": np.maximum, "e_lam_abs_max": np.maximum}
 
 #: Arrays a Trajectory carries, with their units, for files and figures.
 FIELDS = {
@@ -35,6 +37,12 @@ FIELDS = {
     "tau": "N·m",
     "tau_abs_max": "N·m (max |τ_i| over the steps since the previous sample)",
     "tau_variation": "N·m (Σ|τ_i(t_k) − τ_i(t_k−1)| over the steps since the previous sample)",
+    "tau_sq": "(N·m)² (Σ τ_i² over the steps since the previous sample, this one included)",
+    "e_u1_sq": "m² (Σ ‖e_u1‖² over the steps since the previous sample, this one included)",
+    "e_lam_sq": "(λ units)² (Σ ‖e_λ‖² over the steps since the previous sample, this one included)",
+    "steps_out_of_contact": "- (steps with zero normal force since the previous sample, this one included)",
+    "e_u1_abs_max": "m (max ‖e_u1‖ over the steps since the previous sample, this one included)",
+    "e_lam_abs_max": "λ units (max ‖e_λ‖ over the steps since the previous sample, this one included)",
     "F": "N",
     "normal_force": "N",
     "penetration": "m",

@@ -1,0 +1,419 @@
+"""hinfnn benchmark suite: speed and scale of the closed loop, printed as a table and saved as JSON.
+
+Cases (each runs in a fresh worker process so that its peak memory is its own):
+
+1. ``single``  — the paper scenario, one 10-s run (100,000 RK4 steps at dt = 1e-4, controller at
+   every stage) of each controller: compile time apart, then ``--repeats`` timed runs.
+2. ``batch``   — the adaptive controller on 1, 10, 100, 1,000 parameter sets under ``vmap``:
+   masses, link lengths, surface angle and contact stiffness drawn uniformly within ±20 % of the
+   paper's true values (seeded; draws whose start pose is out of the arm's reach are redrawn, and
+   the acceptance rate is reported). Trajectory-steps per second and peak memory.
+3. ``startup`` — a new process running ``hinfnn run paper``, cold then warm (persistent
+   compilation cache): time to the first simulated step (benchmarks/startup.py).
+4. ``latency`` — the sampled controller ``update(t, period, state, measurement)`` called from
+   Python as in a 1 kHz robot loop: median and 99th percentile over 10,000 calls
+   (benchmarks/latency.py).
+
+Baseline: the plain-NumPy closed loop of ``tests/numpy_oracle.py`` (a Python loop over RK4 steps,
+the same equations), timed in the same invocation on a 1-s horizon and scaled to 10 s.
+
+Usage::
+
+    python benchmarks/run.py                 # everything (make bench), ~10 min on 2 cores
+    python benchmarks/run.py --cases single latency --repeats 5
+    python benchmarks/run.py --quick         # smaller batches and horizons, for a smoke test
+
+Writes ``benchmarks/results/bench-<UTC time>.json`` and ``benchmarks/results/latest.json``.
+Timing lives here, never in tests/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import os
+import platform
+import re
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+RESULTS = HERE / "results"
+DT = 1e-4
+T_RUN = 10.0
+KINDS = ("fl", "hinf", "hinf_nn")
+TARGETS = {
+    "single_s_per_run": 1.0, "single_speedup_vs_numpy": 50.0, "single_compile_s": 10.0,
+    "batch1000_traj_steps_per_s": 300_000.0, "batch1000_memory_gb": 4.0,
+    "startup_warm_s": 3.0, "latency_median_us": 30.0, "latency_p99_us": 100.0,
+}
+
+
+# --- machine -------------------------------------------------------------------------------------
+
+def machine() -> dict:
+    import jax
+    import jaxlib
+    import numpy as np
+
+    import hinfnn
+
+    cpu = platform.processor() or "?"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                                text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    return dict(cpu=cpu, cores=os.cpu_count(), usable_cores=len(os.sched_getaffinity(0)),
+                memory_gb=round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1),
+                python=platform.python_version(), jax=jax.__version__, jaxlib=jaxlib.__version__,
+                numpy=np.__version__, hinfnn=hinfnn.__version__, commit=commit,
+                platform=jax.devices()[0].platform, xla_flags=os.environ.get("XLA_FLAGS", ""))
+
+
+def peak_rss_gb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
+
+
+def _stats(times):
+    return dict(median=statistics.median(times), min=min(times), max=max(times), n=len(times))
+
+
+# --- operations per step ---------------------------------------------------------------------------
+
+def step_profile(plant, ctrl, ref) -> dict:
+    """Kernels and transcendental operations per RK4 step, read off the compiled inner loop body
+    (the loop between two stored samples)."""
+    import importlib
+
+    import jax.numpy as jnp
+
+    S = importlib.import_module("hinfnn.sim.simulate")
+    y0 = S.initial_state(plant, ctrl)
+    chunk, _, init = S._compiled(None, 200, 10, False, tuple(S.FIELDS))
+    carry = init(ctrl, y0, plant.arm.n)
+    args = (plant, ctrl, ref, S.Limits(), carry, jnp.asarray(0, jnp.int64), jnp.asarray(10, jnp.int64),
+            jnp.asarray(DT), jnp.asarray(1, jnp.int64))
+    txt = chunk.lower(*args).compile().as_text()
+    loops = re.findall(r"while\(%[\w.\-]+\), condition=%[\w.\-]+, body=%([\w.\-]+)", txt)
+    out = dict(kernels=None, transcendentals=None)
+    for body in loops:
+        start = txt.find("\n%" + body + " ")
+        block = txt[start:txt.index("\n}\n", start)]
+        if "f64[200" in block:  # the outer loop (records); we want the step loop
+            continue
+        kernels = len(re.findall(r" (?:fusion|dot|custom-call|while|conditional)\(", block))
+        called = re.findall(r"calls=%([\w.\-]+)", block)
+        trans = {"tanh": 0, "sine": 0, "cosine": 0, "divide": 0}
+        for name in [body] + called:
+            j = txt.find("\n%" + name + " ")
+            if j < 0:
+                continue
+            comp = txt[j:txt.index("\n}\n", j)]
+            for m in re.finditer(r"= f64\[([\d,]*)\]\S* (tanh|sine|cosine|divide)\(", comp):
+                size = 1
+                for d in filter(None, m.group(1).split(",")):
+                    size *= int(d)
+                trans[m.group(2)] += size
+        out = dict(kernels=kernels, elementwise_per_step=trans)
+    return out
+
+
+# --- case 1 ------------------------------------------------------------------------------------------
+
+def numpy_baseline(kinds, horizon) -> dict:
+    sys.path.insert(0, str(ROOT / "tests"))
+    import numpy as np
+    import numpy_oracle
+
+    np.seterr(all="ignore")
+    out = {}
+    for kind in kinds:
+        t0 = time.perf_counter()
+        numpy_oracle.simulate(kind, {}, t_final=horizon, dt=DT)
+        wall = time.perf_counter() - t0
+        out[kind] = dict(horizon_s=horizon, wall_s=wall, s_per_10s_run=wall * T_RUN / horizon,
+                         steps_per_s=round(horizon / DT) / wall)
+    return out
+
+
+def case_single(args) -> dict:
+    import hinfnn as H
+
+    base = numpy_baseline(KINDS, args.numpy_horizon)
+    rows = {}
+    for kind in KINDS:
+        sc = H.load_scenario("paper", {"controller.kind": kind})
+        plant, ctrl, ref, q0 = sc.build_plant(), sc.build_controller(kind), sc.build_reference(), sc.initial_q()
+        t0 = time.perf_counter()
+        H.simulate(plant, ctrl, ref, t_final=0.01, dt=DT, q0=q0)
+        compile_s = time.perf_counter() - t0
+        times = []
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            H.simulate(plant, ctrl, ref, t_final=args.horizon, dt=DT, q0=q0)
+            times.append((time.perf_counter() - t0) * T_RUN / args.horizon)
+        st = _stats(times)
+        rows[kind] = dict(compile_s=compile_s, s_per_10s_run=st, steps_per_s=T_RUN / DT / st["median"],
+                          speedup_vs_numpy=base[kind]["s_per_10s_run"] / st["median"],
+                          numpy=base[kind], ops=step_profile(plant, ctrl, ref))
+    return dict(rows=rows, peak_rss_gb=peak_rss_gb())
+
+
+# --- case 2 ------------------------------------------------------------------------------------------
+
+def draw_plants(B: int, seed: int = 0, spread: float = 0.2):
+    """B true plants with m1, m2, l1, l2, δ and k drawn uniformly within ±spread of the paper's
+    values; draws whose start pose (u1(0) on the surface) is out of reach are redrawn."""
+    import numpy as np
+
+    import hinfnn as H
+
+    rng = np.random.default_rng(seed)
+    p0 = H.load_scenario("paper").build_plant()
+    arm0, surf0, con0 = p0.arm, p0.surface, p0.contact
+    plants, q0s, tried = [], [], 0
+    while len(plants) < B:
+        tried += 1
+        f = rng.uniform(1 - spread, 1 + spread, size=6)
+        arm = H.TwoLinkArm(m1=float(arm0.m1) * f[0], m2=float(arm0.m2) * f[1], l1=float(arm0.l1) * f[2],
+                           l2=float(arm0.l2) * f[3], g=float(arm0.g))
+        plant = H.Plant(arm, H.InclinedLine(delta=float(surf0.delta) * f[4], d_G=float(surf0.d_G),
+                                            scaling=surf0.scaling),
+                        H.PenaltyContact(float(con0.stiffness) * f[5], float(con0.damping)), p0.disturbance)
+        q0 = np.asarray(plant.initial_q(1.6902))
+        if np.all(np.isfinite(q0)):
+            plants.append(plant)
+            q0s.append(q0)
+    return plants, q0s, B / tried
+
+
+def case_batch(args) -> dict:
+    import hinfnn as H
+
+    sc = H.load_scenario("paper", {"controller.kind": "hinf_nn"})
+    ctrl, ref = sc.build_controller("hinf_nn"), sc.build_reference()
+    rows = {}
+    for B in args.batches:
+        plants, q0s, acc = draw_plants(B, seed=args.seed)
+        rss0 = peak_rss_gb()
+        t0 = time.perf_counter()
+        H.simulate_batch(plants, ctrl, ref, t_final=0.01, dt=DT, q0=q0s)
+        compile_s = time.perf_counter() - t0
+        horizon = args.batch_horizon
+        t0 = time.perf_counter()
+        tr = H.simulate_batch(plants, ctrl, ref, t_final=horizon, dt=DT, q0=q0s)
+        wall = time.perf_counter() - t0
+        stored = sum(v.nbytes for v in tr.arrays.values())
+        rows[str(B)] = dict(batch=B, horizon_s=horizon, wall_s=wall,
+                            traj_steps_per_s=B * round(horizon / DT) / wall,
+                            s_per_1000_runs_of_10s=1000 * T_RUN / DT / (B * round(horizon / DT) / wall),
+                            compile_s=compile_s, acceptance=acc, completed=int(tr.ok.sum()),
+                            stored_gb=stored / 2**30, peak_rss_gb=peak_rss_gb(), peak_rss_before_gb=rss0,
+                            samples_per_run=int(tr.t.shape[-1]))
+        del tr
+    return dict(rows=rows, peak_rss_gb=peak_rss_gb())
+
+
+# --- cases 3 and 4 (helpers in their own files) ---------------------------------------------------
+
+def case_startup(args) -> dict:
+    sys.path.insert(0, str(HERE))
+    import startup
+
+    return startup.measure_startup(repeats=args.repeats)
+
+
+def case_latency(args) -> dict:
+    sys.path.insert(0, str(HERE))
+    import latency
+
+    out = {}
+    for kind in KINDS:
+        out[kind] = latency.measure_latency(n_calls=args.calls, kind=kind)
+    return out
+
+
+CASES = {"single": case_single, "batch": case_batch, "startup": case_startup, "latency": case_latency}
+
+
+# --- driver --------------------------------------------------------------------------------------
+
+def run_worker(case: str, args) -> dict:
+    """Run one case in a fresh Python process; returns its JSON result (peak memory its own)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "out.json"
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", case, "--worker-out", str(out),
+               "--repeats", str(args.repeats), "--horizon", str(args.horizon),
+               "--batch-horizon", str(args.batch_horizon), "--numpy-horizon", str(args.numpy_horizon),
+               "--calls", str(args.calls), "--seed", str(args.seed), "--batches", *map(str, args.batches)]
+        # compile times are cold: a fresh, empty compilation cache for every worker (case 3
+        # measures the cache itself)
+        env = dict(os.environ, HINFNN_CACHE_DIR=str(Path(tmp) / "jax-cache"))
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        wall = time.perf_counter() - t0
+        if proc.returncode != 0:
+            sys.stderr.write(proc.stderr[-4000:])
+            return dict(error=f"worker for {case!r} exited with {proc.returncode}", wall_s=wall)
+        res = json.loads(out.read_text())
+        res["case_wall_s"] = wall
+        return res
+
+
+def fmt(x, spec=",.0f"):
+    return "—" if x is None else format(x, spec)
+
+
+def mark(ok):
+    return "met" if ok else "MISSED"
+
+
+def print_report(res: dict) -> None:
+    m = res["machine"]
+    print(f"\nhinfnn {m['hinfnn']} ({m['commit']}) · {m['cpu']} · {m['usable_cores']} of {m['cores']} cores · "
+          f"{m['memory_gb']} GB · Python {m['python']} · JAX {m['jax']} (jaxlib {m['jaxlib']}) · {m['platform']}")
+    c = res["cases"]
+    if "single" in c and "rows" in c["single"]:
+        print("\n1. One 10-s run of the paper scenario (100,000 RK4 steps, dt = 1e-4, controller at every stage)")
+        hdr = (f"{'controller':<10}{'s/run med':>10}{'min':>7}{'max':>7}{'steps/s':>10}{'compile s':>10}"
+               f"{'NumPy s/run':>12}{'× NumPy':>9}{'kernels/step':>13}{'tanh+sin+cos/step':>18}{'peak GB':>8}")
+        print(hdr)
+        print("-" * len(hdr))
+        for kind, r in c["single"]["rows"].items():
+            s = r["s_per_10s_run"]
+            ops = r["ops"]
+            tr = ops.get("elementwise_per_step") or {}
+            trans = (tr.get("tanh", 0) + tr.get("sine", 0) + tr.get("cosine", 0)) if tr else None
+            print(f"{kind:<10}{s['median']:>10.3f}{s['min']:>7.3f}{s['max']:>7.3f}{r['steps_per_s']:>10,.0f}"
+                  f"{r['compile_s']:>10.1f}{r['numpy']['s_per_10s_run']:>12.1f}{r['speedup_vs_numpy']:>9.0f}"
+                  f"{fmt(ops.get('kernels'), 'd'):>13}{fmt(trans, ',d'):>18}{c['single']['peak_rss_gb']:>8.2f}")
+    if "batch" in c and "rows" in c["batch"]:
+        print("\n2. Adaptive controller, B parameter sets (±20 %) under vmap")
+        hdr = (f"{'B':>6}{'horizon s':>10}{'wall s':>9}{'traj-steps/s':>14}{'1000×10 s runs, s':>19}"
+               f"{'compile s':>10}{'completed':>10}{'stored GB':>10}{'peak GB':>9}")
+        print(hdr)
+        print("-" * len(hdr))
+        for r in c["batch"]["rows"].values():
+            print(f"{r['batch']:>6}{r['horizon_s']:>10.1f}{r['wall_s']:>9.2f}{r['traj_steps_per_s']:>14,.0f}"
+                  f"{r['s_per_1000_runs_of_10s']:>19,.0f}{r['compile_s']:>10.1f}{r['completed']:>10}"
+                  f"{r['stored_gb']:>10.3f}{r['peak_rss_gb']:>9.2f}")
+        acc = next(iter(c["batch"]["rows"].values()))["acceptance"]
+        print(f"(draws with an unreachable start pose were redrawn: acceptance {acc:.0%})")
+    if "startup" in c and "error" not in c["startup"]:
+        s = c["startup"]
+        print("\n3. New process `hinfnn run paper`: seconds from launch to the first simulated step")
+        print(f"cold (empty cache) {fmt(s.get('cold_first_step_s'), '.2f')}   "
+              f"warm (median) {fmt(s.get('warm_first_step_s'), '.2f')}")
+    if "latency" in c and "error" not in c["latency"]:
+        print("\n4. Sampled update(t, period, state, measurement) from a Python loop, µs per call")
+        hdr = f"{'controller':<10}{'median':>9}{'p90':>9}{'p99':>9}{'max':>10}{'calls':>8}"
+        print(hdr)
+        print("-" * len(hdr))
+        for kind, r in c["latency"].items():
+            print(f"{kind:<10}{r.get('median_us', float('nan')):>9.1f}{r.get('p90_us', float('nan')):>9.1f}"
+                  f"{r.get('p99_us', float('nan')):>9.1f}{r.get('max_us', float('nan')):>10.1f}"
+                  f"{r.get('n_calls', 0):>8}")
+    if res.get("targets"):
+        print("\nTargets")
+        for name, t in res["targets"].items():
+            print(f"  {name:<38}{t['measured']:>14,.3f}  target {t['op']} {t['target']:,g}  {mark(t['met'])}")
+    for case, r in c.items():
+        if "error" in r:
+            print(f"\n{case}: {r['error']}")
+
+
+def targets(c: dict) -> dict:
+    out = {}
+
+    def add(name, measured, op, target):
+        if measured is None:
+            return
+        met = measured <= target if op == "<=" else measured >= target
+        out[name] = dict(measured=measured, op=op, target=target, met=bool(met))
+
+    if "rows" in c.get("single", {}):
+        for kind, r in c["single"]["rows"].items():
+            add(f"case 1 {kind}: s per 10-s run", r["s_per_10s_run"]["median"], "<=", TARGETS["single_s_per_run"])
+            add(f"case 1 {kind}: × NumPy oracle", r["speedup_vs_numpy"], ">=", TARGETS["single_speedup_vs_numpy"])
+            add(f"case 1 {kind}: compile s", r["compile_s"], "<=", TARGETS["single_compile_s"])
+    rows = c.get("batch", {}).get("rows", {})
+    if "1000" in rows:
+        add("case 2 B=1000: traj-steps/s", rows["1000"]["traj_steps_per_s"], ">=", TARGETS["batch1000_traj_steps_per_s"])
+        add("case 2 B=1000: peak GB", rows["1000"]["peak_rss_gb"], "<=", TARGETS["batch1000_memory_gb"])
+    s = c.get("startup", {})
+    if s.get("warm_first_step_s") is not None:
+        add("case 3: warm start to first step, s", s["warm_first_step_s"], "<=", TARGETS["startup_warm_s"])
+    for kind, r in c.get("latency", {}).items():
+        if isinstance(r, dict) and "median_us" in r:
+            add(f"case 4 {kind}: median µs", r["median_us"], "<=", TARGETS["latency_median_us"])
+            add(f"case 4 {kind}: p99 µs", r["p99_us"], "<=", TARGETS["latency_p99_us"])
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    ap.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
+    ap.add_argument("--repeats", type=int, default=3, help="timed repetitions after the warm-up")
+    ap.add_argument("--horizon", type=float, default=T_RUN, help="simulated seconds per timed single run")
+    ap.add_argument("--batches", type=int, nargs="*", default=[1, 10, 100, 1000])
+    ap.add_argument("--batch-horizon", type=float, default=T_RUN, help="simulated seconds per batch run")
+    ap.add_argument("--numpy-horizon", type=float, default=1.0, help="NumPy oracle horizon (scaled to 10 s)")
+    ap.add_argument("--calls", type=int, default=10_000, help="update() calls in the latency case")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--quick", action="store_true", help="1-s horizons, batches up to 100, 2,000 calls")
+    ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--worker", choices=list(CASES), help=argparse.SUPPRESS)
+    ap.add_argument("--worker-out", type=Path, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.horizon, args.batch_horizon, args.numpy_horizon = 1.0, 1.0, 0.2
+        args.batches = [b for b in args.batches if b <= 100]
+        args.calls = min(args.calls, 2000)
+    if args.worker:
+        import numpy as np
+
+        np.seterr(all="ignore")
+        res = CASES[args.worker](args)
+        args.worker_out.write_text(json.dumps(res, indent=1, default=float))
+        return 0
+
+    t_start = time.perf_counter()
+    # machine info in a worker too, so this process never initialises JAX
+    info = subprocess.run([sys.executable, "-c", "import json, sys; sys.path.insert(0, %r); import run; "
+                           "print(json.dumps(run.machine()))" % str(HERE)], capture_output=True, text=True)
+    mach = json.loads(info.stdout) if info.returncode == 0 else dict(error=info.stderr[-500:])
+    res = dict(machine=mach, started=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+               argv=sys.argv[1:], cases={})
+    for case in args.cases:
+        print(f"[{time.perf_counter() - t_start:6.0f} s] case {case} …", file=sys.stderr, flush=True)
+        res["cases"][case] = run_worker(case, args)
+    res["targets"] = targets(res["cases"])
+    res["total_s"] = time.perf_counter() - t_start
+    args.out.mkdir(parents=True, exist_ok=True)
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    text = json.dumps(res, indent=1, default=float)
+    (args.out / f"bench-{stamp}.json").write_text(text)
+    (args.out / "latest.json").write_text(text)
+    print_report(res)
+    print(f"\ntotal {res['total_s']:.0f} s; written {args.out / f'bench-{stamp}.json'}")
+    return 0 if all("error" not in r for r in res["cases"].values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
