@@ -216,13 +216,18 @@ def case_batch(args) -> dict:
         compile_s = time.perf_counter() - t0
         horizon = args.batch_horizon
         t0 = time.perf_counter()
-        tr = H.simulate_batch(plants, ctrl, ref, t_final=horizon, dt=DT, q0=q0s)
+        tr = H.simulate_batch(plants, ctrl, ref, t_final=horizon, dt=DT, q0=q0s, fields=args.batch_fields)
         wall = time.perf_counter() - t0
         stored = sum(v.nbytes for v in tr.arrays.values())
+        metrics = [H.compute_metrics(tr.member(i)) for i in range(B)]  # what the study is for
+        done = [m for m in metrics if m["J_T"] == m["J_T"]]
         rows[str(B)] = dict(batch=B, horizon_s=horizon, wall_s=wall,
                             traj_steps_per_s=B * round(horizon / DT) / wall,
                             s_per_1000_runs_of_10s=1000 * T_RUN / DT / (B * round(horizon / DT) / wall),
                             compile_s=compile_s, acceptance=acc, completed=int(tr.ok.sum()),
+                            fields=args.batch_fields, n_fields=len(tr.arrays),
+                            median_rms_e_lam_last2s=statistics.median([m["rms_e_lam_last2s"] for m in done])
+                            if done else None,
                             stored_gb=stored / 2**30, peak_rss_gb=peak_rss_gb(), peak_rss_before_gb=rss0,
                             samples_per_run=int(tr.t.shape[-1]))
         del tr
@@ -260,7 +265,8 @@ def run_worker(case: str, args) -> dict:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", case, "--worker-out", str(out),
                "--repeats", str(args.repeats), "--horizon", str(args.horizon),
                "--batch-horizon", str(args.batch_horizon), "--numpy-horizon", str(args.numpy_horizon),
-               "--calls", str(args.calls), "--seed", str(args.seed), "--batches", *map(str, args.batches)]
+               "--calls", str(args.calls), "--seed", str(args.seed), "--batch-fields", args.batch_fields,
+               "--batches", *map(str, args.batches)]
         # compile times are cold: a fresh, empty compilation cache for every worker (case 3
         # measures the cache itself)
         env = dict(os.environ, HINFNN_CACHE_DIR=str(Path(tmp) / "jax-cache"))
@@ -303,7 +309,9 @@ def print_report(res: dict) -> None:
                   f"{r['compile_s']:>10.1f}{r['numpy']['s_per_10s_run']:>12.1f}{r['speedup_vs_numpy']:>9.0f}"
                   f"{fmt(ops.get('kernels'), 'd'):>13}{fmt(trans, ',d'):>18}{c['single']['peak_rss_gb']:>8.2f}")
     if "batch" in c and "rows" in c["batch"]:
-        print("\n2. Adaptive controller, B parameter sets (±20 %) under vmap")
+        first = next(iter(c["batch"]["rows"].values()))
+        print(f"\n2. Adaptive controller, B parameter sets (±20 %) under vmap, storing "
+              f"{first['n_fields']} fields ({first['fields']}) every 1 ms")
         hdr = (f"{'B':>6}{'horizon s':>10}{'wall s':>9}{'traj-steps/s':>14}{'1000×10 s runs, s':>19}"
                f"{'compile s':>10}{'completed':>10}{'stored GB':>10}{'peak GB':>9}")
         print(hdr)
@@ -373,6 +381,7 @@ def main(argv=None) -> int:
     ap.add_argument("--horizon", type=float, default=T_RUN, help="simulated seconds per timed single run")
     ap.add_argument("--batches", type=int, nargs="*", default=[1, 10, 100, 1000])
     ap.add_argument("--batch-horizon", type=float, default=T_RUN, help="simulated seconds per batch run")
+    ap.add_argument("--batch-fields", default="metrics", help="what batch runs store: 'metrics' or 'all'")
     ap.add_argument("--numpy-horizon", type=float, default=1.0, help="NumPy oracle horizon (scaled to 10 s)")
     ap.add_argument("--calls", type=int, default=10_000, help="update() calls in the latency case")
     ap.add_argument("--seed", type=int, default=0)

@@ -170,5 +170,7 @@ def test_fields_selects_what_is_stored(paper_plant, nominal_arm, nominal_surface
     assert set(tr.arrays) == {"t", "e_u1", "tau"}
     allf = H.simulate(paper_plant, ctrl, reference, t_final=0.1, dt=1e-4)
     np.testing.assert_array_equal(tr.tau, allf.tau)
+    lean = H.simulate(paper_plant, ctrl, reference, t_final=0.1, dt=1e-4, fields="metrics")
+    assert len(lean.arrays) == 17 and H.compute_metrics(lean) == H.compute_metrics(allf)
     with pytest.raises(H.ConfigError, match="unknown trajectory field.*'torque'"):
         H.simulate(paper_plant, ctrl, reference, t_final=0.1, dt=1e-4, fields=("torque",))

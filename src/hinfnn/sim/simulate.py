@@ -37,7 +37,7 @@ from .. import _linalg as la
 from ..controllers.network import sq_norm
 from ..measurement import Measurement
 from .integrate import rk4_step
-from .trajectory import FIELDS, STATUS, Trajectory
+from .trajectory import FIELD_SETS, FIELDS, STATUS, Trajectory
 
 
 @pytree_dataclass
@@ -374,13 +374,17 @@ def save_every_for(n_steps: int, dt: float, save_interval: float) -> int:
 
 
 def _fields(fields) -> tuple:
-    """The record fields to store: all of :data:`FIELDS` (``None``) or the names given, plus t."""
+    """The record fields to store: all of :data:`FIELDS` (``None``), a named set of
+    :data:`FIELD_SETS` (``"all"``, ``"metrics"``) or the names given; ``t`` always."""
     if fields is None:
         return tuple(FIELDS)
+    if isinstance(fields, str) and fields in FIELD_SETS:
+        return tuple(n for n in FIELDS if n in FIELD_SETS[fields])
     names = [fields] if isinstance(fields, str) else list(fields)
     unknown = [n for n in names if n not in FIELDS]
     if unknown:
-        raise ConfigError(f"unknown trajectory field(s) {unknown}; allowed: {', '.join(FIELDS)}", key="fields")
+        raise ConfigError(f"unknown trajectory field(s) {unknown}; allowed: {', '.join(FIELDS)}, or one of "
+                          f"the sets {sorted(FIELD_SETS)}", key="fields")
     return tuple(n for n in FIELDS if n == "t" or n in names)
 
 
@@ -424,8 +428,9 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
 
     Storage: a sample every ``save_every`` steps; by default the largest divisor of the step
     count with ``save_every · dt ≤ save_interval`` (1 ms: every 10th step at dt = 1e-4).
-    ``tau_abs_max`` and ``tau_variation`` still cover every step (max |τ_i| and Σ|Δτ_i| since
-    the previous sample). ``fields``: the trajectory fields to store (default all of
+    The step summaries (``tau_abs_max``, ``tau_variation``, ``tau_sq``, ``e_u1_sq``, ...) still
+    cover every step, so :func:`~hinfnn.compute_metrics` does not depend on the decimation.
+    ``fields``: the trajectory fields to store, names or ``"metrics"`` (default all of
     :data:`~hinfnn.sim.trajectory.FIELDS`; ``t`` always); memory is what is stored.
 
     Raises :class:`~hinfnn.errors.SimulationError` with the time and the offending quantities

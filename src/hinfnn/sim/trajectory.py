@@ -58,6 +58,15 @@ FIELDS = {
     "f_f": "λ units",
 }
 
+#: Named selections for ``simulate(..., fields=...)``: ``"metrics"`` is what
+#: :func:`hinfnn.compute_metrics` needs (a Monte Carlo study stores 23 numbers per sample, not 54).
+FIELD_SETS = {
+    "all": tuple(FIELDS),
+    "metrics": ("t", "e_u1", "e_lam", "tau", "normal_force", "J", "J_aug", "V", "supply", "tau_abs_max",
+                "tau_variation", "tau_sq", "e_u1_sq", "e_lam_sq", "steps_out_of_contact", "e_u1_abs_max",
+                "e_lam_abs_max"),
+}
+
 
 @dataclasses.dataclass(frozen=True)
 class Trajectory:
