@@ -6,6 +6,9 @@ from __future__ import annotations
 import os
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+# No persistent compilation cache: the suite must not write into the user's ~/.cache (and each
+# test of the cache sets HINFNN_CACHE_DIR for its own subprocesses). Set before `import hinfnn`.
+os.environ["HINFNN_CACHE_DIR"] = "off"
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402

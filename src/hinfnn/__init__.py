@@ -11,6 +11,7 @@ from .controllers import (
     Gains,
     HinfController,
     HinfNNController,
+    SampledController,
     TanhNetwork,
 )
 from .errors import ConfigError, DesignError, HinfnnError, SimulationError
@@ -22,14 +23,15 @@ from .sim import Limits, Trajectory, simulate, simulate_batch
 from .metrics import compute_metrics
 from .scenario import Scenario, load_scenario
 from .io import LoadError, load
+from ._cache import cache_dir, clear_cache, enable_cache
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "FeedbackLinearization", "HinfController", "HinfNNController", "Gains", "TanhNetwork",
+    "FeedbackLinearization", "HinfController", "HinfNNController", "SampledController", "Gains", "TanhNetwork",
     "ConfigError", "DesignError", "SimulationError", "HinfnnError",
     "Measurement", "TwoLinkArm", "PlanarPointMassArm", "InclinedLine", "ImplicitSurface",
     "reduced_model", "Plant", "PenaltyContact", "SquareWave", "CosineReference",
     "simulate", "simulate_batch", "Limits", "Trajectory", "compute_metrics", "Scenario",
-    "load_scenario", "load", "LoadError", "__version__",
+    "load_scenario", "load", "LoadError", "cache_dir", "enable_cache", "clear_cache", "__version__",
 ]

@@ -24,11 +24,20 @@ EXAMPLES_REPRODUCE = """examples:
   hinfnn reproduce --out /tmp/study --force
   hinfnn reproduce --set simulation.t_final=2   # a quick look (claims are judged on whatever ran)
 """
+EXAMPLES_CACHE = """examples:
+  hinfnn cache                     where the compilation cache is, its number of files and size
+  hinfnn cache --clear             empty it (the next run compiles again, 4-7 s)
+  du -sh "$(hinfnn cache --path)"  the folder alone, for scripts (prints nothing when it is off)
+
+The folder is $HINFNN_CACHE_DIR, else $XDG_CACHE_HOME/hinfnn/jax, else ~/.cache/hinfnn/jax;
+HINFNN_CACHE_DIR=off disables the cache. Deleting the folder at any time is safe.
+"""
 EXAMPLES_MAIN = """examples:
   hinfnn reproduce                 the paper's Sec. VI study into results/paper/
   hinfnn run paper --set controller.kind=hinf --set plant.contact.damping=200
   hinfnn keys                      every scenario key, its meaning and allowed values
   hinfnn show results/paper        the metrics of a saved result
+  hinfnn cache                     the compilation cache that makes later starts fast
 
 Exit codes: 0 ok, 2 bad input (scenario, override, infeasible gains), 1 other failures, 130 interrupted.
 """
@@ -89,6 +98,17 @@ def _parser() -> argparse.ArgumentParser:
                                     "its metrics.", epilog="example:\n  hinfnn show results/paper\n")
     sh.add_argument("folder", type=Path)
     sh.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    ca = sub.add_parser(
+        "cache", formatter_class=fmt, epilog=EXAMPLES_CACHE,
+        help="show or clear the compilation cache (compiled simulator programs reused across runs)",
+        description="The persistent compilation cache: XLA programs compiled by earlier hinfnn "
+                    "processes, so that a new process skips most of the 4-7 s of compilation. "
+                    "Without options: its folder, number of files and size.")
+    what = ca.add_mutually_exclusive_group()
+    what.add_argument("--clear", action="store_true", help="delete every cache entry and say how much was removed")
+    what.add_argument("--path", action="store_true",
+                      help="print only the cache folder (nothing when the cache is off), for scripts")
+    ca.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     return p
 
 
@@ -166,11 +186,15 @@ def cmd_run(args) -> int:
     from .io import OutputFolder, atomic_write_bytes, atomic_write_text, choose_output, dumps_json, \
         trajectory_npz_bytes
     from .metrics import compute_metrics
-    from .report import run_figures
     from .scenario import Scenario, simulate_many
     from .study import metrics_document
 
+    trace = getattr(args, "startup_trace", None)
+    if trace:
+        trace.mark("imports_done")
     sc = Scenario.load(args.scenario, args.overrides)
+    if trace:
+        trace.mark("scenario_loaded")
     out = args.out or Path("results") / sc.name
     target, note = choose_output(out, args.force)
     if note:  # even with --quiet: the result is not where the user asked
@@ -178,8 +202,11 @@ def cmd_run(args) -> int:
     kinds = sc.kinds
     progress = Progress(args.quiet, f"simulating {', '.join(kinds)}")
     with OutputFolder(target) as folder:
-        trajs = simulate_many([(k, sc, k) for k in kinds], progress=progress)
+        trajs = simulate_many([(k, sc, k) for k in kinds],
+                              progress=trace.wrap(progress) if trace else progress)
         progress.done()
+        if trace:
+            trace.done()
         entries = []
         for kind in kinds:
             m = compute_metrics(trajs[kind])
@@ -189,6 +216,8 @@ def cmd_run(args) -> int:
         atomic_write_bytes(folder.path / "trajectory.npz",
                            trajectory_npz_bytes(trajs, sc.data["simulation"]["output_interval"]))
         atomic_write_text(folder.path / "scenario.toml", sc.to_toml())
+        from .report import run_figures  # matplotlib (0.5 s): imported once the simulation is done
+
         run_figures(trajs, folder.path)
     if not args.quiet:
         print(metrics_table(doc["runs"]))
@@ -247,8 +276,41 @@ def cmd_show(args) -> int:
     return 0
 
 
+def _size(n: int) -> str:
+    """Bytes for people: ``512 B``, ``473.5 kB``, ``1.2 MB``."""
+    if n < 1000:
+        return f"{n} B"
+    for unit in ("kB", "MB", "GB"):
+        n /= 1000
+        if n < 1000 or unit == "GB":
+            return f"{n:.1f} {unit}"
+
+
+def cmd_cache(args) -> int:
+    """Show (default), clear (``--clear``) or locate (``--path``) the compilation cache."""
+    from . import _cache
+
+    folder = _cache.cache_dir()
+    if args.path:
+        if folder is not None:
+            print(folder)
+        return 0
+    if folder is None:
+        print(f"compilation cache: off ({_cache.cache_disabled_reason()})"
+              + ("; nothing to clear" if args.clear else ""))
+        return 0
+    if args.clear:
+        n, _ = _cache.cache_size()
+        removed = _cache.clear_cache()
+        print(f"removed {n} files ({_size(removed)}) from {folder}")
+        return 0
+    n, size = _cache.cache_size()
+    print(f"compilation cache: {folder}\nfiles: {n}\nsize:  {_size(size)}")
+    return 0
+
+
 COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "keys": cmd_keys, "scenarios": cmd_scenarios,
-            "show": cmd_show}
+            "show": cmd_show, "cache": cmd_cache}
 
 
 def _interrupted_exit(code: int, argv) -> int:
@@ -270,6 +332,10 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    if args.command == "run":
+        from ._startup import StartupTrace
+
+        args.startup_trace = StartupTrace.from_env()
     from .errors import ConfigError, DesignError
     from .io import LoadError
 
@@ -296,6 +362,9 @@ def main(argv=None) -> int:
         print(f"hinfnn: error: {type(err).__name__}: {err} (run with --debug for the traceback)",
               file=sys.stderr)
         return 1
+    finally:
+        if getattr(args, "startup_trace", None) is not None:
+            args.startup_trace.close()
 
 
 if __name__ == "__main__":

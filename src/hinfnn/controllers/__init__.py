@@ -12,6 +12,7 @@ from .hinf import HinfController
 from .hinf_nn import HinfNNController
 from .network import CENTRE_PRESETS_F, TanhNetwork, centres_from, paper_network_f, paper_network_p
 from .riccati import RiccatiSolution, design_riccati, solve_riccati_like
+from .sampled import MeasurementError, SampledController, SampledLoop
 
 __all__ = [
     "ControllerState",
@@ -29,4 +30,7 @@ __all__ = [
     "RiccatiSolution",
     "design_riccati",
     "solve_riccati_like",
+    "SampledController",
+    "SampledLoop",
+    "MeasurementError",
 ]

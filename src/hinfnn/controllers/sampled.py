@@ -1,0 +1,414 @@
+"""Fixed-rate, zero-order-hold use of a designed controller, as a robot loop calls it.
+
+The paper's controllers are continuous-time: τ(t) of eq. (24) (with Λp, Λf of eqs. (25)–(26))
+acts at every instant and the controller state x_c = (z, Θ̂p, Θ̂f) flows by
+
+    ż   = −μ_z z − α_z e_λ                          (27)
+    Θ̂̇p = γ1 Ξpᵀ B_pᵀ P_p x_p   (projected, Remark 2)   (30)
+    Θ̂̇f = γ2 Ξfᵀ e_λ           (projected, Remark 2)   (31)
+
+A robot runs the law at a fixed period h (1 kHz: h = 1 ms), ros2_control style: at each sample
+instant t_k it reads the sensors, calls ``update(t_k, h, state, measurement)``, applies the
+returned τ_k until the next sample (zero-order hold) and keeps the returned state. The update is
+
+    τ_k      = τ(t_k, x_c,k, y_k)                                   eq. (24) at the sample
+    x_c,k+1  = constrain(x_c,k + h · f(t_k, x_c,k, y_k))             forward Euler over h
+
+with f the right-hand side of (27), (30), (31) evaluated from the same measurement y_k, and
+``constrain`` the controller's radial clip onto ‖Θ̂‖ ≤ d (Remark 2; identity without projection).
+Forward Euler is the first-order discretisation of the continuous law: over a horizon T the
+sampled state differs from the continuous one by O(h), and as h → 0 with the plant integrated
+finely the sampled closed loop tends to the paper's continuous one (``tests/test_sim.py`` checks
+the trend). The Euler step follows the projected flow, which is tangent to the sphere ‖Θ̂‖ = d,
+so one step can leave the ball by O(h²); the clip puts it back, so ‖Θ̂‖ ≤ d holds after every
+update exactly as Remark 2 requires.
+
+This is exactly the simulator's sampled-data mode (``hinfnn.simulate(..., control_period=h)``):
+same function of the same numbers, so replaying a simulated run's measurements through
+:meth:`SampledController.update` reproduces its held torques and final controller state
+(``tests/test_sampled.py``). The wrapper holds the controller and its reference only: it never
+sees a plant (DESIGN.md, "the one rule").
+
+Entry points:
+
+* :meth:`SampledController.step` — the law as a pure, traceable function, for use inside your
+  own ``jit``/``vmap``/``scan``.
+* :meth:`SampledController.update` — ``step`` jit-compiled once per wrapper (the controller
+  and the reference are compile-time constants). Pytrees in and out; pure.
+* :meth:`SampledController.update_packed` — the same law on one float64 vector
+  ``[t, h, q, q̇, F, z, Θ̂p, Θ̂f]`` returning one vector ``[τ, z, Θ̂p, Θ̂f]``: one buffer in and one
+  out per call, the cheapest call from Python. Pure.
+* :class:`SampledLoop` (``sc.loop()``) — the fast path for a robot loop: a small stateful
+  shell around ``update_packed`` with ``tau = loop.update(t, h, q, q̇, F)`` (NumPy τ), the state
+  kept inside in the packed buffer.
+* :meth:`SampledController.update_checked` — validates its inputs in Python and raises
+  :class:`MeasurementError` instead of returning NaN.
+* :meth:`SampledController.torque_and_signals` — τ and every intermediate signal, for logging.
+
+Non-finite inputs. A NaN or ±inf anywhere in t, h or the measurement, a negative h, or a
+non-finite torque from finite inputs (e.g. overflow at an absurd q̇) never produces a usable
+torque: every entry point returns τ = [NaN, …, NaN] (``update_checked`` raises), so one
+``np.isfinite(tau).all()`` (:meth:`SampledController.is_valid`) tells the robot's driver to go
+to its safe stop. The state returned with a NaN τ is to be discarded (it may hold NaN): the pure
+entry points never modify the state passed in, so keep that one (the bad sample is then simply
+dropped) or re-initialise; :class:`SampledLoop` does exactly this by itself. A NaN state kept by
+mistake makes every later τ NaN too (a latched fault, never a silently wrong torque).
+
+Why the compiled guard covers τ only (the state is not also selected in the program): with JAX's
+CPU async dispatch on (the default), XLA's CPU client runs a program inline on the calling
+thread only when its cost estimate is below 1000 flops, and hands it to a worker thread
+otherwise (a thread switch per call: tens of µs, more on a loaded machine). Selecting the state
+costs about one flop per weight, which is enough to push the adaptive law over that line.
+``benchmarks/latency.py`` prints each program's estimate beside its latency; a robot process
+can avoid the handoff altogether with ``jax.config.update("jax_cpu_enable_async_dispatch",
+False)`` at start-up (process-wide, before JAX's first computation).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._pytree import pytree_dataclass
+from ..errors import HinfnnError
+from ..measurement import Measurement
+from .base import ControllerState, ReducedOrderController
+
+__all__ = ["SampledController", "SampledLoop", "MeasurementError"]
+
+
+class MeasurementError(HinfnnError, ValueError):
+    """A sample given to :meth:`SampledController.update_checked` is unusable.
+
+    ``key`` names the offending input (``measurement.F``, ``t``, ``period``, ``state.z``,
+    ``tau`` …), ``value`` is what was given and ``t`` the sample time.
+    """
+
+    def __init__(self, message: str, key: str | None = None, value=None, t=None):
+        self.key = key
+        self.value = value
+        self.t = t
+        super().__init__(f"{key}: {message}" if key else message)
+
+
+def _all_finite(*arrays):
+    ok = jnp.array(True)
+    for a in arrays:
+        ok = ok & jnp.all(jnp.isfinite(a))
+    return ok
+
+
+@pytree_dataclass
+class SampledController:
+    """A designed controller and its reference, run at a fixed rate with zero-order hold.
+
+    ``SampledController(controller, reference)`` with ``controller`` a
+    :class:`~hinfnn.FeedbackLinearization`, :class:`~hinfnn.HinfController` or
+    :class:`~hinfnn.HinfNNController` (any :class:`ReducedOrderController`) and ``reference``
+    any reference pytree callable on t (:class:`~hinfnn.CosineReference`). Both are pytree data
+    of this wrapper, so a batch of wrappers can be ``vmap``-ed through :meth:`step`; the
+    compiled entry points close over them as compile-time constants (twice as fast to call as
+    passing them as arguments, see ``benchmarks/latency.py``) and are built once per wrapper,
+    on first use.
+
+    The state is a :class:`~hinfnn.controllers.ControllerState` (z, Θ̂p, Θ̂f), with the weights
+    as flat vectors (default) or as tuples of ≤ 64-unit blocks (:meth:`init`). Packed layouts
+    (n joints; ``state_size`` = len z + len Θ̂p + len Θ̂f):
+
+    * packed input (``packed_size``): ``[t, period, q (n), q̇ (n), F (n), z, Θ̂p, Θ̂f]``
+    * packed output (``n + state_size``): ``[τ (n), z, Θ̂p, Θ̂f]`` (the new state)
+    """
+
+    controller: ReducedOrderController
+    reference: object
+
+    # --- sizes, state forms and packing (Python side, cheap) ----------------------------------
+    @property
+    def n_joints(self) -> int:
+        return int(self.controller.arm.n)
+
+    @functools.cached_property
+    def _sizes(self) -> tuple[int, int, int]:
+        xc = self.controller.init()
+        return int(xc.z.shape[0]), int(xc.theta_p.shape[0]), int(xc.theta_f.shape[0])
+
+    @property
+    def state_size(self) -> int:
+        """len z + len Θ̂p + len Θ̂f."""
+        return sum(self._sizes)
+
+    @property
+    def sample_size(self) -> int:
+        """Length of the sample part ``[t, period, q, q̇, F]`` of the packed input: 2 + 3n."""
+        return 2 + 3 * self.n_joints
+
+    @property
+    def packed_size(self) -> int:
+        """Length of the packed input vector of :meth:`update_packed`."""
+        return self.sample_size + self.state_size
+
+    def flat_state(self, state: ControllerState) -> ControllerState:
+        """The state with Θ̂p, Θ̂f as flat vectors (undoes the blocked form of :meth:`init`)."""
+        flat = getattr(self.controller, "flat", None)
+        return state if flat is None else flat(state)
+
+    def blocked_state(self, state: ControllerState) -> ControllerState:
+        """The state with Θ̂p, Θ̂f as tuples of ≤ 64-unit blocks when the controller supports
+        it (``controller.blocked``), else unchanged. Same numbers, smaller buffers (see
+        :meth:`init`)."""
+        blocked = getattr(self.controller, "blocked", None)
+        return state if blocked is None else blocked(state)
+
+    def pack(self, t, period, measurement: Measurement, state: ControllerState,
+             out: np.ndarray | None = None) -> np.ndarray:
+        """(t, period, measurement, state) → the packed input of :meth:`update_packed` (NumPy).
+
+        ``out``: a float64 array of ``packed_size`` to fill in place.
+        """
+        n = self.n_joints
+        x = np.empty(self.packed_size) if out is None else out
+        x[0] = t
+        x[1] = period
+        x[2:2 + n] = measurement.q
+        x[2 + n:2 + 2 * n] = measurement.qd
+        x[2 + 2 * n:2 + 3 * n] = measurement.F
+        x[self.sample_size:] = self.state_vector(state)
+        return x
+
+    def state_vector(self, state: ControllerState) -> np.ndarray:
+        """ControllerState (flat or blocked) → ``[z, Θ̂p, Θ̂f]`` as one NumPy vector."""
+        parts = []
+        for name in ("z", "theta_p", "theta_f"):
+            v = getattr(state, name)
+            parts.extend(v if isinstance(v, tuple) else (v,))
+        return np.concatenate([np.asarray(p, dtype=float).reshape(-1) for p in parts])
+
+    def state_from_vector(self, vec) -> ControllerState:
+        """``[z, Θ̂p, Θ̂f]`` → ControllerState with flat weight vectors (NumPy or traced)."""
+        nz, npp, _ = self._sizes
+        return ControllerState(z=vec[..., :nz], theta_p=vec[..., nz:nz + npp], theta_f=vec[..., nz + npp:])
+
+    def unpack(self, out) -> tuple:
+        """Packed output → ``(τ, new state)`` (flat weights)."""
+        n = self.n_joints
+        return out[..., :n], self.state_from_vector(out[..., n:])
+
+    # --- the law ---------------------------------------------------------------------------------
+    def init(self, theta_p=None, theta_f=None, *, blocked: bool = False) -> ControllerState:
+        """Initial controller state (Sec. VI: z = 0, weights 0 unless given; ``controller.init``).
+
+        ``blocked=True`` returns Θ̂p, Θ̂f as tuples of ≤ 64-unit blocks when the controller
+        supports that form (:meth:`blocked_state`; the simulator carries it): every buffer of the
+        compiled :meth:`update` is then ≤ 512 bytes, which XLA's CPU runtime runs inline rather
+        than through its thread pool. Measured (``benchmarks/latency.py --variants``), it makes
+        no difference to the latency of ``update`` for the paper's controllers, so the default
+        is the flat form. Every entry point accepts either form and returns the form it was given.
+        """
+        self._check_parts()
+        xc = self.controller.init(theta_p=theta_p, theta_f=theta_f)
+        return self.blocked_state(xc) if blocked else xc
+
+    def step(self, t, period, state: ControllerState, measurement: Measurement):
+        """One sample: ``(τ_k, x_c,k+1)``. Pure and traceable (use it inside jit/vmap/scan).
+
+        τ_k is eq. (24) (Λp of (25), Λf of (26), v_p of (33), v_λ of (32)/(41), the networks of
+        (17)–(19)) at time t from ``measurement``; x_c,k+1 = constrain(x_c,k + period · ẋ_c) with
+        ẋ_c = (ż, Θ̂̇p, Θ̂̇f) of eqs. (27), (30), (31) at the same instant: a forward-Euler step
+        of the continuous controller dynamics over the hold period, then Remark 2's clip onto
+        ‖Θ̂‖ ≤ d. Identical to the simulator's sampled mode. Non-finite t, period or measurement,
+        period < 0, or a non-finite τ: τ = [NaN, …] and the returned state is to be discarded
+        (keep the one passed in; see the module docstring).
+        """
+        t = jnp.asarray(t, dtype=float)
+        period = jnp.asarray(period, dtype=float)
+        meas = Measurement(q=jnp.asarray(measurement.q, dtype=float),
+                           qd=jnp.asarray(measurement.qd, dtype=float),
+                           F=jnp.asarray(measurement.F, dtype=float))
+        ctrl = self.controller
+        tau, dxc, _ = ctrl.step_terms(t, state, meas, self.reference)
+        new = ctrl.constrain(jax.tree.map(lambda a, d: a + period * d, state, dxc))
+        ok = _all_finite(t, period, meas.q, meas.qd, meas.F, tau) & (period >= 0.0)
+        return jnp.where(ok, tau, jnp.nan), new
+
+    def step_packed(self, x):
+        """:meth:`step` on the packed layouts: ``[t, h, q, q̇, F, z, Θ̂p, Θ̂f] → [τ, z, Θ̂p, Θ̂f]``."""
+        n, ns = self.n_joints, self.sample_size
+        meas = Measurement(q=x[2:2 + n], qd=x[2 + n:2 + 2 * n], F=x[2 + 2 * n:ns])
+        tau, new = self.step(x[0], x[1], self.state_from_vector(x[ns:]), meas)
+        return jnp.concatenate([tau, new.z, new.theta_p, new.theta_f])
+
+    def torque_and_signals_fn(self, t, state: ControllerState, measurement: Measurement):
+        """Traceable ``(τ, Signals)`` at one instant (eqs. (24)–(33)); no state update."""
+        meas = Measurement(q=jnp.asarray(measurement.q, dtype=float),
+                           qd=jnp.asarray(measurement.qd, dtype=float),
+                           F=jnp.asarray(measurement.F, dtype=float))
+        tau, _, sig = self.controller.step_terms(jnp.asarray(t, dtype=float), state, meas, self.reference)
+        return tau, sig
+
+    # --- compiled entry points (built once per wrapper, on first use) --------------------------
+    def _check_parts(self):
+        if not isinstance(self.controller, ReducedOrderController):
+            raise TypeError("SampledController.controller must be a designed controller "
+                            "(FeedbackLinearization, HinfController or HinfNNController), got "
+                            f"{type(self.controller).__name__}")
+        if not callable(self.reference):
+            raise TypeError("SampledController.reference must be a reference callable on t "
+                            f"(e.g. hinfnn.CosineReference), got {type(self.reference).__name__}")
+
+    @functools.cached_property
+    def _update(self):
+        self._check_parts()
+        return jax.jit(self.step)
+
+    @functools.cached_property
+    def _update_packed(self):
+        self._check_parts()
+        return jax.jit(self.step_packed)
+
+    @functools.cached_property
+    def _signals(self):
+        self._check_parts()
+        return jax.jit(self.torque_and_signals_fn)
+
+    def update(self, t, period, state: ControllerState, measurement: Measurement):
+        """``(τ, new_state)`` of one sample (:meth:`step`), jit-compiled once per wrapper.
+
+        τ of eq. (24) at time ``t`` (s) from ``measurement`` (q, q̇, F), to be held for
+        ``period`` (s); new_state = constrain(state + period · (ż, Θ̂̇p, Θ̂̇f)) with eqs. (27),
+        (30), (31): forward Euler over the period. Pass t and period as floats and the
+        measurement as float64 arrays (another dtype compiles a second program). Works under
+        ``jax.vmap``. τ is all-NaN when a sample is unusable: check with :meth:`is_valid`
+        (then keep your previous state) or use :meth:`update_checked`.
+        """
+        return self._update(t, period, state, measurement)
+
+    def update_packed(self, x):
+        """One sample on the packed layouts (:meth:`step_packed`), jit-compiled once.
+
+        ``x = [t, period, q, q̇, F, z, Θ̂p, Θ̂f]`` (:meth:`pack`) → ``[τ, z, Θ̂p, Θ̂f]``
+        (:meth:`unpack`). Same law and numbers as :meth:`update`; one buffer in and one out,
+        the cheapest call from Python. :class:`SampledLoop` wraps it for a robot loop.
+        """
+        return self._update_packed(x)
+
+    def loop(self, state: ControllerState | None = None) -> "SampledLoop":
+        """A :class:`SampledLoop` starting from ``state`` (default :meth:`init`)."""
+        return SampledLoop(self, self.init() if state is None else state)
+
+    def update_checked(self, t, period, state: ControllerState, measurement: Measurement):
+        """:meth:`update` with its inputs validated in Python first (a few µs more per call).
+
+        Raises :class:`MeasurementError` naming the input when t, period or a measurement
+        field is not finite, has the wrong shape, or period ≤ 0; and when the law itself
+        returns a non-finite torque. Returns ``(τ as NumPy, new_state)``.
+        """
+        n = self.n_joints
+        for key, v in (("t", t), ("period", period)):
+            a = np.asarray(v, dtype=float)
+            if a.shape != () or not np.isfinite(a):
+                raise MeasurementError(f"must be a finite number, got {v!r}", key=key, value=v, t=t)
+        if not float(period) > 0.0:
+            raise MeasurementError(f"must be > 0, got {period!r}", key="period", value=period, t=t)
+        for name in ("q", "qd", "F"):
+            v = np.asarray(getattr(measurement, name), dtype=float)
+            if v.shape != (n,):
+                raise MeasurementError(f"must have shape ({n},), got {v.shape}", key=f"measurement.{name}",
+                                       value=v, t=t)
+            if not np.all(np.isfinite(v)):
+                raise MeasurementError(f"is not finite: {v.tolist()}", key=f"measurement.{name}", value=v, t=t)
+        for name, size in zip(("z", "theta_p", "theta_f"), self._sizes):
+            part = getattr(state, name, None)
+            parts = part if isinstance(part, tuple) else (part,)
+            try:
+                v = np.concatenate([np.asarray(b, dtype=float).reshape(-1) for b in parts]) if parts else np.zeros(0)
+                shapes_ok = all(np.ndim(b) == 1 for b in parts) and v.shape == (size,)
+            except (TypeError, ValueError):
+                shapes_ok = False
+            if not shapes_ok:
+                raise MeasurementError(f"must hold {size} values (a vector or a tuple of blocks), got "
+                                       f"{part!r:.80}", key=f"state.{name}", value=part, t=t)
+            if not np.all(np.isfinite(v)):
+                raise MeasurementError("is not finite", key=f"state.{name}", value=v, t=t)
+        tau, new = self.update(float(t), float(period), state, measurement)
+        tau = np.asarray(tau)
+        if not np.all(np.isfinite(tau)):
+            raise MeasurementError("the control law returned a non-finite torque from finite inputs "
+                                   "(singular decoupling matrix or overflow at this sample?)",
+                                   key="tau", value=tau, t=t)
+        return tau, new
+
+    def torque_and_signals(self, t, state: ControllerState, measurement: Measurement):
+        """``(τ, Signals)`` at time t (jit-compiled once): u1, u̇1, λ, errors, v_p, v_λ, network
+        outputs Ξp Θ̂p, Ξf Θ̂f and τ of eqs. (24)–(33), for logging. No state update, no NaN
+        guard (a non-finite measurement gives non-finite signals)."""
+        return self._signals(t, state, measurement)
+
+    @staticmethod
+    def is_valid(tau) -> bool:
+        """True when every entry of τ is finite (False after an unusable sample)."""
+        return bool(np.all(np.isfinite(np.asarray(tau))))
+
+
+class SampledLoop:
+    """The controller in a robot loop, ros2_control style: ``tau = loop.update(t, h, q, q̇, F)``.
+
+    A thin stateful shell (at the edge, like I/O) around the pure
+    :meth:`SampledController.update_packed`: it keeps the packed input buffer
+    ``[t, h, q, q̇, F, z, Θ̂p, Θ̂f]`` whose state part is the controller state, fills the sample
+    part in place, calls the compiled update (one buffer in, one out) and returns τ as a NumPy
+    array. The state is advanced only when τ is finite: after an unusable sample (NaN or inf in
+    t, h, q, q̇, F; h < 0; non-finite τ) ``update`` returns τ = [NaN, …], the state stays as it
+    was, and ``rejected`` counts it. Same numbers as :meth:`SampledController.update`.
+
+    ::
+
+        loop = sampled.loop()
+        while running:                         # 1 kHz
+            tau = loop.update(t, 1e-3, q, qd, F)
+            if not tau[0] == tau[0]:           # NaN: unusable sample
+                ...                            # safe stop
+            send(tau)
+    """
+
+    __slots__ = ("controller", "_buf", "_fn", "_n", "_ns", "_i_q", "_i_qd", "_i_F", "rejected")
+
+    def __init__(self, controller: SampledController, state: ControllerState):
+        self.controller = controller
+        self._n = n = controller.n_joints
+        self._ns = controller.sample_size
+        self._i_q, self._i_qd, self._i_F = slice(2, 2 + n), slice(2 + n, 2 + 2 * n), slice(2 + 2 * n, 2 + 3 * n)
+        self._buf = np.zeros(controller.packed_size)
+        self._buf[self._ns:] = controller.state_vector(state)
+        self._fn = controller._update_packed
+        self.rejected = 0
+
+    def update(self, t, period, q, qd, F) -> np.ndarray:
+        """τ (NumPy, n) of eq. (24) for this sample; the state advances by forward Euler over
+        ``period`` (eqs. (27), (30), (31)) unless the sample was unusable (τ all NaN)."""
+        b = self._buf
+        b[0] = t
+        b[1] = period
+        b[self._i_q] = q
+        b[self._i_qd] = qd
+        b[self._i_F] = F
+        out = np.asarray(self._fn(b))
+        tau = out[:self._n]
+        if tau[0] == tau[0]:  # the compiled guard makes τ all-NaN or all-finite
+            b[self._ns:] = out[self._n:]
+        else:
+            self.rejected += 1
+        return tau
+
+    @property
+    def state(self) -> ControllerState:
+        """The current controller state (flat weight vectors, NumPy copies)."""
+        return self.controller.state_from_vector(self._buf[self._ns:].copy())
+
+    def reset(self, state: ControllerState | None = None) -> None:
+        """Restart from ``state`` (default: :meth:`SampledController.init`)."""
+        self._buf[self._ns:] = self.controller.state_vector(
+            self.controller.init() if state is None else state)
+        self.rejected = 0

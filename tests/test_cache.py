@@ -1,0 +1,279 @@
+"""The persistent compilation cache (hinfnn._cache, `hinfnn cache`): where it lives, that a second
+process reuses what the first compiled, that it never makes a run fail. No timed assertions:
+speed is measured by benchmarks/startup.py."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import pytest
+
+from hinfnn import _cache, cli
+
+PY = sys.executable
+HINFNN = [PY, "-c", "import sys; from hinfnn.cli import main; sys.exit(main())"]
+SHOW_DIR = "import hinfnn, json; d = hinfnn.cache_dir(); print(json.dumps(None if d is None else str(d)))"
+
+
+def _env(**set_vars) -> dict:
+    """The test environment without any cache setting, plus ``set_vars`` (None: remove)."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("HINFNN_CACHE_DIR", "XDG_CACHE_HOME", "HINFNN_TRACE_STARTUP")}
+    env["JAX_PLATFORMS"] = "cpu"
+    for k, v in set_vars.items():
+        if v is None:
+            env.pop(k, None)
+        else:
+            env[k] = v
+    return env
+
+
+def _entries(folder: Path) -> dict[str, int]:
+    """Cache entries (JAX's ``<name>-<hash>-cache`` files) with their modification times."""
+    return {p.name: p.stat().st_mtime_ns for p in folder.glob("*-cache")} if folder.is_dir() else {}
+
+
+# --- where the cache lives ------------------------------------------------------------------
+
+
+def test_directory_rules_in_fresh_processes(tmp_path):
+    """HINFNN_CACHE_DIR, then XDG_CACHE_HOME/hinfnn/jax, then ~/.cache/hinfnn/jax; the disable
+    words turn it off. Each case is a new process (the setting is read at `import hinfnn`)."""
+    home, home_off = tmp_path / "home", tmp_path / "home_off"
+    cases = {
+        "env": (dict(HINFNN_CACHE_DIR=str(tmp_path / "mine"), XDG_CACHE_HOME=str(tmp_path / "xdg")),
+                tmp_path / "mine"),
+        "xdg": (dict(XDG_CACHE_HOME=str(tmp_path / "xdg"), HOME=str(home)), tmp_path / "xdg" / "hinfnn" / "jax"),
+        "home": (dict(HOME=str(home)), home / ".cache" / "hinfnn" / "jax"),
+        "off": (dict(HINFNN_CACHE_DIR="off", HOME=str(home_off)), None),
+        "empty": (dict(HINFNN_CACHE_DIR="", HOME=str(home_off)), None),
+    }
+    procs = {name: subprocess.Popen([PY, "-c", SHOW_DIR], env=_env(**env), stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True)
+             for name, (env, _) in cases.items()}  # all at once: each one is an `import hinfnn`
+    for name, proc in procs.items():
+        out, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, (name, err)
+        got = json.loads(out.strip().splitlines()[-1])
+        expected = cases[name][1]
+        assert got == (None if expected is None else str(expected)), name
+        assert "CacheWarning" not in err, (name, err)
+        if expected is not None:
+            assert expected.is_dir() and (expected.stat().st_mode & 0o777) == 0o700, name
+    assert not home_off.exists()  # a disabled cache creates nothing
+
+
+def test_default_cache_dir_reads_only_the_environment(tmp_path):
+    """The same rules as a pure function (what `import hinfnn` calls), for every disable word."""
+    for word in ("off", "OFF", " Off ", "0", "none", "None", "false", "no", ""):
+        assert _cache.default_cache_dir({"HINFNN_CACHE_DIR": word, "XDG_CACHE_HOME": "/x"}) is None, word
+    assert _cache.default_cache_dir({"HINFNN_CACHE_DIR": "~/x"}) == Path("~/x").expanduser()
+    assert _cache.default_cache_dir({"XDG_CACHE_HOME": str(tmp_path)}) == tmp_path / "hinfnn" / "jax"
+    assert _cache.default_cache_dir({"XDG_CACHE_HOME": ""}) == Path("~/.cache/hinfnn/jax").expanduser()
+    assert not (tmp_path / "hinfnn").exists()  # nothing created
+
+
+# --- a second process reuses the compiled programs ------------------------------------------
+
+
+RUN = ["run", "paper", "--set", "simulation.t_final=0.02", "--quiet", "--out"]
+
+
+def _run(out: Path, env: dict) -> subprocess.CompletedProcess:
+    return subprocess.run(HINFNN + RUN + [str(out)], env=env, capture_output=True, text=True, timeout=900)
+
+
+def _first_chunk(stderr: str) -> dict:
+    line = next(ln for ln in stderr.splitlines() if ln.startswith("hinfnn-startup: first-chunk"))
+    return json.loads(line.split(maxsplit=3)[3])
+
+
+def test_second_process_reuses_programs_and_an_unusable_folder_does_not_fail(tmp_path, monkeypatch, capsys):
+    """Two identical `hinfnn run` processes: the first compiles and writes the cache, the second
+    loads every program from it and writes nothing. Meanwhile (in parallel, to save wall time: it
+    compiles everything) a run whose cache folder is blocked by a file succeeds with one warning."""
+    blocker = tmp_path / "blocker"
+    blocker.write_text("in the way")
+    unusable = subprocess.Popen(HINFNN + RUN + [str(tmp_path / "unusable")],
+                                env=_env(HINFNN_CACHE_DIR=str(blocker / "jax")),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    cache = tmp_path / "cache"
+    env = _env(HINFNN_CACHE_DIR=str(cache), HINFNN_TRACE_STARTUP="1")
+    try:
+        cold = _run(tmp_path / "cold", env)
+        assert cold.returncode == 0, cold.stderr
+        written = _entries(cache)
+        assert any(name.startswith("jit__chunk-") for name in written), sorted(written)
+        assert _first_chunk(cold.stderr)["programs"] > 0
+
+        warm = _run(tmp_path / "warm", env)
+        assert warm.returncode == 0, warm.stderr
+        # nothing new compiled and written, nothing rewritten ...
+        assert _entries(cache) == written
+        # ... because every program up to the first chunk was a hit (JAX's cache-hit events)
+        info = _first_chunk(warm.stderr)
+        assert info["programs"] > 0 and info["cache_hits"] == info["programs"], info
+        assert "CacheWarning" not in cold.stderr + warm.stderr and not list(cache.glob(".tmp-*"))
+        # and the loaded programs compute exactly what the compiled ones did
+        m_cold = json.loads((tmp_path / "cold" / "metrics.json").read_text())["runs"]
+        m_warm = json.loads((tmp_path / "warm" / "metrics.json").read_text())["runs"]
+        assert m_warm == m_cold
+    finally:
+        _, err = unusable.communicate(timeout=900)
+    assert unusable.returncode == 0, err
+    assert err.count("CacheWarning") == 1, err
+    assert (tmp_path / "unusable" / "metrics.json").exists() and blocker.read_text() == "in the way"
+
+    # `hinfnn cache --path` in a process configured by the environment ...
+    r = subprocess.run(HINFNN + ["cache", "--path"], env=_env(HINFNN_CACHE_DIR=str(cache)),
+                       capture_output=True, text=True, timeout=300)
+    assert (r.returncode, r.stdout) == (0, f"{cache}\n"), r.stderr
+    # ... and `hinfnn cache` / `--clear` here, on the same folder (no need for new processes)
+    monkeypatch.setattr(_cache, "_active", cache)
+    assert cli.main(["cache"]) == 0
+    shown = capsys.readouterr().out
+    assert str(cache) in shown and f"files: {len(written)}" in shown
+    (cache / "notes.txt").write_text("not a cache entry")  # --clear removes cache files only
+    assert cli.main(["cache", "--clear"]) == 0
+    assert f"removed {len(written)} files" in capsys.readouterr().out
+    assert _entries(cache) == {} and (cache / "notes.txt").exists()
+    assert cli.main(["cache"]) == 0
+    assert "files: 0" in capsys.readouterr().out
+
+
+# --- it never makes a run fail (the run itself: above) -----------------------------------------
+
+
+@pytest.fixture
+def cache_state(monkeypatch):
+    """Leave the test process's cache as it was (off, see conftest.py) whatever a test does."""
+    monkeypatch.setattr(_cache, "_warned", False)
+    yield
+    _cache.enable_cache(None)
+
+
+def test_enable_cache_degrades_with_one_warning(tmp_path, cache_state):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert _cache.enable_cache(blocker) is None
+        assert _cache.enable_cache(blocker / "sub") is None
+    assert [w.category for w in caught] == [_cache.CacheWarning]
+    assert _cache.cache_dir() is None and "unusable" in _cache.cache_disabled_reason()
+    with pytest.raises(TypeError):
+        _cache.enable_cache(42)
+
+
+def test_read_only_folder_disables_the_cache(tmp_path, cache_state):
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o500)
+    try:
+        if os.access(folder, os.W_OK):
+            pytest.skip("running as a user that can write to read-only folders (root)")
+        with pytest.warns(_cache.CacheWarning):
+            assert _cache.enable_cache(folder) is None
+    finally:
+        folder.chmod(0o700)
+
+
+def test_folder_writable_by_everyone_is_refused(tmp_path, cache_state):
+    """Entries are executed: a folder others can plant files in is not used."""
+    folder = tmp_path / "shared"
+    folder.mkdir()
+    folder.chmod(0o777)
+    with pytest.warns(_cache.CacheWarning, match="writable by every user"):
+        assert _cache.enable_cache(folder) is None
+    assert _cache.cache_dir() is None
+
+
+def test_enable_and_disable_in_process(tmp_path, cache_state):
+    import jax
+
+    folder = _cache.enable_cache(tmp_path / "c")
+    assert folder == tmp_path / "c" and _cache.cache_dir() == folder
+    assert jax.config.jax_compilation_cache_dir == str(folder)
+    assert _cache.enable_cache("off") is None and _cache.cache_dir() is None
+    assert jax.config.jax_compilation_cache_dir is None
+
+
+def test_entries_survive_deletion_full_disk_and_damage(tmp_path, cache_state, monkeypatch):
+    """The cache object JAX talks to: atomic writes, a deleted folder is recreated, a failed
+    write (full disk) is one warning and no more writes, a damaged entry is a miss."""
+    from jax._src import compilation_cache as jcc
+
+    def key(name, i):  # JAX's key format: module name, sha256
+        return f"jit_{name}-{i:064x}"
+
+    folder = tmp_path / "c"
+    folder.mkdir()
+    cache = _cache._make_safe_cache(folder)
+    blob = jcc.compress_executable(b"\0\0\0\1" + b"executable" * 100)
+    cache.put(key("f", 1), blob)
+    assert cache.get(key("f", 1)) == blob and cache.get(key("g", 2)) is None
+
+    # deleted while "running": the next write recreates the folder
+    for p in folder.iterdir():
+        p.unlink()
+    folder.rmdir()
+    cache.put(key("f", 3), blob)
+    assert cache.get(key("f", 3)) == blob
+
+    # damaged entry (a truncated file): a miss, and removed
+    (folder / f"{key('h', 4)}-cache").write_bytes(blob[: len(blob) // 2])
+    assert cache.get(key("h", 4)) is None and not (folder / f"{key('h', 4)}-cache").exists()
+
+    # full disk: one warning, no exception, no more writes, no temporary file left behind
+    def full(*_a, **_k):
+        raise OSError(28, "No space left on device")
+
+    with monkeypatch.context() as m, warnings.catch_warnings(record=True) as caught:
+        m.setattr(_cache.os, "replace", full)
+        warnings.simplefilter("always")
+        cache.put(key("f", 5), blob)
+        cache.put(key("f", 6), blob)
+    assert [w.category for w in caught] == [_cache.CacheWarning]
+    assert not (folder / f"{key('f', 5)}-cache").exists() and not list(folder.glob(".tmp-*"))
+    cache.put(key("f", 7), blob)
+    assert not (folder / f"{key('f', 7)}-cache").exists()  # stays read-only for this process
+    assert cache.get(key("f", 1)) is None and cache.get(key("f", 3)) == blob  # reads go on
+
+    # clear_cache / cache_size on a given folder count and remove cache files only
+    (folder / "keep.txt").write_text("mine")
+    (folder / "my-notes-cache").write_text("a user's file that merely ends like an entry")
+    n, size = _cache.cache_size(folder)
+    assert n == 1 and size == len(blob)
+    assert _cache.clear_cache(folder) == len(blob)
+    assert _cache.cache_size(folder) == (0, 0) and (folder / "keep.txt").exists()
+    assert (folder / "my-notes-cache").exists()
+    assert _cache.cache_size(tmp_path / "missing") == (0, 0) and _cache.clear_cache(tmp_path / "missing") == 0
+
+
+# --- the command, in process (the test session runs with the cache off) ---------------------
+
+
+def test_cache_command_when_off(capsys):
+    assert _cache.cache_dir() is None
+    assert cli.main(["cache", "--path"]) == 0
+    assert capsys.readouterr().out == ""
+    assert cli.main(["cache"]) == 0
+    assert "off" in capsys.readouterr().out
+    assert cli.main(["cache", "--clear"]) == 0
+    assert "nothing to clear" in capsys.readouterr().out
+
+
+def test_cache_command_usage_errors_and_help(capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["cache", "--clear", "--path"])
+    assert e.value.code == 2
+    with pytest.raises(SystemExit) as e:
+        cli.main(["cache", "--help"])
+    assert e.value.code == 0
+    text = capsys.readouterr().out
+    assert "examples:" in text and "HINFNN_CACHE_DIR" in text and "--clear" in text

@@ -1,0 +1,301 @@
+"""SampledController: the controller as a robot loop calls it (controllers/sampled.py).
+
+(a) replaying a simulated sampled-data run through ``update`` reproduces the simulator's held
+torques and final controller state, for the three controllers of the paper scenario;
+(b) ``jax.vmap`` of ``update`` equals single calls; (c) a non-finite sample never yields a
+torque; (d) Remark 2's projection keeps ‖Θ̂‖ ≤ d under ``update``. No timing here (see
+benchmarks/latency.py).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hinfnn as H
+from hinfnn.controllers import MeasurementError
+from hinfnn.measurement import Measurement
+
+KINDS = ("fl", "hinf", "hinf_nn")
+PERIOD = 1e-3
+DT = 1e-4
+HOLD = round(PERIOD / DT)
+RTOL = 1e-10
+
+
+def _scenario(kind, **overrides):
+    return H.load_scenario("paper", {"controller.kind": kind, **overrides})
+
+
+@pytest.fixture(scope="module", params=KINDS)
+def replay(request):
+    """(kind, SampledController, trajectory of a 0.05 s sampled run at 1 kHz, dt = 0.1 ms)."""
+    kind = request.param
+    sc = _scenario(kind)
+    plant, ctrl, ref = sc.build_plant(), sc.build_controller(kind), sc.build_reference()
+    traj = H.simulate(plant, ctrl, ref, t_final=0.05, dt=DT, q0=sc.initial_q(),
+                      control_period=PERIOD, save_every=1)
+    return kind, H.SampledController(ctrl, ref), traj
+
+
+def _meas(a, k):
+    return Measurement(q=a["q"][k], qd=a["qd"][k], F=a["F"][k])
+
+
+def _assert_state_close(state, final, scale_floor=1e-300):
+    for name in ("z", "theta_p", "theta_f"):
+        got = np.asarray(getattr(state, name))
+        want = np.asarray(final[name])
+        assert got.shape == want.shape, name
+        scale = max(float(np.max(np.abs(want), initial=0.0)), scale_floor)
+        np.testing.assert_allclose(got, want, rtol=0, atol=RTOL * scale, err_msg=name)
+
+
+# --- (a) exactly the simulator's sampled-mode law -----------------------------------------------
+@pytest.mark.parametrize("blocked", [True, False], ids=["blocked", "flat"])
+def test_replay_matches_simulator(replay, blocked):
+    kind, sc, traj = replay
+    a = traj.arrays
+    n_steps = round(0.05 / DT)
+    samples = range(0, n_steps, HOLD)
+    tau_scale = float(np.max(np.abs(a["tau"])))
+    state = sc.init(blocked=blocked)
+    for k in samples:
+        tau, state = sc.update(float(a["t"][k]), PERIOD, state, _meas(a, k))
+        tau = np.asarray(tau)
+        # the simulator holds τ_k over the whole period: every step of it recorded the same torque
+        held = a["tau"][k:k + HOLD]
+        np.testing.assert_allclose(np.broadcast_to(tau, held.shape), held, rtol=RTOL,
+                                   atol=RTOL * tau_scale, err_msg=f"{kind}: tau at step {k}")
+    assert len(samples) == 50
+    # the form given is the form returned (blocked only where the controller offers it)
+    offers_blocks = kind == "hinf_nn" and hasattr(sc.controller, "blocked")
+    assert isinstance(state.theta_f, tuple) == (blocked and offers_blocks)
+    _assert_state_close(sc.flat_state(state), traj.final)
+    if kind == "hinf_nn":  # the weights did learn: the comparison is not between zeros
+        assert np.max(np.abs(traj.final["theta_f"])) > 1e-3
+        assert np.max(np.abs(traj.final["theta_p"])) > 1e-6
+
+
+def test_packed_loop_and_checked_paths_equal_update(replay):
+    kind, sc, traj = replay
+    a = traj.arrays
+    s1 = s2 = s3 = sc.init()
+    loop = sc.loop()
+    x = np.empty(sc.packed_size)
+    for k in range(0, 200, HOLD):
+        t = float(a["t"][k])
+        tau1, s1 = sc.update(t, PERIOD, s1, _meas(a, k))
+        tau2, s2 = sc.unpack(np.asarray(sc.update_packed(sc.pack(t, PERIOD, _meas(a, k), s2, out=x))))
+        tau3, s3 = sc.update_checked(t, PERIOD, s3, _meas(a, k))
+        tau4 = loop.update(t, PERIOD, a["q"][k], a["qd"][k], a["F"][k])
+        assert isinstance(tau4, np.ndarray) and tau4.shape == (2,)
+        for tau in (tau2, tau3, tau4):
+            np.testing.assert_allclose(tau, np.asarray(tau1), rtol=1e-13, atol=1e-13)
+    want = sc.state_vector(s1)
+    for other in (s2, s3, loop.state):
+        np.testing.assert_allclose(sc.state_vector(other), want, rtol=1e-13, atol=1e-300)
+    assert loop.rejected == 0
+
+
+def test_update_compiles_once_and_never_sees_the_plant(replay):
+    kind, sc, traj = replay
+    a = traj.arrays
+    state = sc.init()
+    _, state = sc.update(0.0, PERIOD, state, _meas(a, 0))
+    compiled = sc._update._cache_size()
+    for k in (10, 20, 30):
+        _, state = sc.update(float(a["t"][k]), PERIOD, state, _meas(a, k))
+    assert sc._update is sc._update  # one jitted function per wrapper ...
+    assert sc._update._cache_size() == compiled  # ... not compiled again for new values
+    leaves, treedef = jax.tree.flatten(sc)  # a pytree: the controller and reference are its data
+    assert leaves and isinstance(jax.tree.unflatten(treedef, leaves), H.SampledController)
+    assert set(type(sc).__dataclass_fields__) == {"controller", "reference"}
+
+
+def test_torque_and_signals_match_update():
+    sc = _scenario("hinf_nn")
+    sampled = H.SampledController(sc.build_controller("hinf_nn"), sc.build_reference())
+    meas = Measurement(q=np.asarray(sc.initial_q()), qd=np.array([0.01, -0.02]), F=np.array([30.0, -30.0]))
+    state = sampled.init()
+    tau, sig = sampled.torque_and_signals(0.01, state, meas)
+    tau_u, _ = sampled.update(0.01, PERIOD, state, meas)
+    np.testing.assert_allclose(np.asarray(tau), np.asarray(tau_u), rtol=1e-13)
+    np.testing.assert_allclose(np.asarray(sig.tau), np.asarray(tau), rtol=1e-13)
+    # λ = (Â Âᵀ)⁻¹ Â F with the nominal Â = [tan 45°, −1]: (30 + 30) / 2
+    np.testing.assert_allclose(np.asarray(sig.lam), [30.0], rtol=1e-12)
+
+
+# --- (b) batching ---------------------------------------------------------------------------------
+def test_vmap_update_equals_single_calls(replay):
+    kind, sc, traj = replay
+    a = traj.arrays
+    ks = [0, 50, 120, 330]
+    # B different states: the ones reached by replaying up to each k, with perturbed weights
+    states, state = [], sc.init()
+    for k in range(0, max(ks) + 1, HOLD):
+        if k in ks:
+            states.append(state)
+        _, state = sc.update(float(a["t"][k]), PERIOD, state, _meas(a, k))
+    ts = jnp.asarray([a["t"][k] for k in ks])
+    periods = jnp.asarray([PERIOD, 2e-3, 5e-4, PERIOD])
+    meas = Measurement(q=jnp.asarray(a["q"][ks]), qd=jnp.asarray(a["qd"][ks]), F=jnp.asarray(a["F"][ks]))
+    batch = jax.tree.map(lambda *xs: jnp.stack(xs), *states)
+    taus, news = jax.vmap(sc.update)(ts, periods, batch, meas)
+    assert taus.shape == (len(ks), 2)
+    for i, k in enumerate(ks):
+        tau_i, new_i = sc.update(float(ts[i]), float(periods[i]), states[i], _meas(a, k))
+        np.testing.assert_allclose(np.asarray(taus[i]), np.asarray(tau_i), rtol=1e-12, atol=1e-12)
+        for x, z in zip(jax.tree.leaves(news), jax.tree.leaves(new_i)):
+            np.testing.assert_allclose(np.asarray(x[i]), np.asarray(z), rtol=1e-12, atol=1e-300)
+    if kind != "hinf_nn":
+        return
+    # the packed entry point batches the same way
+    xs = np.stack([sc.pack(a["t"][k], p, _meas(a, k), st) for k, p, st in zip(ks, np.asarray(periods), states)])
+    taus_p, news_p = sc.unpack(np.asarray(jax.vmap(sc.update_packed)(xs)))
+    np.testing.assert_allclose(taus_p, np.asarray(taus), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(news_p.theta_f, np.asarray(sc.flat_state(news).theta_f), rtol=1e-12, atol=1e-300)
+
+
+# --- (c) non-finite samples -------------------------------------------------------------------------
+def _raw_law(sc, t, state, meas):
+    """The controller's law without the wrapper's guard (compiled: faster than op by op)."""
+    return jax.jit(lambda x, m: sc.controller.step_terms(t, x, m, sc.reference)[:2])(state, meas)
+
+
+@pytest.fixture(scope="module")
+def sampled_fl():
+    sc = _scenario("fl")
+    return H.SampledController(sc.build_controller("fl"), sc.build_reference()), np.asarray(sc.initial_q())
+
+
+@pytest.mark.parametrize("bad", ["q", "qd", "F", "t", "period", "inf_F", "negative_period"])
+def test_nonfinite_sample_gives_nan_torque(sampled_fl, bad):
+    sc, q0 = sampled_fl
+    good = Measurement(q=q0, qd=np.array([0.01, -0.02]), F=np.array([30.0, -30.0]))
+    state = sc.init()
+    _, state = sc.update(0.0, PERIOD, state, good)  # a non-zero state to keep
+    kept = jax.tree.map(np.array, state)
+    t, period, meas = 0.001, PERIOD, good
+    if bad in ("q", "qd", "F"):
+        v = np.array(getattr(good, bad), dtype=float)
+        v[1] = np.nan
+        meas = Measurement(**{**good.__dict__, bad: v})
+    elif bad == "inf_F":
+        meas = Measurement(q=good.q, qd=good.qd, F=np.array([np.inf, -30.0]))
+    elif bad == "t":
+        t = float("nan")
+    elif bad == "period":
+        period = float("nan")
+    else:
+        period = -PERIOD
+    tau, _ = sc.update(t, period, state, meas)
+    tau = np.asarray(tau)
+    assert tau.shape == (2,) and np.all(np.isnan(tau))
+    assert not sc.is_valid(tau)
+    for x, z in zip(jax.tree.leaves(state), jax.tree.leaves(kept)):  # the input is untouched
+        np.testing.assert_array_equal(np.asarray(x), z)
+    # the packed path behaves the same
+    tau_p, _ = sc.unpack(np.asarray(sc.update_packed(sc.pack(t, period, meas, state))))
+    assert np.all(np.isnan(tau_p))
+    # the loop drops the sample: its state does not move, and it counts the rejection
+    loop = sc.loop(state)
+    tau_l = loop.update(t, period, meas.q, meas.qd, meas.F)
+    assert np.all(np.isnan(tau_l)) and loop.rejected == 1
+    np.testing.assert_array_equal(sc.state_vector(loop.state), sc.state_vector(kept))
+    # the checked entry point names the culprit
+    key = {"inf_F": "measurement.F", "negative_period": "period", "t": "t", "period": "period"}.get(
+        bad, f"measurement.{bad}")
+    with pytest.raises(MeasurementError) as err:
+        sc.update_checked(t, period, state, meas)
+    assert err.value.key == key
+    # keeping the state passed in drops the bad sample: the next good one is unaffected
+    assert sc.is_valid(sc.update(0.002, PERIOD, state, good)[0])
+
+
+def test_nan_state_kept_by_mistake_latches(sampled_fl):
+    """Keeping the state returned with a NaN τ never yields a finite torque afterwards."""
+    sc, q0 = sampled_fl
+    good = Measurement(q=q0, qd=np.zeros(2), F=np.array([30.0, -30.0]))
+    tau, bad_state = sc.update(0.0, PERIOD, sc.init(), Measurement(q=q0, qd=np.zeros(2),
+                                                                    F=np.array([np.nan, 0.0])))
+    assert not sc.is_valid(tau)
+    for k in range(1, 4):
+        tau, bad_state = sc.update(k * PERIOD, PERIOD, bad_state, good)
+        assert np.all(np.isnan(np.asarray(tau)))
+
+
+def test_nan_force_would_otherwise_pass_silently_through_fl(sampled_fl):
+    """The FL-like law's τ does not depend on λ (only ż does): without the guard a NaN force
+    reading would give a finite, plausible torque and a NaN state one sample later."""
+    sc, q0 = sampled_fl
+    meas = Measurement(q=q0, qd=np.zeros(2), F=np.array([np.nan, np.nan]))
+    raw_tau, raw_dxc = _raw_law(sc, 0.0, sc.init(), meas)
+    assert np.all(np.isfinite(np.asarray(raw_tau))) and not np.all(np.isfinite(np.asarray(raw_dxc.z)))
+    tau, _ = sc.update(0.0, PERIOD, sc.init(), meas)
+    assert np.all(np.isnan(np.asarray(tau)))
+
+
+def test_overflowing_law_gives_nan_not_inf(sampled_fl):
+    """A finite but absurd measurement (q̇ = 1e200 rad/s: the Coriolis terms overflow) yields no
+    usable torque either: the guard covers the law's output, not only its inputs."""
+    sc, q0 = sampled_fl
+    meas = Measurement(q=q0, qd=np.array([1e200, 0.0]), F=np.zeros(2))
+    state = sc.init()
+    raw_tau, _ = _raw_law(sc, 0.0, state, meas)
+    assert not np.all(np.isfinite(np.asarray(raw_tau)))
+    tau, _ = sc.update(0.0, PERIOD, state, meas)
+    assert np.all(np.isnan(np.asarray(tau)))
+    with pytest.raises(MeasurementError) as err:
+        sc.update_checked(0.0, PERIOD, state, meas)
+    assert err.value.key == "tau"
+
+
+def test_checked_rejects_wrong_shapes(sampled_fl):
+    sc, q0 = sampled_fl
+    state = sc.init()
+    with pytest.raises(MeasurementError, match="measurement.qd"):
+        sc.update_checked(0.0, PERIOD, state, Measurement(q=q0, qd=np.zeros(3), F=np.zeros(2)))
+    with pytest.raises(MeasurementError, match="state.z"):
+        sc.update_checked(0.0, PERIOD, state.__class__(z=np.zeros(2), theta_p=state.theta_p,
+                                                       theta_f=state.theta_f),
+                          Measurement(q=q0, qd=np.zeros(2), F=np.zeros(2)))
+    with pytest.raises(MeasurementError, match="period"):
+        sc.update_checked(0.0, 0.0, state, Measurement(q=q0, qd=np.zeros(2), F=np.zeros(2)))
+
+
+def test_wrong_parts_are_rejected():
+    sc = _scenario("fl")
+    with pytest.raises(TypeError, match="controller"):
+        H.SampledController(sc.build_plant(), sc.build_reference()).init()
+    with pytest.raises(TypeError, match="reference"):
+        H.SampledController(sc.build_controller("fl"), 3.0).init()
+
+
+# --- (d) Remark 2: ‖Θ̂‖ ≤ d under update -------------------------------------------------------------
+def test_projection_keeps_weights_in_ball():
+    d_p, d_f = 0.02, 0.5
+    sc = _scenario("hinf_nn", **{"controller.network_p.projection": True, "controller.network_p.radius": d_p,
+                                 "controller.network_f.projection": True, "controller.network_f.radius": d_f})
+    sampled = H.SampledController(sc.build_controller("hinf_nn"), sc.build_reference())
+    q0 = np.asarray(sc.initial_q())
+    # the arm off the surface (F = 0: e_λ = −λd) and away from u1d: both networks are driven
+    meas = Measurement(q=q0 + np.array([0.02, -0.01]), qd=np.array([0.05, 0.0]), F=np.zeros(2))
+    state = sampled.init()
+    norms_p, norms_f = [], []
+    for k in range(300):
+        tau, state = sampled.update(k * PERIOD, PERIOD, state, meas)
+        assert sampled.is_valid(tau)
+        norms_p.append(float(np.linalg.norm(np.asarray(state.theta_p))))
+        norms_f.append(float(np.linalg.norm(np.asarray(state.theta_f))))
+    assert max(norms_p) <= d_p * (1 + 1e-12)
+    assert max(norms_f) <= d_f * (1 + 1e-12)
+    # the projection was active (the weights reached the sphere), so the bound was tested
+    assert norms_p[-1] > 0.999 * d_p and norms_f[-1] > 0.999 * d_f
+    # without it, the same samples take the weights out of the ball
+    free = H.SampledController(_scenario("hinf_nn").build_controller("hinf_nn"), sampled.reference).loop()
+    for k in range(300):
+        free.update(k * PERIOD, PERIOD, meas.q, meas.qd, meas.F)
+    assert np.linalg.norm(free.state.theta_f) > 2 * d_f
