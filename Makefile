@@ -24,7 +24,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/bench_sim.py
+	$(BIN)/python benchmarks/run.py
 
 clean:
 	rm -rf $(VENV) results .pytest_cache .hypothesis
