@@ -365,6 +365,8 @@ def print_report(res: dict) -> None:
         print("-" * len(hdr))
         for name, rows in lat:
             for kind, r in rows.items():
+                if not isinstance(r, dict):
+                    continue
                 print(f"{kind:<10}{'on (default)' if name == 'latency' else 'off':>20}{fmt(r.get('flops'), ',.0f'):>7}"
                       f"{r.get('median_us', float('nan')):>9.1f}{r.get('p90_us', float('nan')):>9.1f}"
                       f"{r.get('p99_us', float('nan')):>9.1f}{r.get('max_us', float('nan')):>10.1f}"

@@ -614,10 +614,9 @@ class Scenario:
                               key="nominal.arm.model")
 
     def _check_start(self, q0) -> None:
-        import jax.numpy as jnp
+        from .sim.simulate import nominal_jacobian_det
 
-        arm = self.build_arm("nominal")
-        det = float(jnp.linalg.det(arm.J(jnp.asarray(q0))))
+        det = float(nominal_jacobian_det(self.build_arm("nominal"), np.asarray(q0, dtype=float)))
         if abs(det) < 1e-6:
             raise DesignError(f"the nominal Jacobian is singular at the start pose q0 = "
                               f"{np.round(q0, 6).tolist()} (|det J| = {abs(det):.3g}): (A1) fails",
@@ -626,11 +625,7 @@ class Scenario:
     def _check_step_against_contact(self, plant, q0) -> None:
         """RK4 resolves the contact oscillation only if ω dt is small: ω = √(k/m_eff), m_eff the
         true arm's effective mass along the surface normal at the start pose."""
-        import jax.numpy as jnp
-
-        q = jnp.asarray(q0)
-        J, M = np.asarray(plant.arm.J(q)), np.asarray(plant.arm.M(q))
-        n = np.asarray(plant.surface.inward_normal(plant.arm.h(q)))
+        J, M, n = (np.asarray(a) for a in plant.contact_terms(np.asarray(q0, dtype=float)))
         inv_m = float(n @ J @ np.linalg.solve(M, J.T @ n))
         k = self.data["plant"]["contact"]["stiffness"]
         c = self.data["plant"]["contact"]["damping"]

@@ -6,6 +6,8 @@ returns (q, q̇ and the contact force vector F), never the plant itself.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 
@@ -48,13 +50,31 @@ class Plant:
 
     def initial_q(self, u1_0, elbow_up: bool = True):
         """Joint angles with the TRUE end-effector at x1 = u1_0 on the TRUE surface, zero
-        penetration (NOTES.md, Initial state: elbow up, q2 < 0)."""
-        x1 = jnp.atleast_1d(jnp.asarray(u1_0, dtype=float))
-        x = jnp.concatenate([x1, self.surface.Omega(x1)])
-        if hasattr(self.arm, "inverse_kinematics_closed"):
-            return self.arm.inverse_kinematics_closed(x, elbow_up=elbow_up)
-        guess = jnp.full(self.arm.n, 0.3) * jnp.where(elbow_up, 1.0, -1.0)
-        return self.arm.inverse_kinematics(x, guess)
+        penetration (NOTES.md, Initial state: elbow up, q2 < 0). One compiled program (not a
+        dozen eager operations: a new process lowers each of them, about 5 ms apiece)."""
+        return _initial_q(self, jnp.asarray(u1_0, dtype=float), bool(elbow_up))
+
+
+    def contact_terms(self, q):
+        """J(q), M(q) of the true arm and the surface's inward normal at h(q), for design-time
+        checks (one compiled program)."""
+        return _contact_terms(self, jnp.asarray(q, dtype=float))
+
+
+@jax.jit
+def _contact_terms(plant, q):
+    t = plant.arm.terms(q, jnp.zeros_like(q))
+    return t.J, t.M, plant.surface.inward_normal(t.x)
+
+
+@functools.partial(jax.jit, static_argnames="elbow_up")
+def _initial_q(plant, u1_0, elbow_up):
+    x1 = jnp.atleast_1d(u1_0)
+    x = jnp.concatenate([x1, plant.surface.Omega(x1)])
+    if hasattr(plant.arm, "inverse_kinematics_closed"):
+        return plant.arm.inverse_kinematics_closed(x, elbow_up=elbow_up)
+    guess = jnp.full(plant.arm.n, 0.3) * (1.0 if elbow_up else -1.0)
+    return plant.arm.inverse_kinematics(x, guess)
 
 
 __all__ = ["Plant", "PenaltyContact", "SquareWave"]
