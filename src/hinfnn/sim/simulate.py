@@ -2,7 +2,13 @@
 
 A run is a jit-compiled ``lax.scan`` over a chunk of :data:`CHUNK_STEPS` steps, called from a
 Python loop over chunks (never over steps): the compiled program is the same for every horizon
-and dt, progress is reported and Ctrl-C is honoured between chunks.
+and dt, progress is reported and Ctrl-C is honoured between chunks. Inside a chunk, an outer scan
+takes one stored sample every ``save_every`` steps and an inner loop runs the steps between them
+with no output, so that every buffer it touches is small (at most 512 bytes: the networks' weights
+travel in blocks of 64 units) and XLA runs its kernels inline instead of through its thread pool.
+Each sample also summarises the steps since the previous one (:data:`STEP_SUMS`,
+:data:`STEP_MAXES`, peak and total variation of τ), so metrics cover every step whatever the
+storage.
 
 The state y = (q, q̇, controller state, accumulators) is advanced by fixed-step RK4
 (:func:`~hinfnn.sim.integrate.rk4_step`) with the controller evaluated at every stage from that
