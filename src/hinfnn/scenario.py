@@ -721,7 +721,7 @@ def load_scenario(name_or_path: str | Path = "paper", overrides=(), *, check: bo
     return Scenario.load(name_or_path, overrides, check=check)
 
 
-def simulate_many(runs, *, progress=None):
+def simulate_many(runs, *, progress=None, save_every: int | None = None):
     """Simulate named runs ``[(name, scenario, kind), ...]``, batching under ``vmap`` every group
     that shares a compiled program (same controller structure and simulation settings).
 
@@ -729,6 +729,8 @@ def simulate_many(runs, *, progress=None):
     Trajectory's ``status``; they never stop the others. ``progress(steps_done, steps_total,
     names)`` is called after every compiled chunk (steps summed over all runs). A group of one
     runs without ``vmap`` (faster to trace and to run: see :mod:`hinfnn.sim.simulate`).
+    ``save_every`` overrides the scenarios' ``output_interval`` for what is kept in memory (files
+    are decimated to ``output_interval`` when written).
     """
     import jax
 
@@ -762,13 +764,15 @@ def simulate_many(runs, *, progress=None):
             _, one, plant, ctrl, ref, o, _ = items[0]
             out[names[0]] = simulate(plant, ctrl, ref, t_final=o["t_final"], dt=o["dt"], q0=o["q0"],
                                      control_period=o["control_period"], save_interval=o["save_interval"],
-                                     limits=o["limits"], config=one.data, raise_on_failure=False,
+                                     save_every=save_every, limits=o["limits"], config=one.data,
+                                     raise_on_failure=False,
                                      progress=report if progress else None)
             finished += steps
             continue
         traj = simulate_batch([i[2] for i in items], [i[3] for i in items], [i[4] for i in items],
                               q0=[i[5]["q0"] for i in items], t_final=opts["t_final"], dt=opts["dt"],
                               control_period=opts["control_period"], save_interval=opts["save_interval"],
+                              save_every=save_every,
                               limits=[i[5]["limits"] for i in items],
                               configs=[i[1].data for i in items], progress=report if progress else None)
         for j, item in enumerate(items):
