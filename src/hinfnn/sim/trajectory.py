@@ -59,7 +59,8 @@ FIELDS = {
 }
 
 #: Named selections for ``simulate(..., fields=...)``: ``"metrics"`` is what
-#: :func:`hinfnn.compute_metrics` needs (a Monte Carlo study stores 23 numbers per sample, not 54).
+#: :func:`hinfnn.compute_metrics` needs (17 of the 39 fields: 21 numbers per sample for the planar
+#: arm instead of 48).
 FIELD_SETS = {
     "all": tuple(FIELDS),
     "metrics": ("t", "e_u1", "e_lam", "tau", "normal_force", "J", "J_aug", "V", "supply", "tau_abs_max",
