@@ -10,6 +10,7 @@ import dataclasses
 from typing import Any, TypeVar
 
 import jax
+import jax.numpy as jnp
 
 T = TypeVar("T")
 
@@ -23,6 +24,14 @@ def pytree_dataclass(cls: type[T]) -> type[T]:
     """Make ``cls`` a frozen dataclass and register it as a pytree node."""
     cls = dataclasses.dataclass(frozen=True)(cls)
     return jax.tree_util.register_dataclass(cls)
+
+
+def all_finite(tree) -> jax.Array:
+    """True iff every entry of every array leaf of ``tree`` is finite (a traced boolean)."""
+    ok = jnp.array(True)
+    for leaf in jax.tree.leaves(tree):
+        ok = ok & jnp.all(jnp.isfinite(leaf))
+    return ok
 
 
 def replace(obj: T, **changes: Any) -> T:

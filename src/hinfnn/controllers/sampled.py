@@ -72,7 +72,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._pytree import pytree_dataclass
+from .._pytree import all_finite, pytree_dataclass
 from ..errors import HinfnnError
 from ..measurement import Measurement
 from .base import ControllerState, ReducedOrderController
@@ -92,13 +92,6 @@ class MeasurementError(HinfnnError, ValueError):
         self.value = value
         self.t = t
         super().__init__(f"{key}: {message}" if key else message)
-
-
-def _all_finite(*arrays):
-    ok = jnp.array(True)
-    for a in arrays:
-        ok = ok & jnp.all(jnp.isfinite(a))
-    return ok
 
 
 @pytree_dataclass
@@ -230,7 +223,7 @@ class SampledController:
         ctrl = self.controller
         tau, dxc, _ = ctrl.step_terms(t, state, meas, self.reference)
         new = ctrl.constrain(jax.tree.map(lambda a, d: a + period * d, state, dxc))
-        ok = _all_finite(t, period, meas.q, meas.qd, meas.F, tau) & (period >= 0.0)
+        ok = all_finite((t, period, meas.q, meas.qd, meas.F, tau)) & (period >= 0.0)
         return jnp.where(ok, tau, jnp.nan), new
 
     def step_packed(self, x):

@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._pytree import pytree_dataclass
+from .._pytree import all_finite, pytree_dataclass
 from ..errors import ConfigError, DesignError, SimulationError
 from .. import _linalg as la
 from ..controllers.network import sq_norm
@@ -100,11 +100,6 @@ def _rhs(plant, ctrl, ref, t, y: SimState, w, held_tau):
         f_p=f_p, f_f=f_f,
     )
     return dy, aux
-
-
-def _all_finite(tree):
-    leaves = [jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]
-    return functools.reduce(jnp.logical_and, leaves)
 
 
 #: Steps per compiled chunk: a run is a Python loop over chunks of one jit-compiled ``lax.scan``
@@ -184,7 +179,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
         tau = aux["tau"]
         tau_peak = jnp.max(jnp.abs(tau))
         pen = aux["penetration"]
-        finite_parts = (_all_finite((y_new.q, y_new.qd)), _all_finite(y_new.xc), _all_finite(y_new.acc))
+        finite_parts = (all_finite((y_new.q, y_new.qd)), all_finite(y_new.xc), all_finite(y_new.acc))
         parts = sum(jnp.where(ok, 0, 1 << i) for i, ok in enumerate(finite_parts)).astype(jnp.int32)
         code = jnp.where(parts != 0, 1,
                          jnp.where(tau_peak > limits.torque, 2,
