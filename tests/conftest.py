@@ -1,11 +1,10 @@
-"""Shared fixtures: the paper's Sec. VI models. float64 is on (hinfnn sets it at import) and
+"""Shared fixtures: the paper's Sec. VI models. float64 is on (``hinfnn.configure``) and
 implicit rank promotion is an error, as in diffrax's test suite."""
 
 from __future__ import annotations
 
 import os
 
-os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # No persistent compilation cache: the suite must not write into the user's ~/.cache (and each
 # test of the cache sets HINFNN_CACHE_DIR for its own subprocesses). Set before `import hinfnn`.
 os.environ["HINFNN_CACHE_DIR"] = "off"
@@ -17,7 +16,7 @@ from hypothesis import settings  # noqa: E402
 
 import hinfnn as H  # noqa: E402
 
-jax.config.update("jax_enable_x64", True)
+H.configure(cache=False)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
 settings.register_profile("ci", deadline=None, derandomize=True, print_blob=True)
@@ -54,9 +53,13 @@ def reference():
 
 def make_plant(true_arm, true_surface, damping=0.0, disturbance=True):
     dist = H.SquareWave.paper() if disturbance else H.SquareWave.none()
-    return H.Plant(true_arm, true_surface, H.PenaltyContact(1e5, damping), dist)
+    return H.RigidBodyPlant(true_arm, true_surface, H.PenaltyContact(1e5, damping), dist)
 
 
 @pytest.fixture(scope="session")
 def paper_plant(true_arm, true_surface):
     return make_plant(true_arm, true_surface)
+
+
+#: The paper's start: u1(0) on the true surface (docs/paper-conventions.md, Initial state).
+U1_0 = 1.6902

@@ -16,7 +16,7 @@ import hinfnn as H
 from hinfnn._pytree import pytree_dataclass
 from hinfnn.controllers import TanhNetwork, centres_from, paper_network_f
 from hinfnn.reference import RefSample
-from conftest import make_plant
+from conftest import make_plant, U1_0
 
 SRC = Path(H.__file__).parent
 
@@ -58,8 +58,8 @@ def exact_runs(true_arm, true_surface, reference):
     """Exact nominal model, no disturbance, damped contact (NOTES.md: then FL-like → e → 0)."""
     plant = make_plant(true_arm, true_surface, damping=200.0, disturbance=False)
     ctrl = H.FeedbackLinearization.design(true_arm, true_surface)
-    good = H.simulate(plant, ctrl, reference, t_final=4.0, dt=1e-4, save_every=10)
-    printed = H.simulate(plant, ctrl, PrintedFLReference(reference), t_final=4.0, dt=1e-4, save_every=10)
+    good = H.simulate(plant, ctrl, reference, u1_0=U1_0, t_final=4.0, dt=1e-4, save_every=10)
+    printed = H.simulate(plant, ctrl, PrintedFLReference(reference), u1_0=U1_0, t_final=4.0, dt=1e-4, save_every=10)
     return good, printed
 
 
@@ -134,7 +134,7 @@ def test_variant_runs_satisfy_their_dissipation_inequality(variant, paper_plant,
     kw = dict(VARIANTS[variant])
     gains = kw.pop("gains", H.Gains())
     ctrl = H.HinfNNController.design(nominal_arm, nominal_surface, gains, **kw)
-    tr = H.simulate(paper_plant, ctrl, reference, t_final=2.0, dt=1e-4, save_every=10)
+    tr = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=2.0, dt=1e-4, save_every=10)
     lhs = tr.J_aug + tr.V - tr.V[0]
     assert np.all(lhs <= tr.supply)
     if variant == "remark1_augmented":

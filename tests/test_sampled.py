@@ -16,7 +16,7 @@ import pytest
 
 import hinfnn as H
 from hinfnn.controllers import MeasurementError
-from hinfnn.measurement import Measurement
+from hinfnn.protocols import Measurement
 
 KINDS = ("fl", "hinf", "hinf_nn")
 PERIOD = 1e-3
@@ -35,7 +35,7 @@ def replay(request):
     kind = request.param
     sc = _scenario(kind)
     plant, ctrl, ref = sc.build_plant(), sc.build_controller(kind), sc.build_reference()
-    traj = H.simulate(plant, ctrl, ref, t_final=0.05, dt=DT, q0=sc.initial_q(),
+    traj = H.simulate(plant, ctrl, ref, t_final=0.05, dt=DT, q0=sc.initial_q(plant),
                       control_period=PERIOD, save_every=1)
     return kind, H.SampledController(ctrl, ref), traj
 
@@ -45,7 +45,7 @@ def _meas(a, k):
 
 
 def _assert_state_close(state, final, scale_floor=1e-300):
-    for name in ("z", "theta_p", "theta_f"):
+    for name in state.names():
         got = np.asarray(getattr(state, name))
         want = np.asarray(final[name])
         assert got.shape == want.shape, name
@@ -54,14 +54,13 @@ def _assert_state_close(state, final, scale_floor=1e-300):
 
 
 # --- (a) exactly the simulator's sampled-mode law -----------------------------------------------
-@pytest.mark.parametrize("blocked", [True, False], ids=["blocked", "flat"])
-def test_replay_matches_simulator(replay, blocked):
+def test_replay_matches_simulator(replay):
     kind, sc, traj = replay
     a = traj.arrays
     n_steps = round(0.05 / DT)
     samples = range(0, n_steps, HOLD)
     tau_scale = float(np.max(np.abs(a["tau"])))
-    state = sc.init(blocked=blocked)
+    state = sc.init()
     for k in samples:
         tau, state = sc.update(float(a["t"][k]), PERIOD, state, _meas(a, k))
         tau = np.asarray(tau)
@@ -70,10 +69,9 @@ def test_replay_matches_simulator(replay, blocked):
         np.testing.assert_allclose(np.broadcast_to(tau, held.shape), held, rtol=RTOL,
                                    atol=RTOL * tau_scale, err_msg=f"{kind}: tau at step {k}")
     assert len(samples) == 50
-    # the form given is the form returned (blocked only where the controller offers it)
-    offers_blocks = kind == "hinf_nn" and hasattr(sc.controller, "blocked")
-    assert isinstance(state.theta_f, tuple) == (blocked and offers_blocks)
-    _assert_state_close(sc.flat_state(state), traj.final)
+    # public state is flat arrays, whatever the loop carries inside
+    assert all(isinstance(v, jax.Array) and v.ndim == 1 for v in jax.tree.leaves(state))
+    _assert_state_close(state, traj.final)
     if kind == "hinf_nn":  # the weights did learn: the comparison is not between zeros
         assert np.max(np.abs(traj.final["theta_f"])) > 1e-3
         assert np.max(np.abs(traj.final["theta_p"])) > 1e-6
@@ -123,9 +121,9 @@ def test_torque_and_signals_match_update():
     tau, sig = sampled.torque_and_signals(0.01, state, meas)
     tau_u, _ = sampled.update(0.01, PERIOD, state, meas)
     np.testing.assert_allclose(np.asarray(tau), np.asarray(tau_u), rtol=1e-13)
-    np.testing.assert_allclose(np.asarray(sig.tau), np.asarray(tau), rtol=1e-13)
+    np.testing.assert_allclose(np.asarray(sig["tau"]), np.asarray(tau), rtol=1e-13)
     # λ = (Â Âᵀ)⁻¹ Â F with the nominal Â = [tan 45°, −1]: (30 + 30) / 2
-    np.testing.assert_allclose(np.asarray(sig.lam), [30.0], rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(sig["lam"]), [30.0], rtol=1e-12)
 
 
 # --- (b) batching ---------------------------------------------------------------------------------
@@ -156,13 +154,15 @@ def test_vmap_update_equals_single_calls(replay):
     xs = np.stack([sc.pack(a["t"][k], p, _meas(a, k), st) for k, p, st in zip(ks, np.asarray(periods), states)])
     taus_p, news_p = sc.unpack(np.asarray(jax.vmap(sc.update_packed)(xs)))
     np.testing.assert_allclose(taus_p, np.asarray(taus), rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(news_p.theta_f, np.asarray(sc.flat_state(news).theta_f), rtol=1e-12, atol=1e-300)
+    np.testing.assert_allclose(news_p.theta_f, np.asarray(news.theta_f), rtol=1e-12, atol=1e-300)
 
 
 # --- (c) non-finite samples -------------------------------------------------------------------------
 def _raw_law(sc, t, state, meas):
     """The controller's law without the wrapper's guard (compiled: faster than op by op)."""
-    return jax.jit(lambda x, m: sc.controller.step_terms(t, x, m, sc.reference)[:2])(state, meas)
+    ctrl = sc.controller
+    out = jax.jit(lambda x, m: ctrl.evaluate(t, ctrl.to_loop(x), m, sc.reference))(state, meas)
+    return out.tau, out.dstate
 
 
 @pytest.fixture(scope="module")
@@ -259,9 +259,15 @@ def test_checked_rejects_wrong_shapes(sampled_fl):
     with pytest.raises(MeasurementError, match="measurement.qd"):
         sc.update_checked(0.0, PERIOD, state, Measurement(q=q0, qd=np.zeros(3), F=np.zeros(2)))
     with pytest.raises(MeasurementError, match="state.z"):
-        sc.update_checked(0.0, PERIOD, state.__class__(z=np.zeros(2), theta_p=state.theta_p,
-                                                       theta_f=state.theta_f),
+        sc.update_checked(0.0, PERIOD, state.__class__(z=np.zeros(2), parts=state.parts),
                           Measurement(q=q0, qd=np.zeros(2), F=np.zeros(2)))
+    # the robot loop names a wrong shape instead of broadcasting it
+    loop = sc.loop()
+    with pytest.raises(MeasurementError, match="measurement.F.*task-space force"):
+        loop.update(0.0, PERIOD, q0, np.zeros(2), 30.0)
+    with pytest.raises(MeasurementError, match="measurement.q"):
+        loop.update(0.0, PERIOD, q0[:1], np.zeros(2), np.zeros(2))
+    assert loop.rejected == 0 and np.all(loop.state.z == 0)
     with pytest.raises(MeasurementError, match="period"):
         sc.update_checked(0.0, 0.0, state, Measurement(q=q0, qd=np.zeros(2), F=np.zeros(2)))
 

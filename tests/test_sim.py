@@ -9,7 +9,7 @@ import pytest
 
 import hinfnn as H
 from hinfnn.metrics import METRIC_KEYS, STEP_FIELDS
-from conftest import make_plant
+from conftest import make_plant, U1_0
 
 
 def _preloaded_q0(plant, depth=5e-4):
@@ -42,7 +42,7 @@ def test_rk4_convergence_order_is_four(kind, true_arm, true_surface, nominal_arm
 def test_halving_dt_changes_J10_of_paper_hinf_run_by_under_0_1_percent(paper_plant, nominal_arm,
                                                                          nominal_surface, reference):
     ctrl = H.HinfController.design(nominal_arm, nominal_surface)
-    J = [H.simulate(paper_plant, ctrl, reference, t_final=10.0, dt=dt, save_every=s).J[-1]
+    J = [H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=10.0, dt=dt, save_every=s).J[-1]
          for dt, s in ((1e-4, 100), (5e-5, 200))]
     assert abs(J[1] - J[0]) / J[0] < 1e-3, J
 
@@ -52,7 +52,7 @@ def _member_params(i):
     arm = H.TwoLinkArm(m1=1.2 * rng.uniform(0.8, 1.2), m2=1.1 * rng.uniform(0.8, 1.2),
                        l1=1.02724 * rng.uniform(0.98, 1.02), l2=0.98041 * rng.uniform(0.98, 1.02))
     surface = H.InclinedLine(delta=np.deg2rad(45.5 + rng.uniform(-1, 1)), d_G=0.8)
-    plant = H.Plant(arm, surface, H.PenaltyContact(1e5 * rng.uniform(0.5, 2), 200 * rng.uniform(0.5, 2)),
+    plant = H.RigidBodyPlant(arm, surface, H.PenaltyContact(1e5 * rng.uniform(0.5, 2), 200 * rng.uniform(0.5, 2)),
                     H.SquareWave(amplitude=np.full(2, rng.uniform(0, 4)), period=1.0, phase=0.0))
     gains = H.Gains(K_p=18 * rng.uniform(0.7, 1.3), K_v=9 * rng.uniform(0.7, 1.3))
     return plant, gains
@@ -62,10 +62,10 @@ def test_batch_of_8_under_vmap_equals_8_single_runs(nominal_arm, nominal_surface
     members = [_member_params(i) for i in range(8)]
     plants = [p for p, _ in members]
     ctrls = [H.HinfNNController.design(nominal_arm, nominal_surface, g) for _, g in members]
-    batch = H.simulate_batch(plants, ctrls, reference, t_final=0.5, dt=1e-4, save_every=10)
+    batch = H.simulate_batch(plants, ctrls, reference, u1_0=U1_0, t_final=0.5, dt=1e-4, save_every=10)
     assert batch.batched and batch.batch_size == 8
     for i in range(8):
-        single = H.simulate(plants[i], ctrls[i], reference, t_final=0.5, dt=1e-4, save_every=10)
+        single = H.simulate(plants[i], ctrls[i], reference, u1_0=U1_0, t_final=0.5, dt=1e-4, save_every=10)
         b = batch.member(i)
         for name in ("q", "qd", "tau", "lam", "z", "J", "theta_f_norm", "V", "supply"):
             np.testing.assert_allclose(b.arrays[name], single.arrays[name], rtol=1e-9, atol=1e-11,
@@ -77,7 +77,7 @@ def test_batch_of_8_under_vmap_equals_8_single_runs(nominal_arm, nominal_surface
 def test_absurd_gain_raises_simulation_error_with_time(paper_plant, nominal_arm, nominal_surface, reference):
     ctrl = H.HinfController.design(nominal_arm, nominal_surface, H.Gains(K_p=1e7, K_v=1e3))
     with pytest.raises(H.SimulationError) as err:
-        H.simulate(paper_plant, ctrl, reference, t_final=0.5, dt=1e-4)
+        H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.5, dt=1e-4)
     assert err.value.t_fail is not None and 0 <= err.value.t_fail < 0.5
     assert "t =" in str(err.value)
 
@@ -86,17 +86,17 @@ def test_batch_with_one_diverging_member_finishes_and_marks_only_it(paper_plant,
                                                                      nominal_surface, reference):
     gains = [H.Gains(), H.Gains(K_p=1e7, K_v=1e3), H.Gains(K_p=20.0)]
     ctrls = [H.HinfController.design(nominal_arm, nominal_surface, g) for g in gains]
-    tr = H.simulate_batch(paper_plant, ctrls, reference, t_final=0.3, dt=1e-4, save_every=10)
+    tr = H.simulate_batch(paper_plant, ctrls, reference, u1_0=U1_0, t_final=0.3, dt=1e-4, save_every=10)
     assert list(tr.status != 0) == [False, True, False]
     assert np.isfinite(tr.t_fail[1]) and np.all(np.isnan(tr.t_fail[[0, 2]]))
-    ok = H.simulate(paper_plant, ctrls[0], reference, t_final=0.3, dt=1e-4, save_every=10)
+    ok = H.simulate(paper_plant, ctrls[0], reference, u1_0=U1_0, t_final=0.3, dt=1e-4, save_every=10)
     np.testing.assert_allclose(tr.member(0).q, ok.q, rtol=1e-9)
     assert np.all(np.isfinite(tr.member(1).q))  # frozen at its last good state
 
 
 def test_penetration_limit_stops_a_run(paper_plant, nominal_arm, nominal_surface, reference):
     ctrl = H.HinfController.design(nominal_arm, nominal_surface)
-    tr = H.simulate(paper_plant, ctrl, reference, t_final=0.2, dt=1e-4,
+    tr = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.2, dt=1e-4,
                     limits=H.Limits(torque=1e5, penetration=1e-4), raise_on_failure=False)
     assert int(tr.status) == 3 and 0 < float(tr.t_fail) < 0.2
 
@@ -106,14 +106,14 @@ def test_sampled_control_at_high_rate_approaches_continuous(true_arm, true_surfa
     """Zero-order hold at 10 kHz (every step) vs 1 kHz vs continuous, damped contact."""
     plant = make_plant(true_arm, true_surface, damping=200.0)
     ctrl = H.HinfController.design(nominal_arm, nominal_surface)
-    cont = H.simulate(plant, ctrl, reference, t_final=2.0, dt=1e-4, save_every=10)
-    fast = H.simulate(plant, ctrl, reference, t_final=2.0, dt=1e-4, save_every=10, control_period=1e-4)
-    slow = H.simulate(plant, ctrl, reference, t_final=2.0, dt=1e-4, save_every=10, control_period=1e-3)
+    cont = H.simulate(plant, ctrl, reference, u1_0=U1_0, t_final=2.0, dt=1e-4, save_every=10)
+    fast = H.simulate(plant, ctrl, reference, u1_0=U1_0, t_final=2.0, dt=1e-4, save_every=10, control_period=1e-4)
+    slow = H.simulate(plant, ctrl, reference, u1_0=U1_0, t_final=2.0, dt=1e-4, save_every=10, control_period=1e-3)
     err_fast = np.abs(fast.e_u1 - cont.e_u1).max()
     err_slow = np.abs(slow.e_u1 - cont.e_u1).max()
     assert err_fast < 1e-3 and err_fast < err_slow
     # the held torque is piecewise constant over each 1 ms (10-step) period
-    short = H.simulate(plant, ctrl, reference, t_final=0.05, dt=1e-4, control_period=1e-3, save_every=1)
+    short = H.simulate(plant, ctrl, reference, u1_0=U1_0, t_final=0.05, dt=1e-4, control_period=1e-3, save_every=1)
     blocks = short.tau[:-1].reshape(-1, 10, 2)
     np.testing.assert_array_equal(blocks, np.repeat(blocks[:, :1], 10, axis=1))
     assert np.abs(np.diff(blocks[:, 0], axis=0)).max() > 0
@@ -124,9 +124,9 @@ def test_sampled_control_at_high_rate_approaches_continuous(true_arm, true_surfa
 def test_default_storage_is_one_sample_per_ms_and_size_follows_the_decimation(paper_plant, nominal_arm,
                                                                                nominal_surface, reference):
     ctrl = H.HinfNNController.design(nominal_arm, nominal_surface)
-    full = H.simulate(paper_plant, ctrl, reference, t_final=0.3, dt=1e-4, save_every=1)
-    dec = H.simulate(paper_plant, ctrl, reference, t_final=0.3, dt=1e-4)  # save_interval = 1 ms
-    coarse = H.simulate(paper_plant, ctrl, reference, t_final=0.3, dt=1e-4, save_interval=0.05)
+    full = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.3, dt=1e-4, save_every=1)
+    dec = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.3, dt=1e-4)  # save_interval = 1 ms
+    coarse = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.3, dt=1e-4, save_interval=0.05)
     assert (full.save_every, dec.save_every, coarse.save_every) == (1, 10, 500)
     assert full.t.shape == (3001,) and dec.t.shape == (301,) and coarse.t.shape == (7,)
     for name, v in dec.arrays.items():  # every stored array shrinks by the same factor
@@ -142,8 +142,8 @@ def test_metrics_cover_every_step_whatever_the_storage(paper_plant, nominal_arm,
     make every metric but the sampled dissipation margin independent of the decimation, equal to
     the metric of the every-step trajectory; Trajectory.decimated merges them the same way."""
     ctrl = H.HinfController.design(nominal_arm, nominal_surface)
-    full = H.simulate(paper_plant, ctrl, reference, t_final=3.0, dt=1e-4, save_every=1)
-    dec = H.simulate(paper_plant, ctrl, reference, t_final=3.0, dt=1e-4, save_every=50)
+    full = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=3.0, dt=1e-4, save_every=1)
+    dec = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=3.0, dt=1e-4, save_every=50)
     np.testing.assert_array_equal(full.tau_abs_max, np.abs(full.tau))
     np.testing.assert_allclose(full.tau_variation[1:], np.abs(np.diff(full.tau, axis=0)), rtol=1e-12)
     np.testing.assert_allclose(full.tau_sq, full.tau**2, rtol=1e-12)
@@ -166,24 +166,25 @@ def test_metrics_cover_every_step_whatever_the_storage(paper_plant, nominal_arm,
 
 def test_fields_selects_what_is_stored(paper_plant, nominal_arm, nominal_surface, reference):
     ctrl = H.HinfController.design(nominal_arm, nominal_surface)
-    tr = H.simulate(paper_plant, ctrl, reference, t_final=0.1, dt=1e-4, fields=("e_u1", "tau"))
+    tr = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.1, dt=1e-4, fields=("e_u1", "tau"))
     assert set(tr.arrays) == {"t", "e_u1", "tau"}
-    allf = H.simulate(paper_plant, ctrl, reference, t_final=0.1, dt=1e-4)
-    # same numbers (to the last bit but for the final sample, whose program XLA fuses differently)
-    np.testing.assert_allclose(tr.tau, allf.tau, rtol=1e-14, atol=0)
-    lean = H.simulate(paper_plant, ctrl, reference, t_final=0.1, dt=1e-4, fields="metrics")
+    allf = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.1, dt=1e-4)
+    # same numbers, to rounding relative to the signal's scale (XLA fuses the programs that store
+    # fewer fields differently, so a value crossing zero can differ in its last bits)
+    np.testing.assert_allclose(tr.tau, allf.tau, rtol=1e-14, atol=1e-14 * np.abs(allf.tau).max())
+    lean = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.1, dt=1e-4, fields="metrics")
     assert len(lean.arrays) == 17
     m_lean, m_all = H.compute_metrics(lean), H.compute_metrics(allf)
     for key in m_all:
         np.testing.assert_allclose(m_lean[key], m_all[key], rtol=1e-12, err_msg=key)
     with pytest.raises(H.ConfigError, match="unknown trajectory field.*'torque'"):
-        H.simulate(paper_plant, ctrl, reference, t_final=0.1, dt=1e-4, fields=("torque",))
+        H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.1, dt=1e-4, fields=("torque",))
 
 
 def test_batch_of_one_equals_a_single_run(paper_plant, nominal_arm, nominal_surface, reference):
     ctrl = H.HinfNNController.design(nominal_arm, nominal_surface)
-    b = H.simulate_batch([paper_plant], ctrl, reference, t_final=0.2, dt=1e-4)
-    s = H.simulate(paper_plant, ctrl, reference, t_final=0.2, dt=1e-4)
+    b = H.simulate_batch([paper_plant], ctrl, reference, u1_0=U1_0, t_final=0.2, dt=1e-4)
+    s = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.2, dt=1e-4)
     assert b.batched and b.batch_size == 1 and b.status.shape == (1,)
     for k in s.arrays:
         np.testing.assert_array_equal(b.member(0).arrays[k], s.arrays[k], err_msg=k)

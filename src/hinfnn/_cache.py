@@ -1,33 +1,28 @@
 """A persistent compilation cache, so that a new process reuses the XLA programs of earlier ones.
 
-Each new process would otherwise compile the simulator's programs again (4–7 s). hinfnn turns on
-JAX's persistent compilation cache at import (``hinfnn/_config.py`` calls :func:`setup_from_env`)
-in a folder chosen as follows:
+Each new process would otherwise compile the simulator's programs again (4–7 s).
+:func:`hinfnn.configure` (which the ``hinfnn`` command calls; importing hinfnn does not) turns on
+JAX's own persistent compilation cache through its public options
+(``jax_compilation_cache_dir``, ``jax_persistent_cache_min_compile_time_secs``,
+``jax_persistent_cache_min_entry_size_bytes``) in a folder chosen as follows:
 
 1. ``$HINFNN_CACHE_DIR`` if set; ``off``, ``0``, ``none``, ``false``, ``no`` (any case) or the
    empty string disable the cache;
 2. else ``$XDG_CACHE_HOME/hinfnn/jax`` if ``XDG_CACHE_HOME`` is set;
 3. else ``~/.cache/hinfnn/jax``.
 
-What is cached is XLA's compiled executable (one file per program, ``<name>-<key hash>-cache``,
-the layout of JAX's own file cache). The key hashes the lowered program, the compile options,
-the jax/jaxlib versions and the backend, so an entry is only reused for the same program on the
-same software. Tracing and lowering (Python → jaxpr → StableHLO) are not cached: a new process
-still does them. ``JAX_COMPILATION_CACHE_DIR`` is ignored: ``HINFNN_CACHE_DIR`` governs.
+What hinfnn adds to JAX's cache is only at the edges: the folder is created private to the user
+(mode 0700: an entry is machine code that gets executed) and probed before JAX is told about it,
+so that an unusable folder (a file in the way, read-only, another user's) turns the cache off
+with one :class:`CacheWarning` instead of JAX's two warnings per compiled program; and
+``hinfnn cache`` shows or empties it. JAX writes an entry in place (not through a temporary
+file), so a process killed in the middle of a write can leave a truncated entry: JAX then warns
+("Error reading persistent compilation cache entry") and compiles that program again each time,
+and ``hinfnn cache --clear`` removes it. Deleting the folder at any time is safe.
 
-The cache is trusted (an entry is machine code that gets executed), so the folders it creates are
-private to the user (mode 0700). It is safe to delete at any time, even while hinfnn runs:
-entries are written atomically (temporary file, then rename), a missing folder is recreated, an
-unreadable or corrupt entry counts as a miss and is removed. It never makes a run fail: a folder
-that cannot be created or written (a file in the way, read-only, full disk) turns the cache off
-(or stops writing to it) with one :class:`CacheWarning` per process, never an exception.
-
-JAX has one persistent cache per process, so after ``import hinfnn`` the user's own jit-compiled
-programs are cached in the same folder too (``HINFNN_CACHE_DIR=off`` or ``enable_cache(None)``
-turns that off).
-
-Public API: :func:`cache_dir`, :func:`enable_cache`, :func:`clear_cache` (also exported by
-``hinfnn``), :func:`cache_size`, :func:`default_cache_dir`.
+JAX has one persistent cache per process, so after :func:`hinfnn.configure` the user's own
+jit-compiled programs are cached in the same folder too (``HINFNN_CACHE_DIR=off`` or
+``enable_cache(None)`` turns that off).
 """
 
 from __future__ import annotations
@@ -44,23 +39,19 @@ ENV_VAR = "HINFNN_CACHE_DIR"
 #: Values of ``HINFNN_CACHE_DIR`` (compared case-insensitively, spaces stripped) that disable it.
 DISABLE_VALUES = frozenset({"", "off", "0", "none", "false", "no"})
 #: Programs that compile faster than this are not written (JAX's default is 1 s). 0: every
-#: program is cached. Besides the simulator's chunk program (2–6 s to compile), a run compiles
-#: about 70 small eager programs (array conversions, a Jacobian, a determinant at scenario check
-#: and controller design), 20–30 ms each, 1.5 s in all; loading one from disk takes a few ms.
-#: A threshold near their compile time would also make the set of entries depend on the load
-#: of the machine. ``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`` in the environment overrides it.
+#: program is cached: besides the simulator's chunk program (2–6 s to compile), a run compiles
+#: about 20 small programs (start pose, checks, design), 20–30 ms each.
 MIN_COMPILE_TIME_SECS = 0.0
 
 _ENTRY_SUFFIX = "-cache"  # JAX's LRUCache naming: <module name>-<sha256>-cache
-_TMP_PREFIX = ".tmp-"     # our atomic writes in progress (and the write probe)
+_TMP_PREFIX = ".tmp-"     # the write probe
 #: The files the cache owns, the only ones cache_size/clear_cache look at: entries (and the
-#: "-atime" files JAX's own cache writes when its size limit is on), temporaries (tempfile's 8
-#: random characters).
+#: "-atime" files JAX writes when its size limit is on), probe leftovers.
 _OWNED = re.compile(r"(.+-[0-9a-f]{64}-(cache|atime)|\.tmp-(probe-)?[a-z0-9_]{8})\Z")
 
 _lock = threading.Lock()
 _active: Path | None = None       # the folder in use, None when the cache is off
-_reason: str = "not set up"       # why the cache is off (for `hinfnn cache`)
+_reason: str = "not set up (hinfnn.configure() turns it on)"  # why the cache is off
 _warned = False                   # at most one CacheWarning per process
 
 
@@ -173,7 +164,7 @@ def enable_cache(path: str | os.PathLike | None) -> Path | None:
 
 
 def setup_from_env() -> Path | None:
-    """Turn the cache on or off as the environment says (called once, at ``import hinfnn``).
+    """Turn the cache on or off as the environment says (:func:`hinfnn.configure` calls it).
 
     Never raises: whatever goes wrong, hinfnn still imports and runs, without the cache.
     """
@@ -249,111 +240,11 @@ def clear_cache(path: str | os.PathLike | None = None) -> int:
 # --- the JAX side ----------------------------------------------------------------------------
 
 
-def _make_safe_cache(folder: Path):
-    """A JAX ``CacheInterface`` over ``folder`` that never raises (see the module docstring)."""
-    from jax._src import compilation_cache as jcc
-    from jax._src.compilation_cache_interface import CacheInterface
-
-    class SafeFileCache(CacheInterface):
-        """JAX's file layout, with atomic writes, a folder recreated if deleted, corrupt entries
-        dropped, and errors turned into one warning (then no more writes) instead of raising."""
-
-        def __init__(self, path: Path):
-            self._path = path
-            self._writable = True
-
-        def _file(self, key: str) -> Path:
-            return self._path / f"{key}{_ENTRY_SUFFIX}"
-
-        def get(self, key: str):
-            f = self._file(key)
-            try:
-                data = f.read_bytes()
-            except FileNotFoundError:
-                return None
-            except OSError as err:
-                _warn_once(f"hinfnn: compilation cache: cannot read {f} ({type(err).__name__}: "
-                           f"{err}); compiling instead")
-                return None
-            try:
-                jcc.decompress_executable(data)  # checksummed: a damaged entry fails here
-            except Exception:  # noqa: BLE001 - any damage means: a miss, and drop the entry
-                try:
-                    f.unlink()
-                except OSError:
-                    pass
-                return None
-            return data
-
-        def put(self, key: str, value: bytes) -> None:
-            if not self._writable:
-                return
-            f = self._file(key)
-            if f.exists():
-                return
-            for attempt in (0, 1):
-                tmp = None
-                try:
-                    fd, tmp = tempfile.mkstemp(prefix=_TMP_PREFIX, dir=self._path)
-                    with os.fdopen(fd, "wb") as out:
-                        out.write(value)
-                    os.replace(tmp, f)
-                    return
-                except FileNotFoundError as err:  # the folder was deleted meanwhile: recreate
-                    _discard(tmp)
-                    if attempt == 0:
-                        try:
-                            _prepare(self._path)
-                            continue
-                        except OSError as err2:
-                            err = err2
-                    self._give_up(err)
-                    return
-                except OSError as err:  # read-only, full disk, quota, ...
-                    _discard(tmp)
-                    self._give_up(err)
-                    return
-
-        def _give_up(self, err: OSError) -> None:
-            self._writable = False
-            _warn_once(f"hinfnn: compilation cache: cannot write to {self._path} "
-                       f"({type(err).__name__}: {err}); this process writes no more entries "
-                       f"(runs are not affected)")
-
-    return SafeFileCache(folder)
-
-
-def _discard(tmp) -> None:
-    if tmp:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-
-
 def _install(folder: Path | None) -> None:
-    """Point JAX's persistent compilation cache at ``folder`` (None: off) for later compilations."""
+    """Point JAX's persistent cache at ``folder`` (None: off), through its public options."""
     import jax
+    from jax.experimental.compilation_cache import compilation_cache as cc
 
-    try:
-        from jax._src import compilation_cache as jcc
-    except ImportError:  # pragma: no cover - a JAX without the module: use the public config only
-        jcc = None
-    if jcc is not None:
-        jcc.reset_cache()
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_SECS)
     jax.config.update("jax_compilation_cache_dir", None if folder is None else str(folder))
-    if folder is None:
-        return
-    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_SECS)
-    if "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES" not in os.environ:
-        jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)  # no size floor
-    # Replace JAX's file cache (non-atomic writes, raises on a deleted folder) by the safe one.
-    # This uses JAX internals (pinned jax==0.10.2); without them JAX's own cache is used.
-    mutex = getattr(jcc, "_cache_initialized_mutex", None)
-    if jcc is None or mutex is None or not hasattr(jcc, "_cache"):
-        return  # pragma: no cover
-    cache = _make_safe_cache(folder)
-    with mutex:
-        jcc._cache = cache
-        jcc._cache_initialized = True
+    cc.reset_cache()  # JAX opens its cache on the next compilation, in the new folder

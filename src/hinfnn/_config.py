@@ -1,18 +1,38 @@
-"""Process-wide JAX settings hinfnn relies on (float64 on the CPU, persistent compilation cache).
+"""Process-wide JAX settings, set only when asked: :func:`configure` (the ``hinfnn`` command
+calls it) and the float64 check of the entry points that compute (:func:`require_x64`).
 
-Imported first by ``hinfnn/__init__.py`` so that every array the library creates is float64 and
-every program it compiles can be reused by the next process (see :mod:`hinfnn._cache`;
-``HINFNN_CACHE_DIR=off`` turns that off).
+``import hinfnn`` changes nothing in the process: the platform is JAX's own choice (a GPU is
+used when JAX finds one), float64 and the persistent compilation cache are turned on by
+:func:`configure`.
 """
 
-import os
+from __future__ import annotations
 
-os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
-import jax  # noqa: E402
+def configure(*, x64: bool = True, cache: bool = True):
+    """Set JAX up for hinfnn in this process: float64 (hinfnn's numbers are float64 throughout;
+    ``x64=False`` leaves JAX's setting alone) and the persistent compilation cache in the folder
+    the environment gives (``HINFNN_CACHE_DIR``, see :mod:`hinfnn._cache`; ``cache=False``
+    leaves it off). Call it once, before the first computation. Returns the cache folder in use,
+    or None."""
+    import jax
 
-jax.config.update("jax_enable_x64", True)
+    if x64:
+        jax.config.update("jax_enable_x64", True)
+    if cache:
+        from . import _cache
 
-from . import _cache  # noqa: E402
+        return _cache.setup_from_env()
+    return None
 
-_cache.setup_from_env()  # never raises; an unusable folder means no cache and one warning
+
+def require_x64() -> None:
+    """Raise :class:`~hinfnn.errors.ConfigError` unless JAX computes in float64 (the controller's
+    gains and the contact's stiffness span 10 decades: float32 results are not hinfnn's)."""
+    import jax
+
+    if not jax.config.jax_enable_x64:
+        from .errors import ConfigError
+
+        raise ConfigError("hinfnn computes in float64: call hinfnn.configure() once before running "
+                          "(or set JAX_ENABLE_X64=1 in the environment)")

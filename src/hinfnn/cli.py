@@ -116,78 +116,44 @@ def _parser() -> argparse.ArgumentParser:
 
 
 class Progress:
-    """A one-line progress display on stderr, shown only for runs longer than a few seconds."""
+    """Progress on stderr (tqdm: steps done, rate, ETA), shown only for runs longer than a few
+    seconds and never with ``--quiet``; ``names`` are the runs of the chunk being simulated."""
 
     def __init__(self, quiet: bool, label: str):
         self.quiet = quiet
         self.label = label
-        self.t0 = time.perf_counter()
-        self.shown = False
-        self.tty = sys.stderr.isatty()
-        self.last = 0.0
+        self.bar = None
 
     def __call__(self, done: int, total: int, names=None):
         if self.quiet:
             return
-        now = time.perf_counter()
-        elapsed = now - self.t0
-        if elapsed < 3.0 or (now - self.last < (0.5 if self.tty else 10.0) and done < total):
-            return
-        self.last = now
-        frac = done / max(total, 1)
-        msg = f"{self.label}: {100 * frac:5.1f} %  ({elapsed:.0f} s)"
+        if self.bar is None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, desc=self.label, unit="step", unit_scale=True, delay=3.0,
+                            file=sys.stderr, leave=False, dynamic_ncols=True, mininterval=0.5,
+                            disable=None)  # None: only on a terminal
         if names:
-            msg += f"  [{', '.join(names)}]"
-        if self.tty:
-            sys.stderr.write("\r" + msg[:120].ljust(120))
-        else:
-            sys.stderr.write(msg + "\n")
-        sys.stderr.flush()
-        self.shown = True
+            self.bar.set_postfix_str(", ".join(names)[:40], refresh=False)
+        self.bar.update(done - self.bar.n)
 
     def done(self):
-        if self.shown and self.tty and not self.quiet:
-            sys.stderr.write("\n")
-
-
-def _num(x, w=10) -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "n/a".rjust(w)
-    ax = abs(x)
-    s = f"{x:.3e}" if ax != 0 and (ax < 1e-3 or ax >= 1e5) else f"{x:.4g}"
-    return s.rjust(w)
-
-
-def metrics_table(runs: list[dict]) -> str:
-    """A short terminal table from metrics.json's "runs" entries."""
-    head = (f"{'run':<24}{'status':>9}{'RMS e_u1':>10}{'last 2s':>10}{'RMS e_λ':>10}{'last 2s':>10}"
-            f"{'J(T)':>10}{'peak τ1':>10}{'peak τ2':>10}{'no contact':>11}{'dissip.':>8}")
-    lines = [head, "-" * len(head)]
-    for r in runs:
-        m = r["metrics"]
-        status = r.get("status", "ok")
-        if status != "ok":
-            status = f"t={r['t_fail']:.3g}"
-        holds = m.get("dissipation_holds_for_all_t")
-        frac = m.get("fraction_out_of_contact")
-        lines.append(
-            f"{r['name'][:23]:<24}{status:>9}{_num(m['rms_e_u1'])}{_num(m['rms_e_u1_last2s'])}"
-            f"{_num(m['rms_e_lam'])}{_num(m['rms_e_lam_last2s'])}{_num(m['J_T'])}"
-            f"{_num(m['peak_abs_tau'][0])}{_num(m['peak_abs_tau'][1])}"
-            f"{(f'{100 * frac:.1f} %' if frac is not None and math.isfinite(frac) else 'n/a'):>11}"
-            f"{('n/a' if holds is None else ('yes' if holds else 'NO')):>8}")
-    return "\n".join(lines)
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
 
 
 # --- commands -----------------------------------------------------------------------------------
 
 
 def cmd_run(args) -> int:
+    from .controllers import design_summary
     from .io import OutputFolder, atomic_write_bytes, atomic_write_text, choose_output, dumps_json, \
         trajectory_npz_bytes
-    from .metrics import compute_metrics
-    from .scenario import Scenario, simulate_many
-    from .study import metrics_document
+    from .report.markdown import metrics_table
+    from .results import metrics_document, run_entry
+    from .scenario import Scenario
+    from .sim import simulate_many
 
     trace = getattr(args, "startup_trace", None)
     if trace:
@@ -202,30 +168,27 @@ def cmd_run(args) -> int:
     kinds = sc.kinds
     progress = Progress(args.quiet, f"simulating {', '.join(kinds)}")
     with OutputFolder(target) as folder:
-        trajs = simulate_many([(k, sc, k) for k in kinds],
-                              progress=trace.wrap(progress) if trace else progress)
+        runs = [sc.run(kind) for kind in kinds]
+        trajs = simulate_many(runs, progress=trace.wrap(progress) if trace else progress)
         progress.done()
         if trace:
             trace.done()
-        entries = []
-        for kind in kinds:
-            m = compute_metrics(trajs[kind])
-            entries.append((kind, kind, dict(sc.overrides), m, trajs[kind]))
-        doc = metrics_document(sc, entries)
+        entries = [run_entry(r.name, trajs[r.name], overrides=dict(sc.overrides), design=design_summary(r.controller))
+                   for r in runs]
+        doc = metrics_document(sc, entries, command=command_line(args))
         atomic_write_text(folder.path / "metrics.json", dumps_json(doc))
-        atomic_write_bytes(folder.path / "trajectory.npz",
-                           trajectory_npz_bytes(trajs, sc.data["simulation"]["output_interval"]))
+        atomic_write_bytes(folder.path / "trajectory.npz", trajectory_npz_bytes(trajs, sc.simulation.output_interval))
         atomic_write_text(folder.path / "scenario.toml", sc.to_toml())
         from .report import run_figures  # matplotlib (0.5 s): imported once the simulation is done
 
         run_figures(trajs, folder.path)
     if not args.quiet:
-        print(metrics_table(doc["runs"]))
+        print(metrics_table(doc, markdown=False))
         print(f"results: {target}/ (metrics.json, trajectory.npz, scenario.toml, *.png)")
     failed = [r for r in doc["runs"] if r["status"] != "ok"]
     for r in failed:
-        print(f"hinfnn: run {r['name']!r} diverged at t = {r['t_fail']:.6g} s ({r['reason']}); "
-              f"its metrics are null in {target}/metrics.json", file=sys.stderr)
+        print(f"hinfnn: run {r['name']!r} stopped at t = {r['t_fail']:.6g} s ({r['reason']}); "
+              f"its metrics up to then are in {target}/metrics.json (marked partial)", file=sys.stderr)
     return 1 if failed else 0
 
 
@@ -237,22 +200,24 @@ def cmd_reproduce(args) -> int:
     progress = Progress(args.quiet, "reproducing the paper study")
     t0 = time.perf_counter()
     target = reproduce(args.out, base=base, force=args.force, progress=progress,
-                       log=lambda m: print(m, file=sys.stderr))
+                       log=lambda m: print(m, file=sys.stderr), command=command_line(args))
     progress.done()
     if not args.quiet:
         import json
 
+        from .report.markdown import metrics_table
+
         doc = json.loads((target / "metrics.json").read_text())
-        print(metrics_table(doc["runs"]))
+        print(metrics_table(doc, markdown=False))
         print(f"report: {target}/report.md  ({time.perf_counter() - t0:.0f} s)")
     return 0
 
 
 def cmd_keys(args) -> int:
-    from .scenario import SCHEMA, _walk
+    from .scenario import keys
 
-    for key, f in _walk(SCHEMA):
-        print(f"{key:<40} {f.doc}  [{f.allowed()}]")
+    for key, doc, allowed, default in keys():
+        print(f"{key:<40} {doc}  [{allowed}; default {default}]")
     return 0
 
 
@@ -261,7 +226,7 @@ def cmd_scenarios(args) -> int:
 
     for name in scenario_names():
         sc = Scenario.load(name, check=False)
-        print(f"{name:<16} {sc.data.get('description', '')}")
+        print(f"{name:<16} {sc.description}")
     return 0
 
 
@@ -272,7 +237,9 @@ def cmd_show(args) -> int:
     if res.metrics is None:
         print(f"{args.folder}: no metrics.json", file=sys.stderr)
         return 2
-    print(metrics_table(res.metrics["runs"]))
+    from .report.markdown import metrics_table
+
+    print(metrics_table(res.metrics, markdown=False))
     return 0
 
 
@@ -326,12 +293,24 @@ def _interrupted_exit(code: int, argv) -> int:
     return code
 
 
+def command_line(args) -> str:
+    """The command as the user typed it (for the files that record how they were made)."""
+    import shlex
+
+    return "hinfnn " + " ".join(shlex.quote(a) for a in getattr(args, "argv", []))
+
+
 def main(argv=None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     if args.command is None:
         parser.print_help()
         return 2
+    if args.command not in ("keys", "scenarios"):
+        from ._config import configure
+
+        configure()
     if args.command == "run":
         from ._startup import StartupTrace
 

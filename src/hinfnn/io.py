@@ -192,8 +192,6 @@ def dumps_json(obj) -> str:
 
 def trajectory_npz_bytes(runs: dict, max_interval: float | None = 1e-3) -> bytes:
     """The ``trajectory.npz`` content for named Trajectories (decimated to ``max_interval``)."""
-    from .scenario import _to_toml
-
     payload: dict[str, Any] = {
         "__format__": np.array(FORMAT),
         "__hinfnn_version__": np.array(version()),
@@ -211,8 +209,11 @@ def trajectory_npz_bytes(runs: dict, max_interval: float | None = 1e-3) -> bytes
         payload[f"{name}/__t_fail__"] = np.asarray(t.t_fail)
         payload[f"{name}/__dt__"] = np.asarray(t.dt)
         payload[f"{name}/__save_every__"] = np.asarray(t.save_every)
-        cfg = t.config if isinstance(t.config, dict) else {}
-        payload[f"{name}/__scenario__"] = np.array(_to_toml(cfg) if cfg else "")
+        info = t.info
+        payload[f"{name}/__scenario__"] = np.array(info.scenario.to_toml() if info.scenario is not None else "")
+        payload[f"{name}/__kind__"] = np.array(info.kind)
+        payload[f"{name}/__label__"] = np.array(info.label)
+        payload[f"{name}/__color__"] = np.array(info.color)
     buf = io.BytesIO()
     np.savez_compressed(buf, **payload)
     return buf.getvalue()
@@ -242,8 +243,9 @@ class SavedResult:
 
 def load_npz(path: Path) -> tuple[dict, str]:
     """Read a ``trajectory.npz``: ({name: Trajectory}, hinfnn version)."""
-    from .scenario import parse_toml
-    from .sim.trajectory import Trajectory
+    from .scenario import Scenario
+    from .scenario.core import parse_toml
+    from .sim.trajectory import RunInfo, Trajectory
 
     path = Path(path)
     try:
@@ -268,11 +270,19 @@ def load_npz(path: Path) -> tuple[dict, str]:
                       if k.startswith(prefix) and "/__" not in k[len(prefix) - 1:]}
             final = {k[len(prefix) + 10:]: v for k, v in data.items() if k.startswith(prefix + "__final__/")}
             text = str(data[prefix + "__scenario__"])
+            scenario = None
+            if text:
+                try:
+                    scenario = Scenario.from_dict(parse_toml(text, f"{path}:{name}"), source=f"{path}:{name}",
+                                                  check=False)
+                except HinfnnError as err:
+                    raise LoadError(f"{path}: run {name!r} has a scenario hinfnn cannot read: {err}") from None
+            meta = {k: str(data[prefix + f"__{k}__"]) if prefix + f"__{k}__" in data else ""
+                    for k in ("kind", "label", "color")}
             out[name] = Trajectory(
                 arrays=arrays, status=data[prefix + "__status__"], t_fail=data[prefix + "__t_fail__"],
-                fail_details={}, config=parse_toml(text, f"{path}:{name}") if text else {},
-                dt=float(data[prefix + "__dt__"]), save_every=int(data[prefix + "__save_every__"]),
-                final=final)
+                fail_details={}, dt=float(data[prefix + "__dt__"]), save_every=int(data[prefix + "__save_every__"]),
+                final=final, info=RunInfo(name=name, scenario=scenario, **meta))
         except KeyError as err:
             raise LoadError(f"{path}: run {name!r} is incomplete (missing {err})") from None
         if "t" not in arrays:

@@ -1,36 +1,27 @@
 """Controllers: nominal model + measurement + reference -> torque (paper eqs. 17–54).
 
-Each controller is designed once (``Controller.design``: gain checks, Riccati solve) and then
-used through pure functions on an explicit state pytree: ``init``, ``torque``, ``derivative``.
-Nothing here imports :mod:`hinfnn.plant`.
+A controller is the reduced-order law (24)–(27) (:mod:`~hinfnn.controllers.law`) with added
+terms (:mod:`~hinfnn.controllers.terms`); the paper's three controllers are compositions of
+terms (:mod:`~hinfnn.controllers.kinds`). Each is designed once (gain checks, Riccati solve) and
+then used through pure functions on an explicit state pytree. Nothing here imports
+:mod:`hinfnn.plant`.
 """
 
-from .base import ControllerState, ReducedOrderController, Signals
-from .feedback_linearization import FeedbackLinearization
 from .gains import Gains
-from .hinf import HinfController
-from .hinf_nn import HinfNNController
+from .kinds import KINDS, Composition, FeedbackLinearization, HinfController, HinfNNController, design, register
+from .law import ControllerState, Output, ReducedOrderController, force_multiplier
 from .network import CENTRE_PRESETS_F, TanhNetwork, centres_from, paper_network_f, paper_network_p
 from .riccati import RiccatiSolution, design_riccati, solve_riccati_like
 from .sampled import MeasurementError, SampledController, SampledLoop
+from .summary import design_summary
+from .terms import Context, ForceNetwork, PositionNetwork, RobustForce, RobustPosition, Term
 
 __all__ = [
-    "ControllerState",
-    "ReducedOrderController",
-    "Signals",
-    "FeedbackLinearization",
-    "HinfController",
-    "HinfNNController",
-    "Gains",
-    "TanhNetwork",
-    "CENTRE_PRESETS_F",
-    "centres_from",
-    "paper_network_p",
-    "paper_network_f",
-    "RiccatiSolution",
-    "design_riccati",
-    "solve_riccati_like",
-    "SampledController",
-    "SampledLoop",
-    "MeasurementError",
+    "Gains", "KINDS", "Composition", "design", "register",
+    "FeedbackLinearization", "HinfController", "HinfNNController",
+    "ControllerState", "Output", "ReducedOrderController", "force_multiplier",
+    "Term", "Context", "RobustPosition", "RobustForce", "PositionNetwork", "ForceNetwork",
+    "TanhNetwork", "CENTRE_PRESETS_F", "centres_from", "paper_network_p", "paper_network_f",
+    "RiccatiSolution", "design_riccati", "solve_riccati_like",
+    "SampledController", "SampledLoop", "MeasurementError", "design_summary",
 ]

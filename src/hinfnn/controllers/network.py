@@ -3,17 +3,15 @@
 A network has j hidden units σ_i = tanh(α (φ(z_n) − c_i)) (eq. 17) with fixed centres c_i and
 slope α, and adjustable output weights only: F(z, Θ) = Ξ Θ, Ξ = diag(ξᵀ, …, ξᵀ) (eqs. 18–19).
 The input map is φ(a, b) = w_aᵀ a + w_bᵀ b, a scalar from the two inputs the paper uses
-(F_p: a = e_u1, b = ė_u1; F_f: a = e_λ, b = z); Sec. VI has w_a = w_b = 1.
+(F_p: a = e_u1, b = ė_u1; F_f: a = e_λ, b = z); Sec. VI has w_a = w_b = 1. Every output shares
+the hidden layer ξ (eq. 19).
 
 Θ stacks the per-output weight vectors: Θ = [θ_1; …; θ_n_out], so Ξᵀ s = s ⊗ ξ.
 
-Blocks: the centres, the features ξ and (inside the simulator) the weights are kept in blocks of
-at most :data:`BLOCK` units. XLA's CPU runtime runs the kernels of a compiled loop body inline,
-one after the other, only when every buffer they touch is at most 512 bytes (64 float64 values);
-a single larger array sends every kernel of the simulation step through a thread pool, which
-costs about as much as the step's arithmetic (measured on the paper scenario: 1.0 s per 100,000
-steps with F_f split 60 + 60, 2.0 s with one 120-unit array). The public methods take and return
-the flat Θ; the ``*_blocks`` methods also accept Θ as a tuple of blocks (:meth:`split`).
+The public methods (:meth:`features`, :meth:`output`, :meth:`update`) take and return flat
+arrays. Inside the compiled loop the weights travel in blocks (:mod:`hinfnn._devices`,
+``blocks``): the ``*_blocks`` methods, used by :class:`~hinfnn.controllers.terms.NetworkTerm`,
+take Θ as the tuple :func:`hinfnn._devices.split` makes and return the same layout.
 """
 
 from __future__ import annotations
@@ -22,16 +20,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._pytree import pytree_dataclass, static_field
+from .. import _devices as dev
 from .. import _linalg as la
+from .._pytree import pytree_dataclass, static_field
 from ..errors import DesignError
 
-#: Largest number of hidden units kept in one array (see the module docstring).
-BLOCK = 64
-
-#: F_f centre presets (NOTES.md, "F_f centre step"): (first centre, step, count).
-#: The printed step 0.05 spans −30 … −24.05, so for ordinary inputs every unit saturates at +1
-#: and the network degenerates into a single integrator; 0.5 spans −30 … 29.5.
+#: F_f centre presets of the paper's Sec. VI: (first centre, step, count). The printed step 0.05
+#: spans −30 … −24.05, so for ordinary inputs every unit saturates at +1 and the network
+#: degenerates into a single integrator; 0.5 spans −30 … 29.5 (docs/paper-conventions.md).
 CENTRE_PRESETS_F = {
     "paper-printed": (-30.0, 0.05, 120),
     "paper-likely": (-30.0, 0.5, 120),
@@ -49,14 +45,14 @@ def centres_from(start: float, step: float, count: int) -> np.ndarray:
 class TanhNetwork:
     """One network of eq. (19) with optional projection onto ‖Θ‖ ≤ radius (Remark 2).
 
-    The centres are stored in blocks of at most :data:`BLOCK` units (``centre_blocks``);
-    :attr:`centres` is the whole vector.
+    Build it with :meth:`build`. The centres are kept in the blocks of :mod:`hinfnn._devices`
+    (``centre_blocks``); :attr:`centres` is the whole vector.
     """
 
-    centre_blocks: tuple  # of (≤ BLOCK,) arrays, in increasing order
+    centre_blocks: tuple  # of arrays, in increasing order
     slope: jax.Array  # α of eq. (17)
-    w_a: jax.Array  # (dim,) weights of the first input in φ
-    w_b: jax.Array  # (dim,) weights of the second input in φ
+    w_a: jax.Array  # (1,) or (n_out,) weights of the first input in φ
+    w_b: jax.Array  # (1,) or (n_out,) weights of the second input in φ
     radius: jax.Array  # d_p or d_f of Remark 2 (used when ``project``)
     n_out: int = static_field(default=1)
     project: bool = static_field(default=False)
@@ -87,14 +83,14 @@ class TanhNetwork:
             if not (np.isfinite(radius) and radius > 0):
                 raise DesignError(f"projection radius must be finite and > 0, got {radius:g}",
                                   key=f"{name}.radius", value=radius, bound=0.0)
-        blocks = tuple(jnp.asarray(c[a:b]) for a, b in _block_bounds(c.size))
+        blocks = tuple(jnp.asarray(c[a:b]) for a, b in dev.block_bounds(c.size))
         return cls(centre_blocks=blocks, slope=jnp.asarray(slope), w_a=jnp.asarray(w_a),
                    w_b=jnp.asarray(w_b), radius=jnp.asarray(np.inf if radius is None else radius),
                    n_out=int(n_out), project=radius is not None)
 
     @property
     def centres(self) -> jax.Array:
-        """All centres c_1 … c_j (the concatenated blocks)."""
+        """All centres c_1 … c_j."""
         return jnp.concatenate(self.centre_blocks, axis=-1)
 
     @property
@@ -107,76 +103,65 @@ class TanhNetwork:
         """Number of adjustable weights, n_out · j."""
         return self.n_out * self.n_units
 
-    # --- flat Θ (the public form) -------------------------------------------------------------
+    # --- flat arrays (the public form) ------------------------------------------------------------
     def features(self, a, b):
-        """ξ = [σ_1 … σ_j], σ_i = tanh(α(φ − c_i)), φ = w_aᵀ a + w_bᵀ b. Implements Eq. (17)."""
+        """ξ = [σ_1 … σ_j], σ_i = tanh(α(φ − c_i)), φ = w_aᵀ a + w_bᵀ b. Implements eq. (17)."""
         return jnp.concatenate(self.features_blocks(a, b), axis=-1)
 
     def output(self, xi, theta):
-        """F = Ξ Θ, the kth output ξᵀ θ_k. Implements Eqs. (18)–(19)."""
-        return theta.reshape(self.n_out, -1) @ xi
+        """F = Ξ Θ, output o = ξ_oᵀ θ_o. Implements eqs. (18)–(19)."""
+        return self.output_blocks(self._split_xi(xi), dev.split(theta, self.n_out))
 
     def update(self, xi, s, theta, gamma):
         """Θ̇ = γ Ξᵀ s, projected onto ‖Θ‖ ≤ d when ``project`` (Remark 2).
 
-        Implements Eqs. (30)–(31) with s = B_pᵀ P_p x_p (F_p) or s = e_λ (F_f). The projection
+        Implements eqs. (30)–(31) with s = B_pᵀ P_p x_p (F_p) or s = e_λ (F_f). The projection
         removes the outward radial part when ‖Θ‖ ≥ d and sᵀ Ξ Θ > 0 (the paper's "= d",
         taken as "≥ d" so that integration round-off cannot step past it).
         """
-        return self.join(self.update_blocks(self.split(xi, per_output=False), s, self.split(theta), gamma))
+        return dev.join(self.update_blocks(self._split_xi(xi), s, dev.split(theta, self.n_out), gamma))
 
-    # --- blocked Θ (what the simulator carries) -------------------------------------------------
-    def split(self, theta, per_output: bool = True) -> tuple:
-        """Flat Θ (n_out·j,) → tuple of blocks, output by output (θ_1's blocks, then θ_2's …).
-        With ``per_output=False`` splits a (j,) vector such as ξ. A tuple is returned as is."""
-        if isinstance(theta, tuple):
-            return theta
-        j = self.n_units
-        bounds = _block_bounds(j)
-        outs = range(self.n_out) if per_output else range(1)
-        return tuple(theta[o * j + a: o * j + b] for o in outs for a, b in bounds)
+    def _split_xi(self, xi):
+        return tuple(xi[..., a:b] for a, b in dev.block_bounds(self.n_units))
 
-    @staticmethod
-    def join(blocks) -> jax.Array:
-        """Tuple of blocks → flat Θ (inverse of :meth:`split`)."""
-        return jnp.concatenate(blocks, axis=-1) if isinstance(blocks, tuple) else blocks
-
+    # --- blocks (inside the compiled loop) ---------------------------------------------------------
     def features_blocks(self, a, b) -> tuple:
         """ξ of eq. (17), one array per centre block."""
         phi = la.mm(jnp.broadcast_to(self.w_a, a.shape), a) + la.mm(jnp.broadcast_to(self.w_b, b.shape), b)
         return tuple(jnp.tanh(self.slope * (phi - c)) for c in self.centre_blocks)
 
-    def output_blocks(self, xi_blocks, theta):
-        """F = Ξ Θ (eqs. 18–19) from blocked ξ and flat or blocked Θ."""
-        th = self.split(theta)
+    def output_blocks(self, xi_blocks, theta_blocks):
+        """F = Ξ Θ (eqs. 18–19) from blocked ξ and blocked Θ."""
         nb = len(xi_blocks)
-        outs = [sum(jnp.sum(th[o * nb + i] * x) for i, x in enumerate(xi_blocks)) for o in range(self.n_out)]
+        outs = [sum(jnp.sum(theta_blocks[o * nb + i] * x) for i, x in enumerate(xi_blocks))
+                for o in range(self.n_out)]
         return jnp.stack(outs)
 
-    def update_blocks(self, xi_blocks, s, theta, gamma):
-        """Eqs. (30)–(31) (with Remark 2's projection) on blocks; returns Θ̇ in Θ's form."""
-        th = self.split(theta)
+    def update_blocks(self, xi_blocks, s, theta_blocks, gamma) -> tuple:
+        """Eqs. (30)–(31) (with Remark 2's projection) on blocks; returns Θ̇ as blocks."""
+        nb = len(xi_blocks)
         raw = tuple(gamma * s[o] * x for o in range(self.n_out) for x in xi_blocks)
         if self.project:
-            growth = la.mm(s, self.output_blocks(xi_blocks, th))  # sᵀ Ξ Θ
-            active = (sq_norm(th) >= self.radius**2) & (growth > 0)
+            growth = la.mm(s, self.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ
+            active = (sq_norm(theta_blocks) >= self.radius**2) & (growth > 0)
             coef = jnp.where(active, gamma * growth / self.radius**2, 0.0)
-            raw = tuple(r - coef * t for r, t in zip(raw, th))
-        return raw if isinstance(theta, tuple) else self.join(raw)
+            raw = tuple(r - coef * t for r, t in zip(raw, theta_blocks))
+        return raw
+
+    def clip_blocks(self, theta_blocks) -> tuple:
+        """Θ put back on the ball ‖Θ‖ ≤ d if an integration step overshot it (Remark 2; the
+        identity without projection). The projected flow is tangent to the sphere, but its switch
+        at ‖Θ‖ = d lets a fixed step cross by O(dt); the radial clip makes ‖Θ̂(t)‖ ≤ d hold
+        exactly and only shrinks the storage function."""
+        if not self.project:
+            return theta_blocks
+        scale = jnp.minimum(1.0, self.radius / jnp.maximum(jnp.sqrt(sq_norm(theta_blocks)), 1e-300))
+        return tuple(t * scale for t in theta_blocks)
 
 
-def _block_bounds(j: int) -> list[tuple[int, int]]:
-    """[(start, stop)] of ⌈j / BLOCK⌉ blocks of near-equal size (120 → 60 + 60)."""
-    n = max(1, -(-j // BLOCK))
-    edges = [round(i * j / n) for i in range(n + 1)]
-    return list(zip(edges[:-1], edges[1:]))
-
-
-def sq_norm(theta) -> jax.Array:
-    """‖Θ‖² of a flat or blocked Θ."""
-    if isinstance(theta, tuple):
-        return sum(jnp.sum(t * t) for t in theta) if theta else jnp.zeros(())
-    return jnp.sum(theta * theta)
+def sq_norm(blocks) -> jax.Array:
+    """‖Θ‖² of a blocked Θ (a tuple of arrays)."""
+    return sum(jnp.sum(t * t) for t in blocks) if blocks else jnp.zeros(())
 
 
 def paper_network_p(**overrides) -> TanhNetwork:

@@ -1,7 +1,8 @@
 """Fixed-rate, zero-order-hold use of a designed controller, as a robot loop calls it.
 
 The paper's controllers are continuous-time: τ(t) of eq. (24) (with Λp, Λf of eqs. (25)–(26))
-acts at every instant and the controller state x_c = (z, Θ̂p, Θ̂f) flows by
+acts at every instant and the controller state x_c (z and the terms' states, e.g. Θ̂p, Θ̂f)
+flows by
 
     ż   = −μ_z z − α_z e_λ                          (27)
     Θ̂̇p = γ1 Ξpᵀ B_pᵀ P_p x_p   (projected, Remark 2)   (30)
@@ -16,6 +17,9 @@ returned τ_k until the next sample (zero-order hold) and keeps the returned sta
 
 with f the right-hand side of (27), (30), (31) evaluated from the same measurement y_k, and
 ``constrain`` the controller's radial clip onto ‖Θ̂‖ ≤ d (Remark 2; identity without projection).
+This update is written once, as the controller's ``sample`` method
+(:meth:`~hinfnn.controllers.law.ReducedOrderController.sample`), and the simulator's
+sampled-data mode calls the same method.
 Forward Euler is the first-order discretisation of the continuous law: over a horizon T the
 sampled state differs from the continuous one by O(h), and as h → 0 with the plant integrated
 finely the sampled closed loop tends to the paper's continuous one (``tests/test_sim.py`` checks
@@ -24,7 +28,7 @@ so one step can leave the ball by O(h²); the clip puts it back, so ‖Θ̂‖ �
 update exactly as Remark 2 requires.
 
 This is exactly the simulator's sampled-data mode (``hinfnn.simulate(..., control_period=h)``):
-same function of the same numbers, so replaying a simulated run's measurements through
+the same method on the same numbers, so replaying a simulated run's measurements through
 :meth:`SampledController.update` reproduces its held torques and final controller state
 (``tests/test_sampled.py``). The wrapper holds the controller and its reference only: it never
 sees a plant (DESIGN.md, "the one rule").
@@ -36,14 +40,19 @@ Entry points:
 * :meth:`SampledController.update` — ``step`` jit-compiled once per wrapper (the controller
   and the reference are compile-time constants). Pytrees in and out; pure.
 * :meth:`SampledController.update_packed` — the same law on one float64 vector
-  ``[t, h, q, q̇, F, z, Θ̂p, Θ̂f]`` returning one vector ``[τ, z, Θ̂p, Θ̂f]``: one buffer in and one
+  ``[t, h, q, q̇, F, state...]`` returning one vector ``[τ, state...]`` (the state's arrays in
+  the order of ``init().names()``: z, then Θ̂p, Θ̂f for the adaptive law): one buffer in and one
   out per call, the cheapest call from Python. Pure.
 * :class:`SampledLoop` (``sc.loop()``) — the fast path for a robot loop: a small stateful
   shell around ``update_packed`` with ``tau = loop.update(t, h, q, q̇, F)`` (NumPy τ), the state
   kept inside in the packed buffer.
 * :meth:`SampledController.update_checked` — validates its inputs in Python and raises
   :class:`MeasurementError` instead of returning NaN.
-* :meth:`SampledController.torque_and_signals` — τ and every intermediate signal, for logging.
+* :meth:`SampledController.torque_and_signals` — τ and every named signal, for logging.
+
+The measurement's F is the TASK-SPACE force vector the end-effector exerts on the surface, shape
+(n,) (:class:`~hinfnn.protocols.Measurement`): for the paper's planar arm the contact force in
+newtons in the plane's (x1, x2) coordinates. q, q̇ and F must each have shape (n,).
 
 Non-finite inputs. A NaN or ±inf anywhere in t, h or the measurement, a negative h, or a
 non-finite torque from finite inputs (e.g. overflow at an absurd q̇) never produces a usable
@@ -74,14 +83,15 @@ import numpy as np
 
 from .._pytree import all_finite, pytree_dataclass
 from ..errors import HinfnnError
-from ..measurement import Measurement
-from .base import ControllerState, ReducedOrderController
+from ..protocols import Measurement
+from .law import ControllerState, ReducedOrderController
 
 __all__ = ["SampledController", "SampledLoop", "MeasurementError"]
 
 
 class MeasurementError(HinfnnError, ValueError):
-    """A sample given to :meth:`SampledController.update_checked` is unusable.
+    """A sample given to :meth:`SampledController.update_checked` (or :class:`SampledLoop`) is
+    unusable.
 
     ``key`` names the offending input (``measurement.F``, ``t``, ``period``, ``state.z``,
     ``tau`` …), ``value`` is what was given and ``t`` the sample time.
@@ -94,44 +104,47 @@ class MeasurementError(HinfnnError, ValueError):
         super().__init__(f"{key}: {message}" if key else message)
 
 
+def _as_meas(measurement) -> Measurement:
+    return Measurement(q=jnp.asarray(measurement.q, dtype=float), qd=jnp.asarray(measurement.qd, dtype=float),
+                       F=jnp.asarray(measurement.F, dtype=float))
+
+
 @pytree_dataclass
 class SampledController:
     """A designed controller and its reference, run at a fixed rate with zero-order hold.
 
-    ``SampledController(controller, reference)`` with ``controller`` a
-    :class:`~hinfnn.FeedbackLinearization`, :class:`~hinfnn.HinfController` or
-    :class:`~hinfnn.HinfNNController` (any :class:`ReducedOrderController`) and ``reference``
-    any reference pytree callable on t (:class:`~hinfnn.CosineReference`). Both are pytree data
-    of this wrapper, so a batch of wrappers can be ``vmap``-ed through :meth:`step`; the
-    compiled entry points close over them as compile-time constants (twice as fast to call as
-    passing them as arguments, see ``benchmarks/latency.py``) and are built once per wrapper,
-    on first use.
+    ``SampledController(controller, reference)`` with ``controller`` a designed
+    :class:`~hinfnn.controllers.law.ReducedOrderController` (``hinfnn.HinfNNController.design(...)``
+    …) and ``reference`` any reference pytree callable on t (:class:`~hinfnn.CosineReference`).
+    Both are pytree data of this wrapper, so a batch of wrappers can be ``vmap``-ed through
+    :meth:`step`; the compiled entry points close over them as compile-time constants (twice as
+    fast to call as passing them as arguments, see ``benchmarks/latency.py``) and are built once
+    per wrapper, on first use.
 
-    The state is a :class:`~hinfnn.controllers.ControllerState` (z, Θ̂p, Θ̂f), with the weights
-    as flat vectors (default) or as tuples of ≤ 64-unit blocks (:meth:`init`). Packed layouts
-    (n joints; ``state_size`` = len z + len Θ̂p + len Θ̂f):
+    The state is the controller's :class:`~hinfnn.controllers.law.ControllerState` with flat
+    arrays. Packed layouts (n joints; ``state_size`` = the total length of the state's arrays):
 
-    * packed input (``packed_size``): ``[t, period, q (n), q̇ (n), F (n), z, Θ̂p, Θ̂f]``
-    * packed output (``n + state_size``): ``[τ (n), z, Θ̂p, Θ̂f]`` (the new state)
+    * packed input (``packed_size``): ``[t, period, q (n), q̇ (n), F (n), state...]``
+    * packed output (``n + state_size``): ``[τ (n), state...]`` (the new state)
     """
 
     controller: ReducedOrderController
     reference: object
 
-    # --- sizes, state forms and packing (Python side, cheap) ----------------------------------
+    # --- sizes and packing (Python side, cheap) ----------------------------------------------------
     @property
     def n_joints(self) -> int:
         return int(self.controller.arm.n)
 
     @functools.cached_property
-    def _sizes(self) -> tuple[int, int, int]:
+    def _layout(self) -> tuple[tuple[str, int], ...]:
         xc = self.controller.init()
-        return int(xc.z.shape[0]), int(xc.theta_p.shape[0]), int(xc.theta_f.shape[0])
+        return (("z", int(xc.z.shape[0])),) + tuple((k, int(v.shape[0])) for k, v in xc.parts.items())
 
     @property
     def state_size(self) -> int:
-        """len z + len Θ̂p + len Θ̂f."""
-        return sum(self._sizes)
+        """Total length of the state's arrays (z, then the terms' arrays)."""
+        return sum(size for _, size in self._layout)
 
     @property
     def sample_size(self) -> int:
@@ -142,18 +155,6 @@ class SampledController:
     def packed_size(self) -> int:
         """Length of the packed input vector of :meth:`update_packed`."""
         return self.sample_size + self.state_size
-
-    def flat_state(self, state: ControllerState) -> ControllerState:
-        """The state with Θ̂p, Θ̂f as flat vectors (undoes the blocked form of :meth:`init`)."""
-        flat = getattr(self.controller, "flat", None)
-        return state if flat is None else flat(state)
-
-    def blocked_state(self, state: ControllerState) -> ControllerState:
-        """The state with Θ̂p, Θ̂f as tuples of ≤ 64-unit blocks when the controller supports
-        it (``controller.blocked``), else unchanged. Same numbers, smaller buffers (see
-        :meth:`init`)."""
-        blocked = getattr(self.controller, "blocked", None)
-        return state if blocked is None else blocked(state)
 
     def pack(self, t, period, measurement: Measurement, state: ControllerState,
              out: np.ndarray | None = None) -> np.ndarray:
@@ -172,80 +173,66 @@ class SampledController:
         return x
 
     def state_vector(self, state: ControllerState) -> np.ndarray:
-        """ControllerState (flat or blocked) → ``[z, Θ̂p, Θ̂f]`` as one NumPy vector."""
-        parts = []
-        for name in ("z", "theta_p", "theta_f"):
-            v = getattr(state, name)
-            parts.extend(v if isinstance(v, tuple) else (v,))
-        return np.concatenate([np.asarray(p, dtype=float).reshape(-1) for p in parts])
+        """ControllerState → its arrays concatenated in the packed order, as one NumPy vector."""
+        return np.concatenate([np.asarray(state.z if name == "z" else state.parts[name], dtype=float).reshape(-1)
+                               for name, _ in self._layout])
 
     def state_from_vector(self, vec) -> ControllerState:
-        """``[z, Θ̂p, Θ̂f]`` → ControllerState with flat weight vectors (NumPy or traced)."""
-        nz, npp, _ = self._sizes
-        return ControllerState(z=vec[..., :nz], theta_p=vec[..., nz:nz + npp], theta_f=vec[..., nz + npp:])
+        """Packed state vector → ControllerState with flat arrays (NumPy or traced)."""
+        parts, i = {}, 0
+        for name, size in self._layout:
+            parts[name] = vec[..., i:i + size]
+            i += size
+        z = parts.pop("z")
+        return ControllerState(z=z, parts=parts)
 
     def unpack(self, out) -> tuple:
-        """Packed output → ``(τ, new state)`` (flat weights)."""
+        """Packed output → ``(τ, new state)``."""
         n = self.n_joints
         return out[..., :n], self.state_from_vector(out[..., n:])
 
-    # --- the law ---------------------------------------------------------------------------------
-    def init(self, theta_p=None, theta_f=None, *, blocked: bool = False) -> ControllerState:
-        """Initial controller state (Sec. VI: z = 0, weights 0 unless given; ``controller.init``).
-
-        ``blocked=True`` returns Θ̂p, Θ̂f as tuples of ≤ 64-unit blocks when the controller
-        supports that form (:meth:`blocked_state`; the simulator carries it): every buffer of the
-        compiled :meth:`update` is then ≤ 512 bytes, which XLA's CPU runtime runs inline rather
-        than through its thread pool. Measured (``benchmarks/latency.py --variants``), it makes
-        no difference to the latency of ``update`` for the paper's controllers, so the default
-        is the flat form. Every entry point accepts either form and returns the form it was given.
-        """
+    # --- the law -----------------------------------------------------------------------------------
+    def init(self, **given) -> ControllerState:
+        """Initial controller state (Sec. VI: z = 0, weights 0 unless given by name, e.g.
+        ``init(theta_f=...)``; ``controller.init``)."""
         self._check_parts()
-        xc = self.controller.init(theta_p=theta_p, theta_f=theta_f)
-        return self.blocked_state(xc) if blocked else xc
+        return self.controller.init(**given)
 
     def step(self, t, period, state: ControllerState, measurement: Measurement):
         """One sample: ``(τ_k, x_c,k+1)``. Pure and traceable (use it inside jit/vmap/scan).
 
-        τ_k is eq. (24) (Λp of (25), Λf of (26), v_p of (33), v_λ of (32)/(41), the networks of
-        (17)–(19)) at time t from ``measurement``; x_c,k+1 = constrain(x_c,k + period · ẋ_c) with
-        ẋ_c = (ż, Θ̂̇p, Θ̂̇f) of eqs. (27), (30), (31) at the same instant: a forward-Euler step
-        of the continuous controller dynamics over the hold period, then Remark 2's clip onto
-        ‖Θ̂‖ ≤ d. Identical to the simulator's sampled mode. Non-finite t, period or measurement,
-        period < 0, or a non-finite τ: τ = [NaN, …] and the returned state is to be discarded
-        (keep the one passed in; see the module docstring).
+        τ_k is eq. (24) at time t from ``measurement``; x_c,k+1 = constrain(x_c,k + period · ẋ_c)
+        with ẋ_c of eqs. (27), (30), (31) at the same instant (the controller's ``sample``).
+        Non-finite t, period or measurement, period < 0, or a non-finite τ: τ = [NaN, …] and the
+        returned state is to be discarded (keep the one passed in; see the module docstring).
         """
         t = jnp.asarray(t, dtype=float)
         period = jnp.asarray(period, dtype=float)
-        meas = Measurement(q=jnp.asarray(measurement.q, dtype=float),
-                           qd=jnp.asarray(measurement.qd, dtype=float),
-                           F=jnp.asarray(measurement.F, dtype=float))
+        meas = _as_meas(measurement)
         ctrl = self.controller
-        tau, dxc, _ = ctrl.step_terms(t, state, meas, self.reference)
-        new = ctrl.constrain(jax.tree.map(lambda a, d: a + period * d, state, dxc))
+        tau, new = ctrl.sample(t, period, ctrl.to_loop(state), meas, self.reference)
         ok = all_finite((t, period, meas.q, meas.qd, meas.F, tau)) & (period >= 0.0)
-        return jnp.where(ok, tau, jnp.nan), new
+        return jnp.where(ok, tau, jnp.nan), ctrl.from_loop(new)
 
     def step_packed(self, x):
-        """:meth:`step` on the packed layouts: ``[t, h, q, q̇, F, z, Θ̂p, Θ̂f] → [τ, z, Θ̂p, Θ̂f]``."""
+        """:meth:`step` on the packed layouts: ``[t, h, q, q̇, F, state...] → [τ, state...]``."""
         n, ns = self.n_joints, self.sample_size
         meas = Measurement(q=x[2:2 + n], qd=x[2 + n:2 + 2 * n], F=x[2 + 2 * n:ns])
         tau, new = self.step(x[0], x[1], self.state_from_vector(x[ns:]), meas)
-        return jnp.concatenate([tau, new.z, new.theta_p, new.theta_f])
+        return jnp.concatenate([tau, *(new.z if name == "z" else new.parts[name] for name, _ in self._layout)])
 
     def torque_and_signals_fn(self, t, state: ControllerState, measurement: Measurement):
-        """Traceable ``(τ, Signals)`` at one instant (eqs. (24)–(33)); no state update."""
-        meas = Measurement(q=jnp.asarray(measurement.q, dtype=float),
-                           qd=jnp.asarray(measurement.qd, dtype=float),
-                           F=jnp.asarray(measurement.F, dtype=float))
-        tau, _, sig = self.controller.step_terms(jnp.asarray(t, dtype=float), state, meas, self.reference)
-        return tau, sig
+        """Traceable ``(τ, signals)`` at one instant (eqs. (24)–(33)); no state update."""
+        ctrl = self.controller
+        out = ctrl.evaluate(jnp.asarray(t, dtype=float), ctrl.to_loop(state), _as_meas(measurement),
+                            self.reference)
+        return out.tau, out.signals
 
     # --- compiled entry points (built once per wrapper, on first use) --------------------------
     def _check_parts(self):
         if not isinstance(self.controller, ReducedOrderController):
             raise TypeError("SampledController.controller must be a designed controller "
-                            "(FeedbackLinearization, HinfController or HinfNNController), got "
+                            "(e.g. hinfnn.HinfNNController.design(...)), got "
                             f"{type(self.controller).__name__}")
         if not callable(self.reference):
             raise TypeError("SampledController.reference must be a reference callable on t "
@@ -270,18 +257,18 @@ class SampledController:
         """``(τ, new_state)`` of one sample (:meth:`step`), jit-compiled once per wrapper.
 
         τ of eq. (24) at time ``t`` (s) from ``measurement`` (q, q̇, F), to be held for
-        ``period`` (s); new_state = constrain(state + period · (ż, Θ̂̇p, Θ̂̇f)) with eqs. (27),
-        (30), (31): forward Euler over the period. Pass t and period as floats and the
-        measurement as float64 arrays (another dtype compiles a second program). Works under
-        ``jax.vmap``. τ is all-NaN when a sample is unusable: check with :meth:`is_valid`
-        (then keep your previous state) or use :meth:`update_checked`.
+        ``period`` (s); new_state = constrain(state + period · ẋ_c), ẋ_c of eqs. (27), (30),
+        (31): forward Euler over the period. Pass t and period as floats and the measurement as
+        float64 arrays (another dtype compiles a second program). Works under ``jax.vmap``. τ is
+        all-NaN when a sample is unusable: check with :meth:`is_valid` (then keep your previous
+        state) or use :meth:`update_checked`.
         """
         return self._update(t, period, state, measurement)
 
     def update_packed(self, x):
         """One sample on the packed layouts (:meth:`step_packed`), jit-compiled once.
 
-        ``x = [t, period, q, q̇, F, z, Θ̂p, Θ̂f]`` (:meth:`pack`) → ``[τ, z, Θ̂p, Θ̂f]``
+        ``x = [t, period, q, q̇, F, state...]`` (:meth:`pack`) → ``[τ, state...]``
         (:meth:`unpack`). Same law and numbers as :meth:`update`; one buffer in and one out,
         the cheapest call from Python. :class:`SampledLoop` wraps it for a robot loop.
         """
@@ -291,6 +278,32 @@ class SampledController:
         """A :class:`SampledLoop` starting from ``state`` (default :meth:`init`)."""
         return SampledLoop(self, self.init() if state is None else state)
 
+    def check_sample(self, t, period, q, qd, F) -> None:
+        """Raise :class:`MeasurementError` naming the input when t or period is not a finite
+        number, period ≤ 0, or q, q̇, F do not each have shape (n,) with finite entries."""
+        n = self.n_joints
+        for key, v in (("t", t), ("period", period)):
+            try:
+                a = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                raise MeasurementError(f"must be a finite number, got {v!r}", key=key, value=v, t=t) from None
+            if a.shape != () or not np.isfinite(a):
+                raise MeasurementError(f"must be a finite number, got {v!r}", key=key, value=v, t=t)
+        if not float(period) > 0.0:
+            raise MeasurementError(f"must be > 0, got {period!r}", key="period", value=period, t=t)
+        for name, v in (("q", q), ("qd", qd), ("F", F)):
+            try:
+                v = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                raise MeasurementError(f"must be {n} numbers, got {v!r:.80}", key=f"measurement.{name}",
+                                       value=v, t=t) from None
+            if v.shape != (n,):
+                what = " (the task-space force vector the end-effector exerts on the surface)" if name == "F" else ""
+                raise MeasurementError(f"must have shape ({n},){what}, got {v.shape}", key=f"measurement.{name}",
+                                       value=v, t=t)
+            if not np.all(np.isfinite(v)):
+                raise MeasurementError(f"is not finite: {v.tolist()}", key=f"measurement.{name}", value=v, t=t)
+
     def update_checked(self, t, period, state: ControllerState, measurement: Measurement):
         """:meth:`update` with its inputs validated in Python first (a few µs more per call).
 
@@ -298,31 +311,17 @@ class SampledController:
         field is not finite, has the wrong shape, or period ≤ 0; and when the law itself
         returns a non-finite torque. Returns ``(τ as NumPy, new_state)``.
         """
-        n = self.n_joints
-        for key, v in (("t", t), ("period", period)):
-            a = np.asarray(v, dtype=float)
-            if a.shape != () or not np.isfinite(a):
-                raise MeasurementError(f"must be a finite number, got {v!r}", key=key, value=v, t=t)
-        if not float(period) > 0.0:
-            raise MeasurementError(f"must be > 0, got {period!r}", key="period", value=period, t=t)
-        for name in ("q", "qd", "F"):
-            v = np.asarray(getattr(measurement, name), dtype=float)
-            if v.shape != (n,):
-                raise MeasurementError(f"must have shape ({n},), got {v.shape}", key=f"measurement.{name}",
-                                       value=v, t=t)
-            if not np.all(np.isfinite(v)):
-                raise MeasurementError(f"is not finite: {v.tolist()}", key=f"measurement.{name}", value=v, t=t)
-        for name, size in zip(("z", "theta_p", "theta_f"), self._sizes):
-            part = getattr(state, name, None)
-            parts = part if isinstance(part, tuple) else (part,)
+        self.check_sample(t, period, measurement.q, measurement.qd, measurement.F)
+        for name, size in self._layout:
+            part = state.z if name == "z" else state.parts.get(name)
             try:
-                v = np.concatenate([np.asarray(b, dtype=float).reshape(-1) for b in parts]) if parts else np.zeros(0)
-                shapes_ok = all(np.ndim(b) == 1 for b in parts) and v.shape == (size,)
+                v = np.asarray(part, dtype=float)
+                ok = v.shape == (size,)
             except (TypeError, ValueError):
-                shapes_ok = False
-            if not shapes_ok:
-                raise MeasurementError(f"must hold {size} values (a vector or a tuple of blocks), got "
-                                       f"{part!r:.80}", key=f"state.{name}", value=part, t=t)
+                ok = False
+            if not ok:
+                raise MeasurementError(f"must be a vector of {size} values, got {part!r:.80}", key=f"state.{name}",
+                                       value=part, t=t)
             if not np.all(np.isfinite(v)):
                 raise MeasurementError("is not finite", key=f"state.{name}", value=v, t=t)
         tau, new = self.update(float(t), float(period), state, measurement)
@@ -334,7 +333,7 @@ class SampledController:
         return tau, new
 
     def torque_and_signals(self, t, state: ControllerState, measurement: Measurement):
-        """``(τ, Signals)`` at time t (jit-compiled once): u1, u̇1, λ, errors, v_p, v_λ, network
+        """``(τ, signals)`` at time t (jit-compiled once): u1, u̇1, λ, errors, v_p, v_λ, network
         outputs Ξp Θ̂p, Ξf Θ̂f and τ of eqs. (24)–(33), for logging. No state update, no NaN
         guard (a non-finite measurement gives non-finite signals)."""
         return self._signals(t, state, measurement)
@@ -350,11 +349,14 @@ class SampledLoop:
 
     A thin stateful shell (at the edge, like I/O) around the pure
     :meth:`SampledController.update_packed`: it keeps the packed input buffer
-    ``[t, h, q, q̇, F, z, Θ̂p, Θ̂f]`` whose state part is the controller state, fills the sample
+    ``[t, h, q, q̇, F, state...]`` whose state part is the controller state, fills the sample
     part in place, calls the compiled update (one buffer in, one out) and returns τ as a NumPy
-    array. The state is advanced only when τ is finite: after an unusable sample (NaN or inf in
-    t, h, q, q̇, F; h < 0; non-finite τ) ``update`` returns τ = [NaN, …], the state stays as it
-    was, and ``rejected`` counts it. Same numbers as :meth:`SampledController.update`.
+    array. q, q̇ and F are NumPy-convertible vectors of shape (n,); F is the TASK-SPACE force
+    vector the end-effector exerts on the surface (for the paper's planar arm: the contact force
+    in N in the plane's coordinates). A wrong shape raises :class:`MeasurementError` (the buffer
+    is not touched). The state is advanced only when τ is finite: after an unusable sample (NaN
+    or inf in t, h, q, q̇, F; h < 0; non-finite τ) ``update`` returns τ = [NaN, …], the state
+    stays as it was, and ``rejected`` counts it. Same numbers as :meth:`SampledController.update`.
 
     ::
 
@@ -381,12 +383,15 @@ class SampledLoop:
     def update(self, t, period, q, qd, F) -> np.ndarray:
         """τ (NumPy, n) of eq. (24) for this sample; the state advances by forward Euler over
         ``period`` (eqs. (27), (30), (31)) unless the sample was unusable (τ all NaN)."""
+        n = self._n
+        if np.shape(q) != (n,) or np.shape(qd) != (n,) or np.shape(F) != (n,):
+            self.controller.check_sample(t, period, q, qd, F)  # raises, naming the input
         b = self._buf
-        b[0] = t
-        b[1] = period
         b[self._i_q] = q
         b[self._i_qd] = qd
         b[self._i_F] = F
+        b[0] = t
+        b[1] = period
         out = np.asarray(self._fn(b))
         tau = out[:self._n]
         if tau[0] == tau[0]:  # the compiled guard makes τ all-NaN or all-finite
@@ -397,7 +402,7 @@ class SampledLoop:
 
     @property
     def state(self) -> ControllerState:
-        """The current controller state (flat weight vectors, NumPy copies)."""
+        """The current controller state (NumPy copies)."""
         return self.controller.state_from_vector(self._buf[self._ns:].copy())
 
     def reset(self, state: ControllerState | None = None) -> None:

@@ -36,6 +36,8 @@ class ReducedModel:
     A_hat: jax.Array  # (k, n)
     x: jax.Array  # nominal task-space position ĥ(q)
     x_dot: jax.Array  # Ĵ q̇
+    J: jax.Array  # Ĵ(q)
+    J_dot: jax.Array  # J̇̂(q, q̇)
     m: int = static_field()
 
     # --- partitions used by eqs. (11)-(14) ------------------------------------------------
@@ -118,5 +120,7 @@ def reduced_model(arm, surface, q, qd) -> ReducedModel:
         A_hat=surface.A_hat(x),
         x=x,
         x_dot=x_dot,
+        J=J,
+        J_dot=J_dot,
         m=m,
     )

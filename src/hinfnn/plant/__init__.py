@@ -1,7 +1,11 @@
-"""The truth: the plant a controller acts on but never sees (DESIGN.md, The one rule)."""
+"""The truth: the plant a controller acts on but never sees (DESIGN: the one rule).
+
+:class:`RigidBodyPlant` is hinfnn's own (rigid-body arm, penalty contact, disturbance); other
+engines implement the same :class:`hinfnn.protocols.Plant` protocol.
+"""
 
 from .contact import PenaltyContact
 from .disturbance import SquareWave
-from .plant import Plant
+from .rigid import ContactCache, JointState, RigidBodyPlant
 
-__all__ = ["Plant", "PenaltyContact", "SquareWave"]
+__all__ = ["RigidBodyPlant", "JointState", "ContactCache", "PenaltyContact", "SquareWave"]

@@ -1,4 +1,5 @@
-"""The paper's Sec. VI claims (NOTES.md, "What the paper claims") checked against run metrics.
+"""The paper's Sec. VI claims checked against run metrics (docs/paper-conventions.md, "What the
+paper claims").
 
 Each claim has a stated, fixed decision rule (:data:`RULES`); the rule is applied to the metrics
 of the study's runs, never tuned to the outcome. A claim is evaluated separately for each contact
@@ -6,7 +7,12 @@ model and each F_f centre preset, so the report can say which modelling choice i
 
 Run names follow :mod:`hinfnn.study`: ``fl``, ``hinf``, ``hinf_nn`` (preset paper-likely) and
 ``hinf_nn_printed`` (preset paper-printed), with a suffix per contact model (``""`` for the
-paper's undamped contact, ``"_damped"`` for 200 N·s/m).
+paper's undamped contact, ``"_damped"`` for the study's damped contact).
+
+Claim 5 is of another nature than claims 1–4: f_p and f_f are computed as the residuals of the
+error systems, so for a correct implementation the dissipation inequality holds by construction
+(eqs. 39/58 bound V̇ pointwise). Its verdict checks the implementation against the theorem, not
+the paper's practical claim that the controllers track well.
 """
 
 from __future__ import annotations
@@ -24,17 +30,24 @@ CLAIMS = {
 
 RULES = {
     1: "held if the FL-like run's RMS e_u1 AND its RMS e_λ over the last 2 s both exceed 10 % of the "
-       "reference's amplitude (0.1·|0.2| m and 0.1·|20| for the paper)",
+       "reference's amplitude",
     2: "held if the adaptive run's RMS e_u1 and RMS e_λ are both below the H∞-only run's, over the "
        "whole run AND over the last 2 s (four comparisons)",
     3: "held if, over the last 2 s, the adaptive run's peak |τ_i| and its torque total variation per "
        "second are both below the H∞-only run's, for both joints (four comparisons)",
     4: "held if the adaptive run's J(T) is below the H∞-only run's",
     5: "held if J(t) + V(t) − V(0) ≤ ρ²∫₀ᵗ(‖f_p‖² + ‖f_f‖²) at every saved t, for the run (H∞-only "
-       "and adaptive runs; reported for the FL-like run but not claimed there)",
+       "and adaptive runs; reported for the FL-like run but not claimed there). With f_p, f_f the "
+       "residuals of the error systems this holds by construction for a correct implementation: "
+       "the verdict checks hinfnn's code against the theorem, not the paper's practical claim",
 }
 
 CONTACTS = {"": "undamped (paper)", "_damped": "damped 200 N·s/m"}
+
+
+def contacts(damped: float) -> dict[str, str]:
+    """The contact models of the study, by run-name suffix."""
+    return {"": "undamped (paper)", "_damped": f"damped {damped:g} N·s/m"}
 PRESETS = {"hinf_nn": "paper-likely", "hinf_nn_printed": "paper-printed"}
 
 
@@ -64,10 +77,11 @@ def _cmp(name, a, b, unit="") -> tuple[bool, str]:
     return held, f"{name}: {_fmt(a, unit)} {'<' if held else '≥'} {_fmt(b, unit)}"
 
 
-def evaluate(metrics: dict, u1_amplitude: float, lam_amplitude: float) -> list[ClaimResult]:
+def evaluate(metrics: dict, u1_amplitude: float, lam_amplitude: float,
+             contact_models: dict[str, str] | None = None) -> list[ClaimResult]:
     """Apply :data:`RULES` to ``metrics`` (run name -> metrics dict with a "status" key)."""
     out: list[ClaimResult] = []
-    for suffix, contact in CONTACTS.items():
+    for suffix, contact in (contact_models or CONTACTS).items():
         fl = metrics.get("fl" + suffix)
         hinf = metrics.get("hinf" + suffix)
         if fl is not None:

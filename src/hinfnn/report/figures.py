@@ -46,7 +46,6 @@ from matplotlib.ticker import MaxNLocator
 from matplotlib.transforms import blended_transform_factory
 
 from ..io import atomic_write
-from ..scenario import KIND_LABELS
 from ..sim.trajectory import STATUS, Trajectory
 
 __all__ = ["paper_figures", "run_figures", "DPI", "SIZE", "SIZE_TALL"]
@@ -65,14 +64,8 @@ _SMOOTH = 0.01  # sliding-mean window of chattering signals, as a fraction of th
 _FONT = {"title": 13, "subtitle": 10, "panel": 10.5, "label": 10, "tick": 9, "legend": 9,
          "note": 9}
 
-# Colours by (controller kind, F_f preset): the same controller has the same colour everywhere.
-_PREFERRED = {
-    ("fl", None): "#7b3294",  # purple
-    ("hinf", None): "#1f5fbf",  # blue
-    ("hinf_nn", "paper-likely"): "#d62728",  # red
-    ("hinf_nn", "paper-printed"): "#1a9641",  # green
-    ("hinf_nn", "custom"): "#e66101",  # orange
-}
+# Colours come from the run (the controller registry's colour for its kind); a second run with
+# the colour of an earlier one gets the next free colour of the palette.
 _PALETTE = ["#1f5fbf", "#d62728", "#1a9641", "#7b3294", "#e66101", "#8c564b", "#17becf",
             "#bcbd22", "#7f7f7f"]
 _REF_STYLE = dict(color="black", linestyle=(0, (5, 3)), linewidth=1.0)
@@ -81,26 +74,19 @@ _REF_STYLE = dict(color="black", linestyle=(0, (5, 3)), linewidth=1.0)
 # --- reading a Trajectory ------------------------------------------------------------------
 
 
-def _config(traj: Trajectory) -> dict:
-    return traj.config if isinstance(traj.config, dict) else {}
-
-
-def _get(d: dict, *keys, default=None):
-    for k in keys:
-        if not isinstance(d, dict) or k not in d:
-            return default
-        d = d[k]
-    return d
-
-
 def _kind(traj: Trajectory) -> str | None:
-    return _get(_config(traj), "controller", "kind")
+    return traj.info.kind or None
+
+
+def _scenario(traj: Trajectory):
+    return traj.scenario
 
 
 def _preset(traj: Trajectory) -> str | None:
-    if _kind(traj) != "hinf_nn":
+    sc = _scenario(traj)
+    if _kind(traj) != "hinf_nn" or sc is None:
         return None
-    return _get(_config(traj), "controller", "network_f", "preset")
+    return sc.controller.network_f.preset
 
 
 def _status(traj: Trajectory) -> int:
@@ -121,12 +107,11 @@ def _end(traj: Trajectory) -> int:
 
 def _describe(traj: Trajectory) -> str:
     kind = _kind(traj)
-    text = KIND_LABELS.get(kind, kind or "controller")
-    if kind == "hinf_nn":
-        preset = _preset(traj)
-        if preset:
-            text += f", $F_f$ centres {preset}"
-        if _get(_config(traj), "controller", "augmented"):
+    text = traj.info.label or kind or "controller"
+    sc = _scenario(traj)
+    if kind == "hinf_nn" and sc is not None:
+        text += f", $F_f$ centres {sc.controller.network_f.preset}"
+        if sc.controller.augmented:
             text += ", augmented"
     return text
 
@@ -141,12 +126,18 @@ def _failure(traj: Trajectory) -> str:
 
 
 def _damping(traj: Trajectory) -> float | None:
-    d = _get(_config(traj), "plant", "contact", "damping")
-    return None if d is None else float(d)
+    sc = _scenario(traj)
+    return None if sc is None else float(sc.plant.contact.damping)
+
+
+def _stiffness(traj: Trajectory) -> float | None:
+    sc = _scenario(traj)
+    return None if sc is None else float(sc.plant.contact.stiffness)
 
 
 def _scaling(traj: Trajectory) -> str | None:
-    return _get(_config(traj), "nominal", "surface", "scaling")
+    sc = _scenario(traj)
+    return None if sc is None else sc.nominal.surface.scaling
 
 
 @dataclasses.dataclass(frozen=True)
@@ -176,7 +167,7 @@ def _prepare(named: Sequence[tuple[str, Trajectory]], labels: Callable[[str, Tra
         if traj.batched:
             raise ValueError(f"run {name!r} is a batch of {traj.batch_size}; figures take single "
                              "runs (use traj.member(i))")
-        color = _PREFERRED.get((_kind(traj), _preset(traj)))
+        color = traj.info.color or None
         if color is None or color in used:
             color = next((c for c in _PALETTE if c not in used), _PALETTE[len(out) % len(_PALETTE)])
         used.add(color)
@@ -345,7 +336,7 @@ def _contact_note(runs: list[_Run]) -> str:
         text = fmt(next(iter(damp)))
     else:
         text = "; ".join(f"{', '.join(names)}: {fmt(d)}" for d, names in damp.items())
-    stiff = {_get(_config(r.traj), "plant", "contact", "stiffness") for r in runs}
+    stiff = {_stiffness(r.traj) for r in runs}
     if len(stiff) == 1 and None not in stiff:
         text = f"contact stiffness {next(iter(stiff)):.3g} N/m, " + text
     return text

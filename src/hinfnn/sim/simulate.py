@@ -1,27 +1,26 @@
-"""Closed-loop simulation: plant and controller state integrated together in ``lax.scan``.
+"""Closed-loop simulation: plant, controller and bookkeeping integrated together in ``lax.scan``.
 
-A run is a jit-compiled ``lax.scan`` over a chunk of :data:`CHUNK_STEPS` steps, called from a
-Python loop over chunks (never over steps): the compiled program is the same for every horizon
-and dt, progress is reported and Ctrl-C is honoured between chunks. Inside a chunk, an outer scan
-takes one stored sample every ``save_every`` steps and an inner loop runs the steps between them
-with no output, so that every buffer it touches is small (at most 512 bytes: the networks' weights
-travel in blocks of 64 units) and XLA runs its kernels inline instead of through its thread pool.
-Each sample also summarises the steps since the previous one (:data:`STEP_SUMS`,
-:data:`STEP_MAXES`, peak and total variation of τ), so metrics cover every step whatever the
-storage.
+The simulator knows the plant and the controller only through :mod:`hinfnn.protocols`:
 
-The state y = (q, q̇, controller state, accumulators) is advanced by fixed-step RK4
-(:func:`~hinfnn.sim.integrate.rk4_step`) with the controller evaluated at every stage from that
-stage's measurements (continuous-time control, the paper's setting), or held by a zero-order
-hold between samples (``control_period``, the sampled-data adapter: torque computed at each
-sample instant, controller state advanced by forward Euler over the period).
+* a *continuous* plant (``plant.discrete`` False) is integrated with the controller state and
+  the accumulators by fixed-step RK4 (:func:`~hinfnn.sim.integrate.rk4_step`), the controller
+  evaluated at every stage from that stage's measurement (the paper's continuous-time control),
+  or held by a zero-order hold between samples (``control_period``: τ computed at each sample
+  instant by the controller's ``sample`` method, its state advanced by forward Euler over the
+  period);
+* a *discrete* plant (a physics engine) advances itself by ``plant.step`` every ``dt`` with the
+  held torque; it always runs in the sampled-data mode, and the accumulators advance by the
+  rectangle rule.
 
-The disturbance is held over each step at its value at the step's midpoint; steps land on its
-switching instants when dt divides them (checked by the scenario loader).
+A run is a jit-compiled program over a chunk of :data:`CHUNK_STEPS` steps, called from a Python
+loop over chunks (never over steps): the compiled program is the same for every horizon and dt,
+progress is reported and Ctrl-C is honoured between chunks. Inside a chunk, an outer scan takes
+one stored sample every ``save_every`` steps and an inner loop runs the steps between them with
+no output, so that every buffer it touches is small (see :mod:`hinfnn._devices`, ``blocks``).
+What a sample holds is the recorder's business (:mod:`hinfnn.sim.recorder`).
 
-Accumulated along the run as states (eq. 34 and the dissipation check of Theorems 1–2):
-``J`` = ∫ integrand of (34), ``J_aug`` = J + Remark 1's extra terms (augmented designs),
-``supply`` = ρ² ∫ (‖f_p‖² + ‖f_f‖²) dt with f_p, f_f the actual residuals of (28)–(29)/(52)–(53).
+The plant's held input (the joint disturbance) is evaluated at each step's midpoint; steps land
+on its switching instants when dt divides them (checked by the scenario loader).
 
 One run and a batch are the same program: :func:`simulate_batch` is :func:`jax.vmap` of it over
 stacked parameter pytrees.
@@ -38,31 +37,23 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._pytree import all_finite, pytree_dataclass
-from ..errors import ConfigError, DesignError, SimulationError
-from .. import _linalg as la
-from ..controllers.network import sq_norm
-from ..measurement import Measurement
+from ..errors import ConfigError, SimulationError
 from .integrate import rk4_step
-from .trajectory import FIELD_SETS, FIELDS, STATUS, Trajectory
-
-
-@pytree_dataclass
-class Accumulators:
-    J: jax.Array
-    J_aug: jax.Array
-    supply: jax.Array
+from .recorder import STEP_MAXES, STEP_SUMS, Accumulators, bookkeeping, pick, select
+from .trajectory import STATUS, RunInfo, Trajectory
 
 
 @pytree_dataclass
 class SimState:
-    q: jax.Array
-    qd: jax.Array
-    xc: object  # ControllerState
+    """The integrated state: the plant's, the controller's (loop layout) and the accumulators."""
+
+    plant: object
+    xc: object
     acc: Accumulators
 
 
 #: Bits of ``fail_details["nonfinite_parts"]``: which part of the state became non-finite.
-NONFINITE_PARTS = ("joint angles/rates q, q̇", "controller state z, Θ̂", "accumulated J, V-supply")
+NONFINITE_PARTS = ("plant state (q, q̇)", "controller state z, Θ̂", "accumulated J, V-supply")
 
 
 @pytree_dataclass
@@ -73,36 +64,25 @@ class Limits:
     penetration: jax.Array = 0.05
 
 
-def _rhs(plant, ctrl, ref, t, y: SimState, w, held_tau):
-    at = plant.arm.terms(y.q, y.qd)  # the true arm's kinematics and dynamics, once per stage
-    F, f_n, p = plant.contact_state(y.q, y.qd, at)  # the sensor reading and the dynamics share it
-    meas = Measurement(q=y.q, qd=y.qd, F=F)
-    tau_c, dxc, sig = ctrl.step_terms(t, y.xc, meas, ref)
-    if held_tau is None:
-        tau = tau_c
-    else:
-        tau = held_tau
-        dxc = jax.tree.map(jnp.zeros_like, dxc)
-    qdd = plant.acceleration(y.q, y.qd, tau, w, F=F, terms=at)
-    j, j_extra = ctrl.performance_rate(y.xc, sig)
-    f_p, f_f = ctrl.supply_residuals(t, y.xc, sig, ctrl.u1_ddot(y.q, y.qd, qdd), ref)
-    supply = ctrl.gains.rho**2 * (la.mm(f_p, f_p) + la.mm(f_f, f_f))
-    dy = SimState(q=y.qd, qd=qdd, xc=dxc, acc=Accumulators(J=j, J_aug=j + j_extra, supply=supply))
-    r = ref(t)
-    aux = dict(
-        t=jnp.asarray(t, dtype=float), q=y.q, qd=y.qd, u1=sig.u1, u1_dot=sig.u1_dot, lam=sig.lam,
-        u1_d=r.u1_d, u1_d_dot=r.u1_d_dot, lam_d=r.lam_d,
-        e_u1=sig.e_u1, e_u1_dot=sig.e_u1_dot, e_lam=sig.e_lam, z=y.xc.z,
-        v_p=sig.v_p, v_lam=sig.v_lam, nn_p=sig.nn_p, nn_f=sig.nn_f,
-        tau=tau, F=F, normal_force=f_n, penetration=p, disturbance=w, x_true=at.x,
-        theta_p_norm=jnp.sqrt(sq_norm(y.xc.theta_p)), theta_f_norm=jnp.sqrt(sq_norm(y.xc.theta_f)),
-        J=y.acc.J, J_aug=y.acc.J_aug, supply=y.acc.supply, V=ctrl.storage(y.xc, sig),
-        f_p=f_p, f_f=f_f,
-    )
-    return dy, aux
+def _evaluate(plant, ctrl, ref, t, y: SimState, w, held, sampled):
+    """Measurement, controller output, applied τ, and the record's plant and controller parts."""
+    meas, cache = plant.sense(t, y.plant)
+    out = ctrl.evaluate(t, y.xc, meas, ref)
+    tau = held if sampled else out.tau
+    record = {"t": jnp.asarray(t, dtype=float), **plant.diagnostics(y.plant, w, cache), **out.signals, "tau": tau}
+    return meas, cache, out, tau, record
 
 
-#: Steps per compiled chunk: a run is a Python loop over chunks of one jit-compiled ``lax.scan``
+def _rhs(plant, ctrl, ref, t, y: SimState, w, held, sampled):
+    """Time derivative of the whole state (continuous plants), and the record at (t, y)."""
+    meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, sampled)
+    dplant, qdd = plant.derivative(t, y.plant, tau, w, cache)
+    rates, book = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
+    dxc = jax.tree.map(jnp.zeros_like, out.dstate) if sampled else out.dstate
+    return SimState(plant=dplant, xc=dxc, acc=rates), {**record, **book}
+
+
+#: Steps per compiled chunk: a run is a Python loop over chunks of one jit-compiled program
 #: (progress, Ctrl-C and one compilation for every horizon), never a loop over time steps.
 CHUNK_STEPS = 2000
 
@@ -112,9 +92,9 @@ class Carry:
     """What the compiled loop carries from step to step.
 
     ``tau_peak``/``tau_tv``/``tau_prev``: max |τ_i| and Σ|τ_i(t_k) − τ_i(t_{k−1})| over the steps
-    since the last record, and τ at the previous step (NaN before the first); ``sums``: the
-    :data:`STEP_SUMS` over those steps. Records taken every ``save_every`` steps thus still give
-    the exact peak, total variation and RMS values over every step.
+    since the last record, and τ at the previous step (NaN before the first); ``sums``/``maxes``:
+    the recorder's step summaries over those steps. Records taken every ``save_every`` steps thus
+    still give the exact peak, total variation and RMS values over every step.
     """
 
     y: SimState
@@ -131,40 +111,42 @@ class Carry:
     maxes: dict
 
 
-#: Per-step quantities summed between records (``Trajectory`` fields of the same names): the
-#: metrics' RMS values and contact fraction then cover every step, whatever the storage.
-STEP_SUMS = {
-    "e_u1_sq": lambda a: jnp.sum(a["e_u1"] ** 2),
-    "e_lam_sq": lambda a: jnp.sum(a["e_lam"] ** 2),
-    "tau_sq": lambda a: a["tau"] ** 2,
-    "steps_out_of_contact": lambda a: jnp.where(a["normal_force"] <= 0.0, 1.0, 0.0),
-}
-#: Per-step quantities whose maximum between records is kept.
-STEP_MAXES = {
-    "e_u1_abs_max": lambda a: jnp.sqrt(jnp.sum(a["e_u1"] ** 2)),
-    "e_lam_abs_max": lambda a: jnp.sqrt(jnp.sum(a["e_lam"] ** 2)),
-}
-
-
 def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
-    """(f, sample, step): the right-hand side, the sampled-mode controller update at step k, and
-    one RK4 step k -> k + 1 with failure detection (a no-op for k ≥ n_steps: padding)."""
+    """(record_at, sample, step): the record at a state, the sampled-mode controller update at
+    step k, and one step k -> k + 1 with failure detection (a no-op for k ≥ n_steps: padding)."""
+    discrete = bool(getattr(plant, "discrete", False))
 
-    def f(t, y, w, held):
-        return _rhs(plant, ctrl, ref, t, y, w, held if sampled else None)
+    def record_at(t, y, w, held):
+        if discrete:
+            meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, True)
+            _, book = bookkeeping(ctrl, y.xc, out, meas.qd, jnp.zeros_like(meas.qd), y.acc)
+            return {**record, **book}
+        return _rhs(plant, ctrl, ref, t, y, w, held, sampled)[1]
 
     def sample(c: Carry, k, skip=False):
-        """At a sample instant: τ held from now on, controller state advanced by Euler."""
+        """At a sample instant: τ held from now on, controller state advanced by the controller's
+        zero-order-hold update."""
         if not sampled:
             return c
         t = k * dt
         y = c.y
-        tau_s, dxc_s, _ = ctrl.step_terms(t, y.xc, plant.measure(y.q, y.qd), ref)
+        meas, _ = plant.sense(t, y.plant)
+        tau_s, xc_s = ctrl.sample(t, n_hold * dt, y.xc, meas, ref)
         is_sample = (jnp.mod(k, n_hold) == 0) & (k < n_steps) & (c.status == 0) & ~skip
         held = jnp.where(is_sample, tau_s, c.held)
-        xc = jax.tree.map(lambda a, d: jnp.where(is_sample, a + (n_hold * dt) * d, a), y.xc, dxc_s)
-        xc = ctrl.constrain(xc)
-        return dataclasses.replace(c, y=SimState(q=y.q, qd=y.qd, xc=xc, acc=y.acc), held=held)
+        xc = jax.tree.map(lambda new, old: jnp.where(is_sample, new, old), xc_s, y.xc)
+        return dataclasses.replace(c, y=SimState(plant=y.plant, xc=xc, acc=y.acc), held=held)
+
+    def advance(t, y, w, held):
+        """(state after one step, the record at the step's start)."""
+        if discrete:
+            meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, True)
+            new_plant, qdd = plant.step(t, y.plant, held, dt)
+            rates, book = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
+            acc = jax.tree.map(lambda a, r: a + dt * r, y.acc, rates)
+            return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **book}
+        y_new, aux = rk4_step(lambda tt, yy: _rhs(plant, ctrl, ref, tt, yy, w, held, sampled), t, y, dt)
+        return SimState(plant=y_new.plant, xc=ctrl.constrain(y_new.xc), acc=y_new.acc), aux
 
     def step(c: Carry, k, first):
         """Step k; ``first``: the record of step k was just taken (its sample update and its τ
@@ -173,13 +155,11 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
         t = k * dt
         c = sample(c, k, skip=first)
         y_in = c.y
-        w = plant.disturbance(t + 0.5 * dt)
-        y_new, aux = rk4_step(lambda tt, yy: f(tt, yy, w, c.held), t, y_in, dt)
-        y_new = SimState(q=y_new.q, qd=y_new.qd, xc=ctrl.constrain(y_new.xc), acc=y_new.acc)
+        y_new, aux = advance(t, y_in, plant.step_input(t, dt), c.held)
         tau = aux["tau"]
         tau_peak = jnp.max(jnp.abs(tau))
         pen = aux["penetration"]
-        finite_parts = (all_finite((y_new.q, y_new.qd)), all_finite(y_new.xc), all_finite(y_new.acc))
+        finite_parts = (all_finite(y_new.plant), all_finite(y_new.xc), all_finite(y_new.acc))
         parts = sum(jnp.where(ok, 0, 1 << i) for i, ok in enumerate(finite_parts)).astype(jnp.int32)
         code = jnp.where(parts != 0, 1,
                          jnp.where(tau_peak > limits.torque, 2,
@@ -204,13 +184,13 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
             maxes={k: jnp.where(count, jnp.maximum(c.maxes[k], fn(aux)), c.maxes[k])
                    for k, fn in STEP_MAXES.items()})
 
-    return f, sample, step
+    return record_at, sample, step
 
 
-def _record(f, c: Carry, t, w, fields):
+def _record(record_at, c: Carry, t, w, fields):
     """The record at t (the state at the start of step k) and the carry with the τ statistics
     restarted; ``tau_abs_max``/``tau_variation`` cover the steps since the previous record."""
-    _, aux = f(t, c.y, w, c.held)
+    aux = record_at(t, c.y, w, c.held)
     tau = aux["tau"]
     aux["tau_abs_max"] = jnp.maximum(c.tau_peak, jnp.abs(tau))
     aux["tau_variation"] = c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev))
@@ -221,7 +201,7 @@ def _record(f, c: Carry, t, w, fields):
     c = dataclasses.replace(c, tau_peak=jnp.zeros_like(c.tau_peak), tau_tv=jnp.zeros_like(c.tau_tv),
                             tau_prev=tau, sums=jax.tree.map(jnp.zeros_like, c.sums),
                             maxes=jax.tree.map(jnp.zeros_like, c.maxes))
-    return c, {k: aux[k] for k in fields}
+    return c, pick(aux, fields)
 
 
 def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, *, n_records, save_every, sampled,
@@ -229,14 +209,13 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, *, n_record
     """``n_records · save_every`` steps from step ``k0``; a record every ``save_every`` steps.
 
     An outer scan over records, an inner loop over the steps between them with no output: the
-    inner loop body touches only small buffers, so XLA runs its kernels inline (see
-    :mod:`hinfnn.controllers.network`, BLOCK)."""
-    f, sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
+    inner loop body touches only small buffers, so XLA runs its kernels inline."""
+    record_at, sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
 
     def one_record(c, r):
         k = k0 + r * save_every
         c = sample(c, k)
-        c, rec = _record(f, c, k * dt, plant.disturbance(k * dt + 0.5 * dt), fields)
+        c, rec = _record(record_at, c, k * dt, plant.step_input(k * dt, dt), fields)
         c = jax.lax.fori_loop(0, save_every, lambda i, cc: step(cc, k + i, i == 0), c)
         return c, rec
 
@@ -245,23 +224,23 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, *, n_record
 
 def _finish(plant, ctrl, ref, limits, carry, n_steps, dt, n_hold, *, sampled, fields):
     """The record at t_final and the full final state (controller state flat again)."""
-    f, _, _ = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
+    record_at, _, _ = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
     t_end = n_steps * dt
-    _, rec = _record(f, carry, t_end, plant.disturbance(t_end - 0.5 * dt), fields)
+    _, rec = _record(record_at, carry, t_end, plant.step_input(t_end - dt, dt), fields)
     y_end = carry.y
-    xc = ctrl.flat(y_end.xc)
-    final = dict(q=y_end.q, qd=y_end.qd, z=xc.z, theta_p=xc.theta_p,
-                 theta_f=xc.theta_f, J=y_end.acc.J, J_aug=y_end.acc.J_aug, supply=y_end.acc.supply)
+    q, qd = plant.joints(y_end.plant)
+    xc = ctrl.from_loop(y_end.xc)
+    final = dict(q=q, qd=qd, z=xc.z, **xc.parts, J=y_end.acc.J, J_aug=y_end.acc.J_aug, supply=y_end.acc.supply)
     details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts)
     return rec, carry.status, carry.t_fail, details, final
 
 
 def _init_carry(ctrl, y0, n):
-    """The first carry, with the controller state in blocks, strongly typed so that the carry a
-    chunk returns has the same types (no second compile)."""
+    """The first carry, with the controller state in the loop layout, strongly typed so that the
+    carry a chunk returns has the same types (no second compile)."""
     f64 = jnp.float64
     zero = jnp.zeros((), f64)
-    y0 = SimState(q=y0.q, qd=y0.qd, xc=ctrl.blocked(y0.xc), acc=y0.acc)
+    y0 = SimState(plant=y0.plant, xc=ctrl.to_loop(y0.xc), acc=y0.acc)
     return Carry(y=y0, held=jnp.zeros(n, f64), status=jnp.zeros((), jnp.int32),
                  t_fail=jnp.array(jnp.nan, dtype=f64), bad_tau=zero, bad_pen=zero,
                  bad_parts=jnp.zeros((), jnp.int32), tau_peak=jnp.zeros(n, f64), tau_tv=jnp.zeros(n, f64),
@@ -296,30 +275,33 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold
     so memory is what is stored, never proportional to the steps."""
     n_records = n_steps // save_every
     per_chunk = max(1, CHUNK_STEPS // save_every)  # independent of the horizon: one compilation
-    chunk, finish, init = _compiled(in_axes, per_chunk, save_every, n_hold > 0, fields)
+    sampled = n_hold > 0
+    chunk, finish, init = _compiled(in_axes, per_chunk, save_every, sampled, fields)
     carry = init(ctrl, y0, n_joints)
-    dt_a = jnp.asarray(dt, dtype=float)
+    axis = 0 if in_axes is None else 1  # the time axis of the records
     n_steps_a = jnp.asarray(n_steps, dtype=jnp.int64)
+    dt_a = jnp.asarray(dt, dtype=jnp.float64)
     hold_a = jnp.asarray(max(n_hold, 1), dtype=jnp.int64)
-    axis = 0 if in_axes is None else 1
-    out = {}
+    out: dict[str, np.ndarray] = {}
+    n_chunks = -(-n_records // per_chunk)
 
     def store(c, rec):
-        lo = c * per_chunk
-        n = min(per_chunk, n_records - lo)
+        start = c * per_chunk
+        stop = min(start + per_chunk, n_records)
         for k, v in rec.items():
-            v = np.asarray(v)  # waits for that chunk
+            v = np.asarray(v)
             if k not in out:
-                out[k] = np.empty(v.shape[:axis] + (n_records + 1,) + v.shape[axis + 1:], v.dtype)
+                shape = v.shape[:axis] + (n_records + 1,) + v.shape[axis + 1:]
+                out[k] = np.empty(shape, v.dtype)
             if axis == 0:
-                out[k][lo:lo + n] = v[:n]
+                out[k][start:stop] = v[:stop - start]
             else:
-                out[k][:, lo:lo + n] = v[:, :n]
+                out[k][:, start:stop] = v[:, :stop - start]
         if progress is not None:
-            progress(min((c + 1) * per_chunk, n_records) * save_every, n_steps)
+            progress(min(stop * save_every, n_steps), n_steps)
 
     pending = None  # the previous chunk's records, copied while the next chunk runs
-    for c in range(-(-n_records // per_chunk)):
+    for c in range(n_chunks):
         k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)
         carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, n_steps_a, dt_a, hold_a)
         if pending is not None:
@@ -339,12 +321,13 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold
     return out, status, t_fail, details, final
 
 
-def _steps(t_final, dt, save_every, control_period, save_interval=None):
+def steps(t_final, dt, save_every, control_period, save_interval=None, discrete=False):
+    """(n_steps, n_hold, save_every) for a run, checked (ConfigError naming the key)."""
     for name, v in (("t_final", t_final), ("dt", dt)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise ConfigError(f"must be a finite number > 0, got {v!r}", key=f"simulation.{name}")
     n_steps = round(t_final / dt)
-    if abs(n_steps * dt - t_final) > 1e-9 * max(1.0, t_final):
+    if n_steps < 1 or abs(n_steps * dt - t_final) > 1e-9 * max(1.0, t_final):
         raise ConfigError(f"t_final = {t_final:g} is not a whole number of steps dt = {dt:g}",
                           key="simulation.t_final")
     if save_every is None:
@@ -353,11 +336,17 @@ def _steps(t_final, dt, save_every, control_period, save_interval=None):
         raise ConfigError(f"must be a positive integer dividing the {n_steps} steps, got {save_every!r}",
                           key="simulation.save_every")
     n_hold = 0
+    if control_period is None and discrete:
+        control_period = dt  # a discrete plant always runs the sampled-data path
     if control_period is not None:
         n_hold = round(control_period / dt)
         if n_hold < 1 or abs(n_hold * dt - control_period) > 1e-9 * control_period:
             raise ConfigError(f"control period {control_period:g} must be a whole multiple of dt = {dt:g}",
                               key="simulation.control_period")
+        if n_steps % n_hold:
+            raise ConfigError(f"control period {control_period:g} s does not divide t_final = {t_final:g} s "
+                              f"({n_steps} steps of dt = {dt:g} s are not a whole number of {n_hold}-step "
+                              "periods)", key="simulation.control_period")
     return n_steps, n_hold, save_every
 
 
@@ -374,71 +363,51 @@ def save_every_for(n_steps: int, dt: float, save_interval: float) -> int:
     return max(s for s in range(1, limit + 1) if n_steps % s == 0)
 
 
-def _fields(fields) -> tuple:
-    """The record fields to store: all of :data:`FIELDS` (``None``), a named set of
-    :data:`FIELD_SETS` (``"all"``, ``"metrics"``) or the names given; ``t`` always."""
-    if fields is None:
-        return tuple(FIELDS)
-    if isinstance(fields, str) and fields in FIELD_SETS:
-        return tuple(n for n in FIELDS if n in FIELD_SETS[fields])
-    names = [fields] if isinstance(fields, str) else list(fields)
-    unknown = [n for n in names if n not in FIELDS]
-    if unknown:
-        raise ConfigError(f"unknown trajectory field(s) {unknown}; allowed: {', '.join(FIELDS)}, or one of "
-                          f"the sets {sorted(FIELD_SETS)}", key="fields")
-    return tuple(n for n in FIELDS if n == "t" or n in names)
+def initial_state(plant, ctrl, *, q0=None, u1_0=None, qd0=None, xc0=None) -> SimState:
+    """The state at t = 0: the plant at q0 (or, from ``u1_0``, the start pose with the TRUE
+    end-effector at x1 = u1_0 on the TRUE surface, ``plant.initial_q``), q̇ = qd0 (default 0),
+    controller state ``ctrl.init()`` (z = 0, weights 0) unless given, accumulators 0."""
+    if q0 is None:
+        if u1_0 is None:
+            raise ConfigError("give the start pose: q0 (joint angles) or u1_0 (the motion coordinate of the "
+                              "end-effector on the true surface)", key="initial")
+        q0 = plant.initial_q(u1_0)
+    return SimState(plant=plant.initial_state(jnp.asarray(q0, dtype=float), qd0),
+                    xc=ctrl.init() if xc0 is None else xc0, acc=Accumulators.zero())
 
 
-def initial_state(plant, ctrl, *, u1_0=1.6902, q0=None, qd0=None, xc0=None) -> SimState:
-    """Sec. VI initial state: q0 with the TRUE end-effector at u1(0) on the TRUE surface,
-    q̇ = 0, controller state ``ctrl.init()`` (z = 0, weights 0), accumulators 0."""
-    q0 = plant.initial_q(u1_0) if q0 is None else jnp.asarray(q0, float)
-    qd0 = jnp.zeros_like(q0) if qd0 is None else jnp.asarray(qd0, float)
-    zero = jnp.zeros(())
-    return SimState(q=q0, qd=qd0, xc=ctrl.init() if xc0 is None else xc0,
-                    acc=Accumulators(J=zero, J_aug=zero, supply=zero))
-
-
-@jax.jit
-def nominal_jacobian_det(arm, q):
-    """det Ĵ(q) as one compiled program (a new process lowers each eager operation separately)."""
-    return jnp.linalg.det(arm.J(q))
-
-
-def check_start(controller, y0: SimState, min_abs_det: float = 1e-6):
-    """The start pose must be finite and the nominal Jacobian Ĵ(q0) nonsingular (A1)."""
-    q0 = np.asarray(y0.q)
-    if not np.all(np.isfinite(q0)):
-        raise DesignError(f"the start pose is unreachable: q0 = {q0.tolist()} (u1(0) is out of the "
-                          "true arm's reach on the true surface)", key="initial.u1")
-    det = float(nominal_jacobian_det(controller.arm, y0.q))
-    if not abs(det) >= min_abs_det:
-        raise DesignError(f"the nominal Jacobian is singular at the start pose q0 = {q0.tolist()} "
-                          f"(|det J| = {abs(det):.3g} < {min_abs_det:g})", key="initial.u1")
-
-
-def _to_numpy(rec, status, t_fail, details, final, *, config, dt, save_every) -> Trajectory:
+def _to_numpy(rec, status, t_fail, details, final, *, info, dt, save_every) -> Trajectory:
     arrays = {k: np.asarray(v) for k, v in rec.items()}
     return Trajectory(arrays=arrays, status=np.asarray(status), t_fail=np.asarray(t_fail),
                       fail_details={k: np.asarray(v) for k, v in details.items()},
-                      config=config or {}, dt=float(dt), save_every=int(save_every),
-                      final={k: np.asarray(v) for k, v in final.items()})
+                      dt=float(dt), save_every=int(save_every),
+                      final={k: np.asarray(v) for k, v in final.items()}, info=info)
+
+
+def _check_start(controller, y0, plant):
+    check = getattr(controller, "check_start", None)
+    if check is not None:
+        check(plant.joints(y0.plant)[0])
 
 
 def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float = 1e-4,
-             u1_0: float = 1.6902, q0=None, qd0=None, xc0=None, save_every: int | None = None,
+             q0=None, u1_0=None, qd0=None, xc0=None, save_every: int | None = None,
              save_interval: float = DEFAULT_SAVE_INTERVAL, fields=None,
              control_period: float | None = None, limits: Limits | None = None,
-             config: dict | None = None, raise_on_failure: bool = True, progress=None) -> Trajectory:
+             info: RunInfo | None = None, raise_on_failure: bool = True, progress=None) -> Trajectory:
     """Simulate one closed-loop run; returns a :class:`Trajectory` sampled every ``save_every``
     steps (t = 0, …, t_final).
 
-    Storage: a sample every ``save_every`` steps; by default the largest divisor of the step
-    count with ``save_every · dt ≤ save_interval`` (1 ms: every 10th step at dt = 1e-4).
-    The step summaries (``tau_abs_max``, ``tau_variation``, ``tau_sq``, ``e_u1_sq``, ...) still
-    cover every step, so :func:`~hinfnn.compute_metrics` does not depend on the decimation.
-    ``fields``: the trajectory fields to store, names or ``"metrics"`` (default all of
-    :data:`~hinfnn.sim.trajectory.FIELDS`; ``t`` always); memory is what is stored.
+    Start: ``q0`` (joint angles), or ``u1_0`` (the end-effector's motion coordinate on the true
+    surface; the plant's ``initial_q`` finds the pose). Storage: a sample every ``save_every``
+    steps; by default the largest divisor of the step count with ``save_every · dt ≤
+    save_interval`` (1 ms: every 10th step at dt = 1e-4). The step summaries (``tau_abs_max``,
+    ``tau_variation``, ``tau_sq``, ``e_u1_sq``, ...) still cover every step, so
+    :func:`~hinfnn.compute_metrics` does not depend on the decimation. ``fields``: what to store,
+    names of :data:`hinfnn.fields.FIELDS` or ``"metrics"`` (default: everything the run
+    produces; ``t`` always); memory is what is stored. ``control_period``: sampled-data control
+    with zero-order hold at that period (a discrete plant always runs this way, default: every
+    step).
 
     Raises :class:`~hinfnn.errors.SimulationError` with the time and the offending quantities
     if the state becomes non-finite or a limit is passed (unless ``raise_on_failure=False``;
@@ -446,14 +415,19 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     ``progress(steps_done, steps_total)``, if given, is called after each compiled chunk of
     :data:`CHUNK_STEPS` steps.
     """
-    n_steps, n_hold, save_every = _steps(t_final, dt, save_every, control_period, save_interval)
-    fields = _fields(fields)
-    y0 = initial_state(plant, controller, u1_0=u1_0, q0=q0, qd0=qd0, xc0=xc0)
-    check_start(controller, y0)
+    from .._config import require_x64
+
+    require_x64()
+    discrete = bool(getattr(plant, "discrete", False))
+    n_steps, n_hold, save_every = steps(t_final, dt, save_every, control_period, save_interval, discrete)
+    fields = select(fields)
+    y0 = initial_state(plant, controller, q0=q0, u1_0=u1_0, qd0=qd0, xc0=xc0)
+    _check_start(controller, y0, plant)
     out = _drive(plant, controller, reference, limits or Limits(), y0, None, n_steps=n_steps,
-                 save_every=save_every, n_hold=n_hold, dt=float(dt), n_joints=plant.arm.n,
+                 save_every=save_every, n_hold=n_hold, dt=float(dt), n_joints=plant.n,
                  fields=fields, progress=progress)
-    traj = _to_numpy(*out, config=config, dt=dt, save_every=save_every)
+    traj = _to_numpy(*out, info=info or RunInfo(kind=getattr(controller, "kind", "")), dt=dt,
+                     save_every=save_every)
     if raise_on_failure and int(traj.status) != 0:
         raise failure_error(traj)
     return traj
@@ -464,17 +438,23 @@ def failure_error(traj: Trajectory) -> SimulationError:
     code = int(traj.status)
     t = float(traj.t_fail)
     details = {k: float(v) for k, v in traj.fail_details.items()}
+    msg = f"run stopped at t = {t:.6g} s: {failure_reason(code, details)}"
+    return SimulationError(msg, t_fail=t, details=details)
+
+
+def failure_reason(code: int, details: dict) -> str:
+    """Why a run stopped, in words, with the numbers that decided it."""
     what = STATUS.get(code, f"status {code}")
-    msg = f"run stopped at t = {t:.6g} s: {what}"
     if code == 1:
         parts = int(details.get("nonfinite_parts", 0))
         names = [n for i, n in enumerate(NONFINITE_PARTS) if parts & (1 << i)]
-        msg += f" ({', '.join(names) or 'state'}; peak |tau| at the step before = {details['tau_peak']:.4g} N·m)"
-    elif code == 2:
-        msg += f" (peak |tau| = {details['tau_peak']:.4g} N·m)"
-    elif code == 3:
-        msg += f" (penetration = {details['penetration']:.4g} m)"
-    return SimulationError(msg, t_fail=t, details=details)
+        peak = details.get("tau_peak", math.nan)
+        return f"{what} ({', '.join(names) or 'state'}; peak |tau| at the step before = {peak:.4g} N·m)"
+    if code == 2:
+        return f"{what} (peak |tau| = {details.get('tau_peak', math.nan):.4g} N·m)"
+    if code == 3:
+        return f"{what} (penetration = {details.get('penetration', math.nan):.4g} m)"
+    return what
 
 
 def stack(items):
@@ -487,18 +467,21 @@ def stack(items):
 
 
 def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt: float = 1e-4,
-                   u1_0=1.6902, q0=None, save_every: int | None = None,
+                   q0=None, u1_0=None, save_every: int | None = None,
                    save_interval: float = DEFAULT_SAVE_INTERVAL, fields=None,
-                   control_period: float | None = None, limits=None, configs: list | None = None,
+                   control_period: float | None = None, limits=None, infos: list | None = None,
                    progress=None) -> Trajectory:
     """Simulate B runs as ONE program (``jax.vmap`` of :func:`simulate`'s run).
 
     ``plants``, ``controllers``, ``references`` (and ``limits``): each either a list of B objects
-    (stacked along a new axis) or a single object shared by every member. ``u1_0``/``q0`` may be
+    (stacked along a new axis) or a single object shared by every member. ``q0``/``u1_0`` may be
     lists too. Members that fail are marked in ``status``/``t_fail`` and do not stop the others;
     nothing is raised for them. ``save_every``, ``save_interval``, ``fields`` and ``progress``
     as for :func:`simulate`; a batch of B runs stores B times what one run stores.
     """
+    from .._config import require_x64
+
+    require_x64()
     listed = [x for x in (plants, controllers, references, limits) if isinstance(x, (list, tuple))]
     if not listed:
         raise ConfigError("simulate_batch needs at least one list of plants, controllers or references")
@@ -510,31 +493,32 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     def member(x, i):
         return x[i] if isinstance(x, (list, tuple)) else x
 
-    u1s = u1_0 if isinstance(u1_0, (list, tuple, np.ndarray)) else [u1_0] * B
     q0s = q0 if isinstance(q0, (list, tuple)) else [q0] * B
-    y0s = [initial_state(member(plants, i), member(controllers, i), u1_0=u1s[i], q0=q0s[i])
-           for i in range(B)]
+    u1s = u1_0 if isinstance(u1_0, (list, tuple, np.ndarray)) else [u1_0] * B
+    y0s = [initial_state(member(plants, i), member(controllers, i), q0=q0s[i], u1_0=u1s[i]) for i in range(B)]
     for i in range(B):
-        check_start(member(controllers, i), y0s[i])
-    n_steps, n_hold, save_every = _steps(t_final, dt, save_every, control_period, save_interval)
-    fields = _fields(fields)
+        _check_start(member(controllers, i), y0s[i], member(plants, i))
+    plant0 = member(plants, 0)
+    n_steps, n_hold, save_every = steps(t_final, dt, save_every, control_period, save_interval,
+                                        bool(getattr(plant0, "discrete", False)))
+    fields = select(fields)
+    info = tuple(infos) if infos else tuple(RunInfo(kind=getattr(member(controllers, i), "kind", ""))
+                                            for i in range(B))
+    limits = limits if limits is not None else Limits()
     if B == 1:  # the unbatched program (a vmap over one member runs about 6x slower), then a batch axis
-        out = _drive(member(plants, 0), member(controllers, 0), member(references, 0),
-                     member(limits, 0) if limits is not None else Limits(), y0s[0], None, n_steps=n_steps,
-                     save_every=save_every, n_hold=n_hold, dt=float(dt), n_joints=member(plants, 0).arm.n,
-                     fields=fields, progress=progress)
+        args, y0, axes = (member(plants, 0), member(controllers, 0), member(references, 0), member(limits, 0)), y0s[0], None
+    else:
+        args, axes = [], []
+        for x in (plants, controllers, references, limits):
+            if isinstance(x, (list, tuple)):
+                args.append(stack(list(x)))
+                axes.append(0)
+            else:
+                args.append(x)
+                axes.append(None)
+        y0, axes = stack(y0s), tuple(axes)
+    out = _drive(*args, y0, axes, n_steps=n_steps, save_every=save_every, n_hold=n_hold, dt=float(dt),
+                 n_joints=plant0.n, fields=fields, progress=progress)
+    if B == 1:
         out = jax.tree.map(lambda a: np.expand_dims(np.asarray(a), 0), out)
-        return _to_numpy(*out, config={"members": list(configs)} if configs else {}, dt=dt,
-                         save_every=save_every)
-    args, axes = [], []
-    for x in (plants, controllers, references, limits or Limits()):
-        if isinstance(x, (list, tuple)):
-            args.append(stack(list(x)))
-            axes.append(0)
-        else:
-            args.append(x)
-            axes.append(None)
-    out = _drive(*args, stack(y0s), tuple(axes), n_steps=n_steps, save_every=save_every, n_hold=n_hold,
-                 dt=float(dt), n_joints=member(plants, 0).arm.n, fields=fields, progress=progress)
-    return _to_numpy(*out, config={"members": list(configs)} if configs else {}, dt=dt,
-                     save_every=save_every)
+    return _to_numpy(*out, info=info, dt=dt, save_every=save_every)

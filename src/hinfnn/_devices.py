@@ -1,0 +1,105 @@
+"""Performance devices of the compiled simulation loop, all in this one module.
+
+Each device changes how XLA's CPU runtime executes the loop, never what it computes (the numbers
+agree to rounding), and each has the benchmark line that justifies it: ``python
+benchmarks/run.py --devices`` runs the paper's 10-s adaptive run with each device turned off in
+turn, in a fresh process, and prints the ratio against all devices on.
+
+``blocks``
+    Large controller-state arrays (the networks' weights Θ̂, 40 and 120 values) are carried
+    through the loop as tuples of blocks of at most :data:`BLOCK` float64 values, and the
+    networks' centres and features are computed block by block. XLA's CPU runtime runs the
+    kernels of a compiled loop body inline, one after the other, only when every buffer they
+    touch is at most 512 bytes (64 float64); one larger buffer sends the kernels of the step
+    through its thread pool, which costs about as much as the step's arithmetic (2.0 s vs 1.0 s
+    per 100,000 steps on the paper's adaptive run when this was introduced). Public state is
+    always flat: the split happens at the loop boundary (:func:`split` / :func:`join`, called by
+    the controller's ``to_loop`` / ``from_loop``).
+``sincos``
+    Sines and cosines of a vector of angles computed once and shared (:func:`sincos`). XLA
+    counts them as cheap and recomputes them inside every kernel that uses them (the paper's RK4
+    step made about 240 libm calls for its 24 distinct values); a reduction is never recomputed,
+    so the values pass through a sum with 0·v (exact for finite values; NaN stays NaN).
+``small_mm``
+    Products of tiny matrices written as multiply-and-sum (:func:`mm`), which XLA fuses with the
+    neighbouring arithmetic; a ``dot`` of 2 × 2 operands is a kernel of its own (1.9 s vs 2.5 s
+    per 100,000 steps of the paper's adaptive run when this was introduced).
+
+:func:`disable` turns devices off (the benchmark does it in a fresh process, before anything is
+compiled: the switches are read when a program is traced).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+#: Largest number of float64 values kept in one array of the loop carry (512 bytes).
+BLOCK = 64
+#: Longest contraction :func:`mm` writes as multiply-and-sum.
+SMALL = 4
+
+ENABLED = {"blocks": True, "sincos": True, "small_mm": True}
+
+
+def disable(*names: str) -> None:
+    """Turn devices off (``"blocks"``, ``"sincos"``, ``"small_mm"``), for the benchmark only.
+
+    Must run before the first program is traced; programs compiled earlier keep the devices."""
+    for name in names:
+        if name not in ENABLED:
+            raise ValueError(f"unknown device {name!r}; devices: {', '.join(ENABLED)}")
+        ENABLED[name] = False
+
+
+# --- blocks --------------------------------------------------------------------------------------
+
+
+def block_bounds(j: int) -> list[tuple[int, int]]:
+    """[(start, stop)] of ⌈j / BLOCK⌉ blocks of near-equal size (120 → 60 + 60); one block when
+    the ``blocks`` device is off."""
+    n = max(1, -(-j // BLOCK)) if ENABLED["blocks"] else 1
+    edges = [round(i * j / n) for i in range(n + 1)]
+    return list(zip(edges[:-1], edges[1:]))
+
+
+def split(x, groups: int = 1) -> tuple:
+    """A flat vector as a tuple of blocks: ``groups`` equal consecutive parts (one per network
+    output), each cut by :func:`block_bounds`."""
+    j = x.shape[-1] // groups
+    return tuple(x[..., g * j + a: g * j + b] for g in range(groups) for a, b in block_bounds(j))
+
+
+def join(blocks: tuple):
+    """Inverse of :func:`split`."""
+    return jnp.concatenate(blocks, axis=-1)
+
+
+# --- sines and cosines ---------------------------------------------------------------------------
+
+
+def sincos(x):
+    """(sin x, cos x) of a vector of angles, computed once and shared (see the module docstring)."""
+    s, c = jnp.sin(x), jnp.cos(x)
+    if not ENABLED["sincos"]:
+        return s, c
+    both = jnp.stack([s, c])
+    both = jnp.sum(jnp.stack([both, 0.0 * both]), axis=0)
+    return both[0], both[1]
+
+
+# --- products of tiny matrices -------------------------------------------------------------------
+
+
+def mm(a, b):
+    """``a @ b`` for vectors and matrices; contractions over at most :data:`SMALL` terms are
+    written as multiply-and-sum (see the module docstring)."""
+    if (not ENABLED["small_mm"] or a.ndim > 2 or b.ndim > 2 or a.shape[-1] != b.shape[0]
+            or a.shape[-1] > SMALL):
+        return a @ b
+    if a.ndim == 1 and b.ndim == 1:
+        return jnp.sum(a * b)
+    if a.ndim == 2 and b.ndim == 1:
+        return jnp.sum(a * b[None, :], axis=1)
+    if a.ndim == 1:
+        return jnp.sum(a[:, None] * b, axis=0)
+    return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)

@@ -1,0 +1,128 @@
+"""The controllers of the paper as compositions of terms, and the one place that names them.
+
+===========  ============================  ===========================================
+kind         terms added to the CT law      theory
+===========  ============================  ===========================================
+``fl``       none                          Sec. VI feedback-linearization-like law
+``hinf``     v_p (33), v_λ (32)/(41)       Theorem 2 (eq. 51), suboptimal H∞ only
+``hinf_nn``  v_p, v_λ, F_p (30), F_f (31)  Theorem 1, adaptive H∞ NN
+===========  ============================  ===========================================
+
+:data:`KINDS` maps each kind name to its :class:`Composition` (terms, label and colour for
+reports, whether Theorem 1's bounds apply). A new controller is a new composition plus one line
+in :data:`KINDS` (or :func:`register` from your own code).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import jax.numpy as jnp
+
+from ..errors import DesignError
+from . import terms as T
+from .gains import Gains
+from .law import ReducedOrderController
+from .network import TanhNetwork, paper_network_f, paper_network_p
+from .riccati import design_riccati
+
+
+@dataclasses.dataclass(frozen=True)
+class Composition:
+    """A controller kind: which terms the law gets, and how reports show it.
+
+    ``terms(options) -> tuple[Term, ...]`` builds the terms from the design options (networks,
+    ``augmented`` ...). ``robust``: Theorem 1's bounds on α_λ, β_λ are required and the Riccati
+    equation must have a stabilising solution (the FL-like law uses them only as performance
+    weights)."""
+
+    kind: str
+    label: str
+    color: str
+    terms: Callable[[dict], tuple]
+    robust: bool = True
+    doc: str = ""
+
+
+def _networks(opts):
+    return (T.PositionNetwork(network=opts.get("network_p") or paper_network_p()),
+            T.ForceNetwork(network=opts.get("network_f") or paper_network_f(opts.get("centre_preset", "paper-likely"))))
+
+
+KINDS: dict[str, Composition] = {
+    "fl": Composition("fl", "FL-like", "#7b3294", lambda o: (), robust=False,
+                      doc="Sec. VI feedback-linearization-like law (the CT part alone)"),
+    "hinf": Composition("hinf", "H∞-only", "#1f5fbf", lambda o: (T.RobustPosition(), T.RobustForce()),
+                        doc="Theorem 2: eq. (51) with v_p (33) and v_λ (32)"),
+    "hinf_nn": Composition("hinf_nn", "adaptive H∞ NN", "#d62728",
+                           lambda o: (T.RobustPosition(), T.RobustForce(), *_networks(o)),
+                           doc="Theorem 1: eq. (24) with v_p, v_λ and the networks F_p, F_f"),
+}
+
+
+def register(composition: Composition) -> None:
+    """Add a controller kind (its name becomes a valid ``controller.kind``)."""
+    KINDS[composition.kind] = composition
+
+
+def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bool = False,
+           extra_terms: tuple = (), **options) -> ReducedOrderController:
+    """Design the controller ``kind`` from the NOMINAL arm and surface: check the gains (Theorem
+    1's bounds, Remarks 1–3), solve the Riccati-like eq. (35) (or (40) with ``augmented``,
+    Remark 1), build and check the terms. ``options``: ``network_p``, ``network_f``,
+    ``centre_preset`` for the adaptive law. ``extra_terms`` are appended to the composition's.
+
+    Raises :class:`~hinfnn.errors.DesignError` naming the condition that failed."""
+    if kind not in KINDS:
+        raise DesignError(f"unknown controller kind {kind!r}; known: {', '.join(KINDS)}", key="kind", value=kind)
+    comp = KINDS[kind]
+    g = (gains or Gains.paper()).normalized(surface.m, surface.k, require_bounds=comp.robust)
+    try:
+        P = jnp.asarray(design_riccati(g, "40" if augmented else "35").P)
+    except DesignError:
+        if comp.robust:
+            raise
+        P = jnp.full((2 * surface.m, 2 * surface.m), jnp.nan)
+    terms = tuple(comp.terms(options)) + tuple(extra_terms)
+    for term in terms:
+        term.check(surface.m, surface.k)
+    return ReducedOrderController(arm=arm, surface=surface, gains=g, P_p=P, terms=terms, kind=kind,
+                                  augmented=augmented)
+
+
+class FeedbackLinearization:
+    """Sec. VI FL-like controller: eq. (24) without v_p, v_λ and networks (``design("fl", ...)``).
+
+    Printed error fixed (docs/paper-conventions.md): the paper prints u̇1d inside M̄11[·]; the law
+    needs ü1d. P_p of eq. (35) is solved too, for the storage function used in the dissipation
+    report only (NaN if ρ admits no solution: this law does not use it)."""
+
+    @staticmethod
+    def design(arm_nom, surface_nom, gains: Gains | None = None) -> ReducedOrderController:
+        return design("fl", arm_nom, surface_nom, gains)
+
+
+class HinfController:
+    """Theorem 2, suboptimal H∞-only: eq. (51) with (27), (32), (33) and P_p of eq. (35); with
+    ``augmented`` (Remark 1) eq. (40) and v_λ = −β_λ e_λ (41) (``design("hinf", ...)``)."""
+
+    @staticmethod
+    def design(arm_nom, surface_nom, gains: Gains | None = None, *, augmented: bool = False,
+               extra_terms: tuple = ()) -> ReducedOrderController:
+        return design("hinf", arm_nom, surface_nom, gains, augmented=augmented, extra_terms=extra_terms)
+
+
+class HinfNNController:
+    """Theorem 1, adaptive H∞ NN (``design("hinf_nn", ...)``) and Remarks 1–3: Remark 1 with
+    ``augmented``, Remark 2 with networks built with a projection ``radius``, Remark 3 with any
+    α_z > 0 (bounds checked by :meth:`~hinfnn.controllers.gains.Gains.normalized`). Without
+    explicit networks the Sec. VI ones are used, F_f with ``centre_preset`` ("paper-likely":
+    step 0.5, or "paper-printed": step 0.05)."""
+
+    @staticmethod
+    def design(arm_nom, surface_nom, gains: Gains | None = None, *, network_p: TanhNetwork | None = None,
+               network_f: TanhNetwork | None = None, centre_preset: str = "paper-likely",
+               augmented: bool = False, extra_terms: tuple = ()) -> ReducedOrderController:
+        return design("hinf_nn", arm_nom, surface_nom, gains, augmented=augmented, extra_terms=extra_terms,
+                      network_p=network_p, network_f=network_f, centre_preset=centre_preset)

@@ -1,0 +1,243 @@
+"""The additive terms of the paper's law (24), each one small object.
+
+The paper itself splits its law into a computed-torque part and added terms (eqs. 42–49):
+Λp = ΛP_CT + ΛP_NN + ΛP_v and Λf = ΛF_CT + ΛF_NN + ΛF_v. hinfnn keeps that split. The CT part
+(eqs. 43, 49, 50: decoupling, PD, the z-filter and the force feedforward) is the law itself
+(:class:`~hinfnn.controllers.law.ReducedOrderController`); everything added to it is a
+:class:`Term`:
+
+* a *position* term adds its value a_i inside M̄11[·] of eq. (25); a *force* term adds b_j
+  inside Πᵀ[·] of eq. (26);
+* a term may carry state (the networks' weights Θ̂, a filter), integrated with the plant;
+* a term declares its contribution to the storage function V (eqs. 36/55) and to the augmented
+  performance index of Remark 1, so the theorem bookkeeping follows the composition;
+* the supply residuals follow from the values: f_p = ë_u1 + K_p e_u1 + K_v ė_u1 − Σ a_i and
+  f_f = e_λ − z − Σ b_j (eqs. 28–29 / 52–53 solved for the lumped uncertainty).
+
+A new term is a pytree dataclass subclassing :class:`Term`; the three controllers of the paper
+are compositions of the terms below (:mod:`hinfnn.controllers.kinds`).
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import jax
+import jax.numpy as jnp
+
+from .. import _devices as dev
+from .. import _linalg as la
+from .._pytree import pytree_dataclass, static_field
+from ..reference import RefSample
+from .gains import Gains
+from .network import TanhNetwork, sq_norm
+
+
+@pytree_dataclass
+class Context:
+    """What every term may read at one instant: time, reference sample, the measured motion and
+    force in the controller's coordinates, their errors, the z-filter state, x_p and
+    s_p = B_pᵀ P_p x_p (the drive of v_p and of F_p's update), the gains and P_p."""
+
+    t: jax.Array
+    ref: RefSample
+    u1: jax.Array
+    u1_dot: jax.Array
+    lam: jax.Array
+    e_u1: jax.Array
+    e_u1_dot: jax.Array
+    e_lam: jax.Array
+    z: jax.Array
+    x_p: jax.Array
+    s_p: jax.Array
+    gains: Gains
+    P_p: jax.Array
+    augmented: bool = static_field(default=False)
+
+    @property
+    def c(self):
+        """α_λ / (1 + β_λ): the weight of ‖z‖²/2 in V (eq. 36)."""
+        return self.gains.alpha_lam / (1.0 + self.gains.beta_lam)
+
+
+class Term:
+    """Base class of the law's terms (subclasses are pytree dataclasses).
+
+    Class attributes: ``side`` ("position" or "force"), ``fields`` (the signals it records:
+    name -> (unit, meaning); registered with the recorder's field table), ``blocked`` (its state
+    arrays carried in blocks inside the compiled loop: name -> number of equal groups, see
+    :mod:`hinfnn._devices`).
+    """
+
+    side: ClassVar[str] = "position"
+    fields: ClassVar[dict[str, tuple[str, str]]] = {}
+    blocked: ClassVar[dict[str, int]] = {}
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.fields:
+            from ..fields import declare
+
+            for name, (unit, doc) in cls.fields.items():
+                declare(name, unit, doc)
+
+    def state_sizes(self, m: int, k: int) -> dict[str, int]:
+        """Sizes of its state arrays (flat), by name; {} for a static term."""
+        return {}
+
+    def init(self, m: int, k: int) -> dict:
+        """Initial state (Sec. VI: zero), flat arrays by name."""
+        return {name: jnp.zeros(size) for name, size in self.state_sizes(m, k).items()}
+
+    def evaluate(self, ctx: Context, parts: dict):
+        """(value, state derivative {name: array}, signals {name: array}) at one instant.
+        ``parts`` holds every state array of the controller (in the loop's layout)."""
+        raise NotImplementedError
+
+    def storage(self, ctx: Context, parts: dict):
+        """Its contribution to the storage function V, or None."""
+        return None
+
+    def extra_performance(self, ctx: Context, value):
+        """Its contribution to the augmented performance index (Remark 1), or None."""
+        return None
+
+    def constrain(self, parts: dict) -> dict:
+        """Its state after an integration step put back where the theory keeps it (identity)."""
+        return {}
+
+    def check(self, m: int, k: int) -> None:
+        """Design-time checks (sizes); raises DesignError."""
+
+
+@pytree_dataclass
+class RobustPosition(Term):
+    """v_p = −R_p⁻¹ B_pᵀ P_p x_p, eq. (33) (ΛP_v of eq. 45). Augmented performance (Remark 1):
+    adds ‖v_p‖²_{R_p}."""
+
+    side: ClassVar[str] = "position"
+    fields: ClassVar[dict] = {"v_p": ("m/s²", "robustifying position term v_p, eq. (33)")}
+
+    def evaluate(self, ctx, parts):
+        v_p = -la.solve(ctx.gains.R_p, ctx.s_p)
+        return v_p, {}, {"v_p": v_p}
+
+    def extra_performance(self, ctx, value):
+        return la.mm(value, la.mm(ctx.gains.R_p, value))
+
+
+@pytree_dataclass
+class RobustForce(Term):
+    """v_λ = −(β_λ/2) e_λ, eq. (32) (ΛF_v of eq. 47), or −β_λ e_λ with Remark 1 (eq. 41), which
+    also adds α_λα_z/(2β_λ(1+β_λ)) ‖v_λ‖² to the augmented performance index."""
+
+    side: ClassVar[str] = "force"
+    fields: ClassVar[dict] = {"v_lam": ("λ units", "robustifying force term v_λ, eq. (32) or (41)")}
+
+    def evaluate(self, ctx, parts):
+        g = ctx.gains
+        v_lam = -(g.beta_lam if ctx.augmented else 0.5 * g.beta_lam) * ctx.e_lam
+        return v_lam, {}, {"v_lam": v_lam}
+
+    def extra_performance(self, ctx, value):
+        g = ctx.gains
+        return g.alpha_lam * g.alpha_z / (2.0 * g.beta_lam * (1.0 + g.beta_lam)) * la.mm(value, value)
+
+
+class _NetworkTerm(Term):
+    """−Ξ Θ̂ of a tanh network (eqs. 17–19) whose weights learn by eq. (30) or (31)."""
+
+    key: ClassVar[str]
+    out: ClassVar[str]
+
+    def state_sizes(self, m, k):
+        return {self.key: self.network.size}
+
+    @property
+    def blocked(self):  # type: ignore[override]
+        return {self.key: self.network.n_out}
+
+    def check(self, m, k):
+        from ..errors import DesignError
+
+        dim = m if self.side == "position" else k
+        if self.network.n_out != dim:
+            raise DesignError(f"must have {dim} outputs, has {self.network.n_out}",
+                              key=f"{'network_p' if self.side == 'position' else 'network_f'}.n_out")
+
+    def _io(self, ctx):
+        raise NotImplementedError
+
+    def evaluate(self, ctx, parts):
+        a, b, drive, gamma = self._io(ctx)
+        theta = parts[self.key]
+        xi = self.network.features_blocks(a, b)
+        nn = self.network.output_blocks(xi, theta)
+        d_theta = self.network.update_blocks(xi, drive, theta, gamma)
+        return -nn, {self.key: d_theta}, {self.out: nn, f"{self.key}_norm": jnp.sqrt(sq_norm(theta))}
+
+    def constrain(self, parts):
+        return {self.key: self.network.clip_blocks(parts[self.key])}
+
+
+@pytree_dataclass
+class PositionNetwork(_NetworkTerm):
+    """−Ξ_p Θ̂_p (ΛP_NN of eq. 44), F_p's input (e_u1, ė_u1), update Θ̂̇p = γ1 Ξpᵀ B_pᵀP_p x_p
+    (eq. 30, with Remark 2's projection when the network has a radius). Storage ‖Θ̂p‖²/γ1
+    (eq. 36 with Θ* = 0)."""
+
+    network: TanhNetwork
+    side: ClassVar[str] = "position"
+    key: ClassVar[str] = "theta_p"
+    out: ClassVar[str] = "nn_p"
+    fields: ClassVar[dict] = {
+        "nn_p": ("m/s²", "F_p's output Ξ_p Θ̂_p, eq. (19)"),
+        "theta_p_norm": ("-", "‖Θ̂_p‖"),
+    }
+
+    def _io(self, ctx):
+        return ctx.e_u1, ctx.e_u1_dot, ctx.s_p, ctx.gains.gamma_1
+
+    def storage(self, ctx, parts):
+        return sq_norm(parts[self.key]) / ctx.gains.gamma_1
+
+
+@pytree_dataclass
+class ForceNetwork(_NetworkTerm):
+    """−Ξ_f Θ̂_f (ΛF_NN of eq. 48), F_f's input (e_λ, z), update Θ̂̇f = γ2 Ξfᵀ e_λ (eq. 31,
+    with Remark 2's projection when the network has a radius). Storage
+    α_λα_z/(2γ2(1+β_λ)) ‖Θ̂f‖² (eq. 36's α_λ/(γ2(1+β_λ)) for α_z = 2, Remark 3 in general)."""
+
+    network: TanhNetwork
+    side: ClassVar[str] = "force"
+    key: ClassVar[str] = "theta_f"
+    out: ClassVar[str] = "nn_f"
+    fields: ClassVar[dict] = {
+        "nn_f": ("λ units", "F_f's output Ξ_f Θ̂_f, eq. (19)"),
+        "theta_f_norm": ("-", "‖Θ̂_f‖"),
+    }
+
+    def _io(self, ctx):
+        return ctx.e_lam, ctx.z, ctx.e_lam, ctx.gains.gamma_2
+
+    def storage(self, ctx, parts):
+        return 0.5 * ctx.c * ctx.gains.alpha_z / ctx.gains.gamma_2 * sq_norm(parts[self.key])
+
+
+def to_loop(terms, parts: dict) -> dict:
+    """The state arrays in the loop's layout: the ones a term declares ``blocked`` become tuples of
+    blocks (:func:`hinfnn._devices.split`)."""
+    out = dict(parts)
+    for term in terms:
+        for name, groups in term.blocked.items():
+            out[name] = dev.split(parts[name], groups)
+    return out
+
+
+def from_loop(terms, parts: dict) -> dict:
+    """Inverse of :func:`to_loop`: every state array flat."""
+    out = dict(parts)
+    for term in terms:
+        for name in term.blocked:
+            out[name] = dev.join(parts[name])
+    return out

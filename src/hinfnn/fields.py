@@ -1,0 +1,98 @@
+"""Every quantity a run can record, with its unit, in one table.
+
+The simulator's recorder (:mod:`hinfnn.sim.recorder`) stores what the plant, the controller and
+the theorem bookkeeping produce under these names; files (``trajectory.npz``, exports) and
+figures take the units from here. The core fields are listed below; a controller term declares
+its own signals when its class is defined (:class:`hinfnn.controllers.terms.Term`, ``fields``),
+through :func:`declare`, so a new term adds rows here without editing this module.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+
+@dataclasses.dataclass(frozen=True)
+class Field:
+    name: str
+    unit: str
+    doc: str
+    summary: str | None = None  # how two sampling intervals merge ("max" or "sum"), for step summaries
+
+
+#: λ's unit depends on the nominal constraint's scaling (docs/paper-conventions.md).
+LAMBDA = "λ units"
+
+_CORE = [
+    ("t", "s", "time"),
+    # the truth (plant)
+    ("q", "rad", "joint angles"),
+    ("qd", "rad/s", "joint rates"),
+    ("F", "N", "task-space force the end-effector exerts on the surface (measured)"),
+    ("normal_force", "N", "normal contact force of the true surface"),
+    ("penetration", "m", "penetration of the true surface (< 0: distance above it)"),
+    ("disturbance", "N·m", "joint disturbance torque ω_l"),
+    ("x_true", "m", "true task coordinates h(q)"),
+    # the controller (what it measures and computes)
+    ("u1", "m", "motion coordinate u1 = ĥ1(q) (nominal kinematics)"),
+    ("u1_dot", "m/s", "u̇1"),
+    ("lam", LAMBDA, "force multiplier λ = (ÂÂᵀ)⁻¹ÂF"),
+    ("u1_d", "m", "reference u1d"),
+    ("u1_d_dot", "m/s", "reference u̇1d"),
+    ("lam_d", LAMBDA, "reference λd"),
+    ("e_u1", "m", "e_u1 = u1 − u1d"),
+    ("e_u1_dot", "m/s", "ė_u1"),
+    ("e_lam", LAMBDA, "e_λ = λ − λd"),
+    ("z", LAMBDA, "z-filter state, eq. (27)"),
+    ("tau", "N·m", "applied joint torque τ, eq. (24)"),
+    # the theorem bookkeeping
+    ("J", "-", "H∞ performance index J(t), eq. (34)"),
+    ("J_aug", "-", "J(t) plus Remark 1's terms (augmented designs; else J)"),
+    ("supply", "-", "ρ²∫(‖f_p‖² + ‖f_f‖²) dt"),
+    ("V", "-", "storage function V, eqs. (36)/(55)"),
+    ("f_p", "m/s²", "position residual f_p of eq. (28)/(52)"),
+    ("f_f", LAMBDA, "force residual f_f of eq. (29)/(53)"),
+]
+_SUMMARIES = [
+    ("tau_abs_max", "N·m", "max |τ_i| over the steps since the previous sample", "max"),
+    ("tau_variation", "N·m", "Σ|τ_i(t_k) − τ_i(t_k−1)| over the steps since the previous sample", "sum"),
+    ("tau_sq", "(N·m)²", "Σ τ_i² over the steps since the previous sample, this one included", "sum"),
+    ("e_u1_sq", "m²", "Σ ‖e_u1‖² over the steps since the previous sample, this one included", "sum"),
+    ("e_lam_sq", "(λ units)²", "Σ ‖e_λ‖² over the steps since the previous sample, this one included", "sum"),
+    ("steps_out_of_contact", "-", "steps with zero normal force since the previous sample, this one included",
+     "sum"),
+    ("e_u1_abs_max", "m", "max ‖e_u1‖ over the steps since the previous sample, this one included", "max"),
+    ("e_lam_abs_max", LAMBDA, "max ‖e_λ‖ over the steps since the previous sample, this one included", "max"),
+]
+
+FIELDS: dict[str, Field] = {}
+
+
+def declare(name: str, unit: str, doc: str, summary: str | None = None) -> Field:
+    """Add a field (or confirm an identical one). Two different definitions of a name are an
+    error: a field means one thing everywhere."""
+    f = Field(name, unit, doc, summary)
+    old = FIELDS.get(name)
+    if old is not None and (old.unit, old.summary) != (unit, summary):
+        raise ValueError(f"field {name!r} is already declared with unit {old.unit!r}")
+    FIELDS.setdefault(name, f)
+    return FIELDS[name]
+
+
+for _row in _CORE:
+    declare(*_row)
+for _row in _SUMMARIES:
+    declare(*_row)
+
+#: Fields that summarise the steps since the previous sample (and how two intervals merge).
+SUMMARY_FIELDS = {f.name: f.summary for f in FIELDS.values() if f.summary}
+
+#: What :func:`hinfnn.compute_metrics` needs: ``fields="metrics"`` stores only these.
+METRICS_FIELDS = ("t", "e_u1", "e_lam", "tau", "normal_force", "J", "J_aug", "V", "supply",
+                  *SUMMARY_FIELDS)
+
+
+def unit(name: str) -> str:
+    """The unit of a field ("-" for an undeclared name)."""
+    f = FIELDS.get(name)
+    return f.unit if f else "-"

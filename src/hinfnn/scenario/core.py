@@ -1,0 +1,355 @@
+"""A scenario: the typed root section, loading from TOML with ``base`` inheritance and overrides,
+the cross-field checks, and the runs it describes.
+
+A scenario has the sections ``plant`` (the truth), ``nominal`` (what the controller is told),
+``controller``, ``reference``, ``initial`` and ``simulation``; ``files/paper.toml`` is the
+paper's Sec. VI with a comment on every value the paper does not state. A file gives every key,
+or names a ``base`` (a shipped name or a path) and gives only what differs.
+
+Everything is checked before anything is compiled: types and ranges (the section dataclasses,
+:mod:`hinfnn.scenario.schema`), then the cross-field conditions (dt dividing t_final and the
+disturbance's half-period, the start pose, the RK4 step against the contact's natural
+frequency) and the controller design (Theorem 1/2 bounds, Riccati) in :meth:`Scenario.check`.
+Errors are :class:`~hinfnn.errors.ConfigError` or :class:`~hinfnn.errors.DesignError` naming
+the dotted key.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import difflib
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError
+from . import schema
+from .schema import param, section
+from .sections import (ControllerConfig, InitialConfig, NominalConfig, PlantConfig, ReferenceConfig,
+                       SimulationConfig)
+
+SHIPPED = "files"
+
+
+@section
+class Scenario:
+    """A validated scenario. Read it as typed attributes (``sc.plant.arm.m1``); ``source`` is
+    where it came from and ``overrides`` the typed ``(key, value)`` pairs applied on top, in order.
+    """
+
+    name: str = param(doc="scenario name")
+    description: str = param(doc="one line on what the scenario is")
+    plant: PlantConfig = param(doc="the truth")
+    nominal: NominalConfig = param(doc="the nominal model")
+    controller: ControllerConfig = param(doc="the controller")
+    reference: ReferenceConfig = param(doc="the desired motion and force")
+    initial: InitialConfig = param(doc="the start")
+    simulation: SimulationConfig = param(doc="the simulation")
+    source: str = dataclasses.field(default="<dict>", compare=False)
+    overrides: tuple = dataclasses.field(default=(), compare=False)
+
+    # --- construction ------------------------------------------------------------------------------
+    @classmethod
+    def load(cls, name_or_path: str | Path = "paper", overrides=(), *, check: bool = True) -> "Scenario":
+        """Read a shipped scenario by name or a TOML file, apply ``overrides`` (``"k=v"``
+        strings, ``(key, value)`` pairs or a mapping of dotted keys to values) and validate."""
+        raw, source = load_raw(name_or_path)
+        return cls.from_dict(raw, overrides, source=source, check=check)
+
+    @classmethod
+    def from_dict(cls, raw: dict, overrides=(), *, source: str = "<dict>", check: bool = True) -> "Scenario":
+        """Build from a plain dict (the TOML table), resolving ``base`` and applying overrides."""
+        items = override_items(overrides)
+        data = resolve_base(raw, source)
+        for key, value in items:
+            set_key(data, key, value)
+        sc = schema.load(cls, data)
+        sc = _normalise_presets(sc, explicit=_preset_keys(raw, items))
+        sc = dataclasses.replace(sc, source=source, overrides=tuple(items))
+        if check:
+            sc.check()
+        return sc
+
+    def with_overrides(self, overrides) -> "Scenario":
+        """A new scenario with more overrides applied (``overrides`` lists all of them)."""
+        new = Scenario.from_dict(self.to_dict(), overrides, source=self.source)
+        return dataclasses.replace(new, overrides=self.overrides + new.overrides)
+
+    def single(self, kind: str) -> "Scenario":
+        """This scenario with one controller kind."""
+        return dataclasses.replace(self, controller=dataclasses.replace(self.controller, kind=kind))
+
+    # --- reading ---------------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """The resolved scenario as a plain nested dict (what ``scenario.toml`` holds)."""
+        return schema.to_dict(self)
+
+    def to_toml(self) -> str:
+        """The resolved scenario as TOML text (loads back to the same scenario)."""
+        import tomli_w
+
+        return tomli_w.dumps(self.to_dict(), multiline_strings=False)
+
+    def get(self, key: str):
+        """The value at a dotted key (``"plant.contact.damping"``)."""
+        node: Any = self
+        for part in key.split("."):
+            node = getattr(node, part)
+        return node
+
+    @property
+    def kinds(self) -> list[str]:
+        return self.controller.kinds
+
+    # --- building the library objects ----------------------------------------------------------------
+    def build_plant(self):
+        """The true plant (``plant.engine`` chooses the class)."""
+        return self.plant.build()
+
+    def build_arm(self, who: str):
+        return getattr(self, who).arm.build()
+
+    def build_surface(self, who: str):
+        return getattr(self, who).surface.build()
+
+    def build_reference(self):
+        return self.reference.build()
+
+    def build_controller(self, kind: str | None = None):
+        """Design the controller ``kind`` (default: the scenario's only kind) from the NOMINAL
+        model. Raises :class:`DesignError` with the dotted key of the failing gain."""
+        kind = kind or _only(self.kinds)
+        return self.controller.build(kind, self.nominal.arm.build(), self.nominal.surface.build())
+
+    def initial_q(self, plant=None):
+        """The start pose (the truth: inverse kinematics of the true arm onto the true surface)."""
+        plant = plant or self.build_plant()
+        return plant.initial_q(self.initial.u1, elbow_up=self.initial.elbow == "up")
+
+    def sim_options(self) -> dict:
+        """Keyword arguments of :func:`hinfnn.simulate` for this scenario."""
+        s = self.simulation
+        return dict(t_final=s.t_final, dt=s.dt, save_interval=s.output_interval,
+                    control_period=s.control_period if s.control == "sampled" else None, limits=s.limits())
+
+    def run(self, kind: str | None = None, name: str | None = None, *, controller=None):
+        """The :class:`hinfnn.sim.Run` of one controller kind (default: the only one)."""
+        from ..controllers import KINDS
+        from ..sim import Run, RunInfo
+
+        kind = kind or _only(self.kinds)
+        one = self.single(kind)
+        plant = one.build_plant()
+        comp = KINDS[kind]
+        info = RunInfo(name=name or kind, kind=kind, label=comp.label, color=comp.color, scenario=one)
+        opts = one.sim_options()
+        return Run(name=name or kind, plant=plant, controller=controller or one.build_controller(kind),
+                   reference=one.build_reference(), q0=one.initial_q(plant), t_final=opts["t_final"],
+                   dt=opts["dt"], control_period=opts["control_period"], save_interval=opts["save_interval"],
+                   limits=opts["limits"], info=info)
+
+    def simulate(self, kind: str | None = None, **options):
+        """Run one controller (default: the only kind) and return its Trajectory."""
+        from ..sim import simulate
+
+        r = self.run(kind)
+        opts = {**self.sim_options(), **options}
+        return simulate(r.plant, r.controller, r.reference, q0=r.q0, info=r.info, **opts)
+
+    # --- the checks that need the models ---------------------------------------------------------------
+    def check(self) -> None:
+        """Cross-field and design checks (no compilation of a run). Raises ConfigError/DesignError."""
+        from .checks import check
+
+        check(self)
+
+
+# --- files and overrides ------------------------------------------------------------------------------
+
+
+def scenario_names() -> list[str]:
+    """Names of the scenarios shipped with hinfnn."""
+    folder = resources.files("hinfnn.scenario") / SHIPPED
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def read_source(name_or_path: str | Path) -> tuple[str, str]:
+    """(TOML text, where it came from) for a shipped scenario name or a file path."""
+    text_name = str(name_or_path)
+    path = Path(text_name)
+    if path.suffix == ".toml" or path.exists() or "/" in text_name:
+        if path.is_dir():
+            raise ConfigError(f"{text_name} is a folder; give a scenario name or a .toml file")
+        try:
+            return path.read_text(encoding="utf-8"), str(path)
+        except FileNotFoundError:
+            raise ConfigError(f"no scenario file {text_name}") from None
+        except (OSError, UnicodeDecodeError) as err:
+            raise ConfigError(f"cannot read scenario file {text_name}: {err}") from None
+    names = scenario_names()
+    if text_name not in names:
+        close = difflib.get_close_matches(text_name, names, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise ConfigError(f"no scenario named {text_name!r} (shipped: {', '.join(names)}){hint}")
+    resource = resources.files("hinfnn.scenario") / SHIPPED / f"{text_name}.toml"
+    return resource.read_text(encoding="utf-8"), text_name
+
+
+def parse_toml(text: str, source: str = "<string>") -> dict:
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{source} is not valid TOML: {err}") from None
+
+
+def load_raw(name_or_path) -> tuple[dict, str]:
+    text, source = read_source(name_or_path)
+    return parse_toml(text, source), source
+
+
+def parse_override(item: str) -> tuple[str, Any]:
+    """``"a.b.c=value"`` -> ("a.b.c", value), the value read as TOML (bare words as strings)."""
+    if "=" not in item:
+        raise ConfigError(f"override {item!r} must look like dotted.key=value")
+    key, raw = item.split("=", 1)
+    key, raw = key.strip(), raw.strip()
+    if not key:
+        raise ConfigError(f"override {item!r} has no key before '='")
+    if raw == "":
+        raise ConfigError("needs a value after '='", key=key)
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        lowered = raw.lower()
+        if lowered in ("nan", "+nan", "-nan", "inf", "+inf", "-inf"):
+            value = float(lowered)
+        else:
+            value = raw  # a bare word such as hinf or paper-likely
+    return key, value
+
+
+def override_items(overrides) -> list[tuple[str, Any]]:
+    if isinstance(overrides, dict):
+        return list(overrides.items())
+    return [parse_override(o) if isinstance(o, str) else tuple(o) for o in overrides]
+
+
+def set_key(data: dict, key: str, value: Any) -> None:
+    """Set a dotted key in nested dicts (the schema then checks that the key exists)."""
+    parts = key.split(".")
+    if any(p == "" for p in parts):
+        raise ConfigError("is not a dotted key (an empty part)", key=key)
+    node = data
+    for part in parts[:-1]:
+        if not isinstance(node.get(part), dict):
+            if part in node:
+                raise ConfigError(f"{part!r} is a value, not a section", key=key)
+            node[part] = {}
+        node = node[part]
+    if isinstance(node.get(parts[-1]), dict) and not isinstance(value, dict):
+        raise ConfigError(f"is a section, not a value; set one of its keys: {', '.join(sorted(node[parts[-1]]))}",
+                          key=key)
+    node[parts[-1]] = value
+
+
+def deep_merge(base: dict, over: dict) -> dict:
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = deep_merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def _identity(source: str) -> str:
+    """A scenario's identity for cycle detection: the resolved path of a file, else its name."""
+    return str(Path(source).resolve()) if Path(source).exists() else str(source)
+
+
+def resolve_base(raw: dict, source: str, _chain: tuple = ()) -> dict:
+    """The raw table with its ``base`` chain merged in (the file's own values win)."""
+    raw = dict(raw)
+    base = raw.pop("base", None)
+    if base is None:
+        return copy.deepcopy(raw)
+    if not isinstance(base, str):
+        raise ConfigError(f"must be the name or path of a scenario, got {base!r}", key="base")
+    if base == source:
+        raise ConfigError("a scenario cannot be its own base", key="base")
+    base_path = Path(base)
+    if (base_path.suffix == ".toml" or "/" in base) and not base_path.is_absolute() \
+            and source != "<dict>" and Path(source).exists():
+        base = str(Path(source).parent / base_path)
+    chain = _chain + (_identity(source),)
+    if _identity(base) in chain:
+        raise ConfigError(f"{base!r} makes a cycle: {' -> '.join(chain + (_identity(base),))}", key="base")
+    try:
+        base_raw, base_source = load_raw(base)
+    except ConfigError as err:
+        if err.key is not None:
+            raise
+        raise ConfigError(str(err), key="base") from None
+    return deep_merge(resolve_base(base_raw, base_source, chain), raw)
+
+
+def load_scenario(name_or_path: str | Path = "paper", overrides=(), *, check: bool = True) -> Scenario:
+    """Shortcut for :meth:`Scenario.load`."""
+    return Scenario.load(name_or_path, overrides, check=check)
+
+
+def _only(kinds):
+    if len(kinds) != 1:
+        raise ConfigError(f"the scenario lists {len(kinds)} controllers {kinds}; name one", key="controller.kind")
+    return kinds[0]
+
+
+# --- the F_f presets ------------------------------------------------------------------------------------
+
+
+def _preset_keys(raw: dict, items) -> set:
+    """The network_f centre keys set explicitly in the layer that last set the preset: an
+    override of the preset replaces the centres of the file (or the data being re-overridden)
+    unless the same overrides set centres too."""
+    from_items = {key.rsplit(".", 1)[-1] for key, _ in items if key.startswith("controller.network_f.")}
+    if "preset" in from_items:
+        return from_items
+    nf = raw.get("controller", {}).get("network_f", {}) if isinstance(raw.get("controller"), dict) else {}
+    return from_items | (set(nf) if isinstance(nf, dict) else set())
+
+
+def _normalise_presets(sc: Scenario, explicit: set) -> Scenario:
+    """A preset fixes F_f's centres; setting a centre key with a preset other than "custom" is an
+    error unless it equals the preset's value. Setting only the preset updates the centres."""
+    from ..controllers import CENTRE_PRESETS_F
+
+    nf = sc.controller.network_f
+    if nf.preset == "custom":
+        return sc
+    values = dict(zip(("centre_start", "centre_step", "centre_count"), CENTRE_PRESETS_F[nf.preset]))
+    for key, value in values.items():
+        if key in explicit and not math.isclose(getattr(nf, key), value, rel_tol=1e-12, abs_tol=1e-12):
+            raise ConfigError(f"{getattr(nf, key):g} conflicts with preset {nf.preset!r} ({key} = {value:g}); "
+                              "set controller.network_f.preset = \"custom\" to choose the centres",
+                              key=f"controller.network_f.{key}")
+    values = {k: (int(v) if k == "centre_count" else float(v)) for k, v in values.items()}
+    return dataclasses.replace(sc, controller=dataclasses.replace(
+        sc.controller, network_f=dataclasses.replace(nf, **values)))
+
+
+def keys() -> list[tuple[str, str, str, str]]:
+    """Every scenario key: (dotted key, meaning, allowed values, default)."""
+    return schema.describe(Scenario)
+
+
+def schema_table() -> str:
+    """A Markdown table of every key, for the docs and ``hinfnn keys``."""
+    rows = ["| key | meaning | allowed | default |", "|---|---|---|---|"]
+    rows += [f"| `{k}` | {doc} | {allowed} | {default} |" for k, doc, allowed, default in keys()]
+    return "\n".join(rows)
+
+
+__all__ = ["Scenario", "load_scenario", "scenario_names", "parse_override", "keys", "schema_table"]
