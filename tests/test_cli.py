@@ -11,7 +11,10 @@ import pytest
 
 import hinfnn as H
 from hinfnn import cli
-from hinfnn.scenario import SCHEMA, Scenario, _walk
+import typing
+
+from hinfnn.scenario import Matrix, Scenario
+from hinfnn.scenario.schema import leaves
 
 METRIC_KEYS = {"rms_e_u1", "max_abs_e_u1", "rms_e_u1_last2s", "rms_e_lam", "max_abs_e_lam",
                "rms_e_lam_last2s", "J_T", "peak_abs_tau", "rms_tau_last2s", "fraction_out_of_contact",
@@ -68,7 +71,7 @@ def test_reproduce_short_horizon_writes_every_file(tmp_path, capsys):
         _check_png(out / f"{stem}.png")
         _check_png(out / f"{stem}_damped.png")
     report = (out / "report.md").read_text()
-    for needle in ("## Claims", "held", "NOTES.md", "fig5_u1.png", "### Summary"):
+    for needle in ("## Claims", "held", "paper-conventions.md", "fig5_u1.png", "### Summary", "10 runs, each 0.3 s"):
         assert needle in report
     assert (out / "scenario.toml").exists() and (out / "trajectory.npz").exists()
     # writing again without --force picks a new numbered folder and says so
@@ -76,51 +79,57 @@ def test_reproduce_short_horizon_writes_every_file(tmp_path, capsys):
     assert (tmp_path / "paper-2" / "report.md").exists()
 
 
-def _alternative(key, field, value):
+def _alternative(key, tp, meta, value):
     """A different valid-typed value for every kind of key."""
-    if field.type == "float":
+    if tp is float:
+        lo = meta.get("gt") if meta.get("gt") is not None else meta.get("ge")
+        hi = meta.get("lt") if meta.get("lt") is not None else meta.get("le")
         for cand in (value * 1.1, value * 0.9, value + 0.125, value - 0.125):
-            if cand != value and (field.lo is None or cand > field.lo) and (field.hi is None or cand < field.hi):
+            if cand != value and (lo is None or cand > lo) and (hi is None or cand < hi):
                 return cand
         raise AssertionError(key)
-    if field.type == "int":
+    if tp is int:
         return value + 1
-    if field.type == "bool":
+    if tp is bool:
         return not value
-    if field.type == "str":
-        if field.choices and len(field.choices) > 1:
-            return next(c for c in field.choices if c != value)
-        return value + "-x" if not field.choices else value
-    if field.type == "float_or_min":
-        return 5.0
-    if field.type == "kinds":
-        return ["fl", "hinf"]
-    if field.type == "float_list":
+    if typing.get_origin(tp) is typing.Literal:
+        choices = typing.get_args(tp)
+        return next((c for c in choices if c != value), value)
+    if tp is str:
+        return value + "-x"
+    if tp is Matrix:
+        return [[2.0, 0.0], [0.0, 2.0]] if isinstance(value, tuple) else value * 1.5
+    if typing.get_origin(tp) is tuple:
         return [v + 0.5 for v in value]
-    if field.type == "matrix":
-        return [[2.0, 0.0], [0.0, 2.0]] if isinstance(value, list) else value * 1.5
-    raise AssertionError(field.type)
+    args = typing.get_args(tp)
+    if float in args:  # beta_lam: a number or "min"
+        return 5.0
+    if str in args:  # controller.kind: a name or a list
+        return ["fl", "hinf"]
+    raise AssertionError((key, tp))
+
+
+def _same(got, new):
+    if isinstance(got, tuple):
+        return [list(r) if isinstance(r, tuple) else r for r in got] == new
+    return got == new or (isinstance(new, float) and got == pytest.approx(new))
 
 
 def test_every_key_can_be_overridden_and_appears_in_scenario_toml():
     base = Scenario.load("paper", check=False)
-    for key, field in _walk(SCHEMA):
-        value = base.get(key)
-        new = _alternative(key, field, value)
+    seen = 0
+    for key, tp, meta, value in leaves(base):
+        new = _alternative(key, tp, meta, value)
         if new == value:
             continue
-        if key == "controller.network_f.preset":
-            sc = Scenario.load("paper", {key: new}, check=False)
-        elif key.startswith("controller.network_f.centre_"):
+        if key.startswith("controller.network_f.centre_"):
             sc = Scenario.load("paper", {"controller.network_f.preset": "custom", key: new}, check=False)
         else:
             sc = Scenario.load("paper", {key: new}, check=False)
         back = Scenario.from_dict(tomllib.loads(sc.to_toml()), check=False)
-        got = back.get(key)
-        if key == "controller.network_f.preset":
-            assert got == new
-        else:
-            assert got == new or (isinstance(new, float) and got == pytest.approx(new)), key
+        assert _same(back.get(key), new), key
+        seen += 1
+    assert seen >= 60
 
 
 def test_every_key_override_through_the_cli_shows_in_scenario_toml(tmp_path):

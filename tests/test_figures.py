@@ -11,7 +11,9 @@ import pytest
 
 from hinfnn.report import paper_figures, run_figures
 from hinfnn.report import figures as F
-from hinfnn.sim.trajectory import Trajectory
+from hinfnn.controllers import KINDS
+from hinfnn.scenario import Scenario
+from hinfnn.sim.trajectory import RunInfo, Trajectory
 
 PAPER_FILES = ["fig3_u1_fl", "fig4_lambda_fl", "fig5_u1", "fig6_lambda", "fig7_tau1",
                "fig8_tau2", "fig9_J"]
@@ -42,13 +44,11 @@ def make_run(kind="hinf", preset="paper-likely", *, t_final=1.0, dt=1e-4, chatte
         for name, a in arrays.items():
             if name != "t":
                 a[k:] = a[k - 1]
-    config = {
-        "plant": {"contact": {"stiffness": 1e5, "damping": damping}},
-        "nominal": {"surface": {"scaling": scaling}},
-        "controller": {"kind": kind, "network_f": {"preset": preset}},
-    }
+    sc = Scenario.load("paper", {"plant.contact.damping": damping, "nominal.surface.scaling": scaling,
+                                 "controller.kind": kind, "controller.network_f.preset": preset}, check=False)
+    info = RunInfo(name=kind, kind=kind, label=KINDS[kind].label, color=KINDS[kind].color, scenario=sc)
     return Trajectory(arrays=arrays, status=np.array(status), t_fail=np.array(t_fail),
-                      fail_details={}, config=config, dt=dt, save_every=1)
+                      fail_details={}, info=info, dt=dt, save_every=1)
 
 
 @pytest.fixture(scope="module")
@@ -123,7 +123,7 @@ def test_batched_trajectory_is_refused(tmp_path):
     r = make_run("hinf", t_final=0.01)
     batch = Trajectory(arrays={k: np.stack([v, v]) for k, v in r.arrays.items()},
                        status=np.zeros(2, int), t_fail=np.full(2, np.nan), fail_details={},
-                       config=r.config, dt=r.dt, save_every=1)
+                       info=r.info, dt=r.dt, save_every=1)
     with pytest.raises(ValueError, match="batch"):
         run_figures({"b": batch}, tmp_path)
 

@@ -148,7 +148,7 @@ VERDICTS = {
 
 @pytest.fixture(scope="session")
 def study():
-    runs, trajs, metrics, seconds = run_study(H.load_scenario("paper"))
+    runs, trajs, metrics, designs, seconds = run_study(H.load_scenario("paper"))
     return trajs, metrics
 
 

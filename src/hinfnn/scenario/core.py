@@ -66,7 +66,10 @@ class Scenario:
         data = resolve_base(raw, source)
         for key, value in items:
             set_key(data, key, value)
-        sc = schema.load(cls, data)
+        try:
+            sc = schema.load(cls, data)
+        except ConfigError as err:
+            raise _unknown_override(err, items) from None
         sc = _normalise_presets(sc, explicit=_preset_keys(raw, items))
         sc = dataclasses.replace(sc, source=source, overrides=tuple(items))
         if check:
@@ -294,6 +297,26 @@ def resolve_base(raw: dict, source: str, _chain: tuple = ()) -> dict:
             raise
         raise ConfigError(str(err), key="base") from None
     return deep_merge(resolve_base(base_raw, base_source, chain), raw)
+
+
+def suggest_key(key: str) -> str:
+    """"; did you mean 'x.y'?" for a dotted key that is not a scenario key (or "")."""
+    known = schema.all_keys(Scenario)
+    close = difflib.get_close_matches(key, known, n=1, cutoff=0.5)
+    if not close:
+        leaf = key.rsplit(".", 1)[-1]
+        close = [k for k in known if k.rsplit(".", 1)[-1] == leaf][:1]
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
+def _unknown_override(err: ConfigError, items) -> ConfigError:
+    """An unknown-key error found at a prefix of an override's key names the whole key."""
+    if err.key is None or "unknown key" not in str(err):
+        return err
+    for key, _ in items:
+        if key == err.key or key.startswith(err.key + "."):
+            return ConfigError(f"unknown key{suggest_key(key)}", key=key)
+    return err
 
 
 def load_scenario(name_or_path: str | Path = "paper", overrides=(), *, check: bool = True) -> Scenario:

@@ -35,11 +35,13 @@ _MISSING = dataclasses.MISSING
 
 
 def param(default=_MISSING, *, doc: str, gt=None, ge=None, lt=None, le=None, choices=None,
-          hidden: bool = False, exclude: tuple = ()):
+          hidden: bool = False, exclude: tuple = (), allowed=None):
     """A field of a section: its default (none: required), meaning, and bounds (gt/ge/lt/le).
-    ``exclude``: for a section-valued field, keys of that section not accepted here."""
+    ``exclude``: for a section-valued field, keys of that section not accepted here;
+    ``allowed``: the words for what it accepts, when the type alone does not say (a callable is
+    called each time: e.g. the names of a registry that grows)."""
     meta = {"doc": doc, "gt": gt, "ge": ge, "lt": lt, "le": le, "choices": choices, "hidden": hidden,
-            "exclude": exclude}
+            "exclude": exclude, "allowed": allowed}
     if isinstance(default, (list, dict)):
         return dataclasses.field(default_factory=lambda: default, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -123,6 +125,9 @@ def _is_union(tp) -> bool:
 
 def allowed(tp, meta) -> str:
     """What a field accepts, in words (``a number > 0 and <= 10000``)."""
+    words = meta.get("allowed")
+    if words is not None:
+        return words() if callable(words) else words
     if typing.get_origin(tp) is Literal:
         return "one of " + ", ".join(repr(c) for c in _args(tp))
     if meta.get("choices"):
@@ -151,7 +156,7 @@ def allowed(tp, meta) -> str:
         parts = []
         for a in _args(tp):
             if typing.get_origin(a) is Literal:
-                parts.append(" or ".join(repr(c) for c in _args(a)))
+                parts.append(" or ".join(f'"{c}"' for c in _args(a)))
             elif a is float:
                 parts.append("a number" + tail)
             elif a is str:
@@ -223,14 +228,13 @@ def _value(key: str, value, tp, meta):
         return tuple(_number(f"{key}[{i}]", v, meta, "a number" + words.removeprefix("a list of numbers"))
                      for i, v in enumerate(value))
     if _is_union(tp):
-        last = None
         for a in _args(tp):
             try:
-                return _value(key, value, a, meta)
+                return _value(key, value, a, {**meta, "allowed": None})
             except ConfigError as err:
-                last = err
-        if isinstance(value, (int, float, list)) and not isinstance(value, bool) and last is not None:
-            raise last
+                # a number out of a number branch's range: that branch's message (it names the range)
+                if a is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+                    raise err from None
         raise ConfigError(f"must be {words}, got {value!r}", key=key)
     raise AssertionError(f"unsupported field type {tp!r} at {key}")
 
@@ -358,3 +362,23 @@ def describe(cls, prefix: str = "", exclude=()) -> list[tuple[str, str, str, str
 def all_keys(cls) -> list[str]:
     """Every dotted key of a section class (with every registered variant)."""
     return [row[0] for row in describe(cls)]
+
+
+def leaves(obj, prefix: str = ""):
+    """(dotted key, type, field metadata, value) of every value of a section instance (the
+    variants it actually holds), in order: for tests, tools and documentation."""
+    reg = None
+    for base in type(obj).__mro__:
+        if "__registry__" in base.__dict__:
+            reg = base.__dict__["__registry__"]
+            break
+    for f, tp in fields_of(type(obj)):
+        key = f"{prefix}{f.name}"
+        v = getattr(obj, f.name)
+        if _is_section(tp):
+            yield from ((k, t, m, x) for k, t, m, x in leaves(v, key + ".")
+                        if k.rsplit(".", 1)[-1] not in f.metadata.get("exclude", ()))
+        elif reg is not None and f.name == reg.key:
+            yield key, Literal[tuple(reg.names())], f.metadata, v
+        else:
+            yield key, tp, f.metadata, v

@@ -161,7 +161,7 @@ class GainsConfig:
     K_v: float = param(doc="velocity gain K_v", gt=0.0, le=1e8)
     alpha_lam: float = param(doc="force weight alpha_lam", gt=0.0, le=1e8)
     alpha_z: float = param(doc="alpha_z of eq. (27)", gt=0.0, le=1e8)
-    beta_lam: float | Literal["min"] = param(doc="beta_lam of eq. (32), or \"min\" for its Theorem 1 bound",
+    beta_lam: Literal["min"] | float = param(doc="beta_lam of eq. (32), or \"min\" for its Theorem 1 bound",
                                              gt=0.0, le=1e8)
     gamma_1: float = param(doc="learning rate gamma_1 of eq. (30)", gt=0.0, le=1e8)
     gamma_2: float = param(doc="learning rate gamma_2 of eq. (31)", gt=0.0, le=1e8)
@@ -204,9 +204,16 @@ class NetworkFConfig(NetworkConfig):
         doc="F_f centre preset ('custom': the centre_* keys)")
 
 
+def _kinds_allowed() -> str:
+    from ..controllers import KINDS
+
+    return f"one of {', '.join(repr(k) for k in KINDS)} or a list of them"
+
+
 @section
 class ControllerConfig:
-    kind: str | tuple[str, ...] = param(doc="controller(s) to run: a name of hinfnn.controllers.KINDS or a list")
+    kind: str | tuple[str, ...] = param(doc="controller(s) to run: a name of hinfnn.controllers.KINDS or a list",
+                                        allowed=_kinds_allowed)
     augmented: bool = param(doc="Remark 1 augmented performance (eq. 40, v_lam = -beta_lam e_lam)")
     gains: GainsConfig = param(doc="gains")
     network_p: NetworkConfig = param(doc="F_p network")
