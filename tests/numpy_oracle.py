@@ -3,21 +3,21 @@
     M.-C. Hwang and X. Hu, "A Robust Position/Force Learning Controller of Manipulators
     via Nonlinear H-infinity Control and Neural Networks", Sec. VI,
 
-with the corrections and conventions of /work/shared/paper/NOTES.md.
+with the corrections and conventions of docs/paper-conventions.md.
 
 This file is deliberately written plainly and independently of the ``hinfnn`` library:
 explicit matrices, numpy.linalg.inv / numpy.linalg.solve, and a Python for-loop over
 fixed RK4 steps.  It is meant to be read next to the paper, one function per paper block.
 
 Controllers
-    "fl"       feedback-linearization-like law of Sec. VI (with u1d_ddot, NOTES erratum),
+    "fl"       feedback-linearization-like law of Sec. VI (with u1d_ddot, docs/paper-conventions.md, printed errors),
     "hinf"     H-infinity-only law, Theorem 2 / eq. (51),
     "hinf_nn"  adaptive H-infinity NN law, Theorem 1, eqs. (24)-(33).
 
 State layout (166 entries)
     y = [q1, q2, qd1, qd2, z, theta_p (40), theta_f (120), J]
 
-Conventions used (see NOTES.md):
+Conventions used (see docs/paper-conventions.md):
   * Coriolis matrix entry (2,1) is +qd1 (printed -qd1 is an erratum).
   * Eq. (9): Mbar = S^T Jh^-T Mh Jh^-1 S and Gbar = S^T Jh^-T Gh (printed forms are errata).
   * Constraint, "paper" scaling: theta(x) = (x1 - dG) tan(dh) - x2, A = [tan dh, -1],
@@ -111,7 +111,7 @@ def _merge(params):
 # ---------------------------------------------------------------------------------------
 
 def arm_matrices(q, qd, m1, m2, l1, l2, g):
-    """Sec. VI: inertia M(q), Coriolis matrix C(q, qd) (entry (2,1) = +qd1, NOTES erratum)
+    """Sec. VI: inertia M(q), Coriolis matrix C(q, qd) (entry (2,1) = +qd1, docs/paper-conventions.md, printed errors)
     and gravity G(q) of the planar two-link arm in eq. (1)."""
     c1 = math.cos(q[0])
     c2 = math.cos(q[1])
@@ -176,7 +176,7 @@ def nominal_arm(q, qd, p):
 # ---------------------------------------------------------------------------------------
 
 def contact_force(q, qd, p):
-    """True contact (plant only, NOTES): frictionless unilateral penalty spring on the TRUE
+    """True contact (plant only, docs/paper-conventions.md): frictionless unilateral penalty spring on the TRUE
     surface x2 = (x1 - d_G) tan(delta), with TRUE kinematics.  Returns F (2,), the force the
     end-effector exerts on the surface (along the inward normal n)."""
     delta = p["delta"]
@@ -222,7 +222,7 @@ def measurements(q, qd, F, p):
 
 
 # ---------------------------------------------------------------------------------------
-# Reduced model, eq. (9) with NOTES corrections, and partitions for eqs. (11)-(14)
+# Reduced model, eq. (9) with the corrections of docs/paper-conventions.md, and partitions for eqs. (11)-(14)
 # ---------------------------------------------------------------------------------------
 
 def reduced_model(q, qd, p):
@@ -339,7 +339,7 @@ def controller_outputs(controller, t, y, F, p, P):
                    + [C21 - M21 M11^-1 C11] u1_dot + [G2 - M21 M11^-1 G1]
     "hinf_nn": v_p = -R_p^-1 B_p^T P_p x_p (33), v_lam = -(beta/2) e_lam (32), NN terms.
     "hinf":    same without NN terms, eq. (51).
-    "fl":      v_p = v_lam = 0, no NN terms (Sec. VI, u1d_ddot per NOTES).
+    "fl":      v_p = v_lam = 0, no NN terms (Sec. VI, u1d_ddot per docs/paper-conventions.md).
     Also returns the controller/index derivatives:
         z_dot = -mu_z z - alpha_z e_lam                        (27)
         Theta_p_dot = gamma_1 Xi_p^T B_p^T P_p x_p              (30)  (hinf_nn only)
@@ -458,7 +458,7 @@ def rhs(controller, t, y, d, p, P):
 # ---------------------------------------------------------------------------------------
 
 def initial_q(params=None):
-    """Sec. VI initial condition (NOTES): TRUE arm end-effector at
+    """Sec. VI initial condition (docs/paper-conventions.md): TRUE arm end-effector at
     x = (u1_0, (u1_0 - d_G) tan delta) on the TRUE surface, elbow up (q2 < 0)."""
     p = _merge(params)
     l1 = p["l1"]

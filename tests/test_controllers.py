@@ -55,7 +55,7 @@ class PrintedFLReference:
 
 @pytest.fixture(scope="module")
 def exact_runs(true_arm, true_surface, reference):
-    """Exact nominal model, no disturbance, damped contact (NOTES.md: then FL-like → e → 0)."""
+    """Exact nominal model, no disturbance, damped contact (docs/paper-conventions.md: then FL-like → e → 0)."""
     plant = make_plant(true_arm, true_surface, damping=200.0, disturbance=False)
     ctrl = H.FeedbackLinearization.design(true_arm, true_surface)
     good = H.simulate(plant, ctrl, reference, u1_0=U1_0, t_final=4.0, dt=1e-4, save_every=10)
@@ -72,7 +72,7 @@ def test_fl_like_exact_model_tracks(exact_runs):
 
 
 def test_printed_fl_law_with_u1d_dot_does_not_track(exact_runs):
-    """NOTES.md erratum: with u̇1d inside M̄11[·] the position error does not vanish."""
+    """docs/paper-conventions.md erratum: with u̇1d inside M̄11[·] the position error does not vanish."""
     good, printed = exact_runs
     last = printed.t >= 2.0
     assert np.abs(printed.e_u1[last]).max() > 100 * np.abs(good.e_u1[last]).max()
@@ -93,7 +93,7 @@ def test_network_features_output_and_update():
 
 
 def test_printed_centre_preset_saturates_every_unit():
-    """NOTES.md: with step 0.05 the F_f centres span −30 … −24.05, so ordinary inputs saturate all."""
+    """docs/paper-conventions.md: with step 0.05 the F_f centres span −30 … −24.05, so ordinary inputs saturate all."""
     net = paper_network_f("paper-printed")
     c = np.asarray(net.centres)
     assert c[0] == -30.0 and c[-1] == pytest.approx(-24.05)

@@ -37,7 +37,7 @@ arm_params = st.tuples(masses, masses, lengths, lengths).map(
 
 @given(arm=arm_params, s=state)
 def test_M_dot_minus_2C_is_skew_by_finite_differences(arm, s):
-    """NOTES.md erratum: C(2,1) = +q̇1. Ṁ by central differences along q̇, not autodiff."""
+    """docs/paper-conventions.md erratum: C(2,1) = +q̇1. Ṁ by central differences along q̇, not autodiff."""
     q, qd = s
     eps = 1e-6
     M_dot = (call(arm, "M", q + eps * qd) - call(arm, "M", q - eps * qd)) / (2 * eps)
@@ -119,7 +119,7 @@ def test_three_link_generic_arm_is_consistent():
 
 @pytest.mark.parametrize("scaling", ["paper", "unit"])
 def test_inclined_line_quantities(scaling):
-    """NOTES.md sign convention: Â = [tan δ, −1] (paper) or [sin δ, −cos δ] (unit), Γ = tan δ."""
+    """docs/paper-conventions.md sign convention: Â = [tan δ, −1] (paper) or [sin δ, −cos δ] (unit), Γ = tan δ."""
     d = 0.6
     s = H.InclinedLine(delta=d, d_G=0.8, scaling=scaling)
     x = np.array([1.3, 0.2])
@@ -184,7 +184,7 @@ def _reduced_identity_residual(arm, surface, q, qd, tau, lam):
 @pytest.mark.parametrize("surface_kind", ["paper", "unit", "circle"])
 @given(s=state, tau=st.tuples(st.floats(-50, 50), st.floats(-50, 50)), lam=st.floats(-100, 100))
 def test_reduced_order_identity_on_exact_model(surface_kind, s, tau, lam):
-    """Eq. (9) with NOTES.md's corrections: M̄ü + C̄u̇ + Ḡ + SᵀÂᵀλ = B̄τ, and SᵀÂᵀ = [0; Πᵀ]."""
+    """Eq. (9) with docs/paper-conventions.md's corrections: M̄ü + C̄u̇ + Ḡ + SᵀÂᵀλ = B̄τ, and SᵀÂᵀ = [0; Πᵀ]."""
     q, qd = s
     arm = H.TwoLinkArm(m1=1.2, m2=1.1, l1=1.02724, l2=0.98041)
     if surface_kind == "circle":

@@ -2,7 +2,7 @@
 RK4, jax 0.10.2, float64), must stay within 1 % so that a change that moves them is seen.
 
 ``hinf_nn_printed`` (F_f centre step 0.05, undamped contact) is left out: it is chaotic, its metrics
-move by ~3 % when u1(0) moves by 1e-9 m (NOTES.md on the 0.05 preset; measured when recording).
+move by ~3 % when u1(0) moves by 1e-9 m (docs/paper-conventions.md on the 0.05 preset; measured when recording).
 The other runs move by < 1e-4 under the same perturbation.
 
 The same study is checked against the theorems: the dissipation inequality (34)/(54) along every

@@ -1,4 +1,4 @@
-"""Plant: contact, disturbance, initial pose (NOTES.md conventions)."""
+"""Plant: contact, disturbance, initial pose (docs/paper-conventions.md conventions)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import hinfnn as H
 
 
 def test_initial_pose_puts_both_end_effectors_on_their_surfaces(paper_plant, nominal_arm, nominal_surface):
-    """NOTES.md: u1(0) = 1.6902, true end-effector on the true surface, elbow up: q ≈ (π/4, −0.60127),
+    """docs/paper-conventions.md: u1(0) = 1.6902, true end-effector on the true surface, elbow up: q ≈ (π/4, −0.60127),
     and the nominal end-effector then lies on the nominal surface too."""
     q0 = np.asarray(paper_plant.initial_q(1.6902))
     np.testing.assert_allclose(q0, [np.pi / 4, -0.60127], atol=2e-5)

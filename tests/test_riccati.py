@@ -31,7 +31,7 @@ def test_eq35_agrees_with_scipy_care():
 
 
 def test_eq40_indefinite_weight_still_solvable():
-    """NOTES.md: (40) has an indefinite quadratic term for the paper's numbers and still a
+    """docs/paper-conventions.md: (40) has an indefinite quadratic term for the paper's numbers and still a
     stabilising P ≻ 0, found through the Hamiltonian's stable subspace."""
     g = paper_gains()
     W = riccati_weight(g.R_p, g.rho, "40")
@@ -54,7 +54,7 @@ def test_rho_with_no_stabilising_solution_is_a_design_error():
 
 
 def test_remark4_condition_is_only_sufficient():
-    """NOTES.md erratum: 2ρ²I > R_p is not necessary. ρ = 0.45 violates it, yet (35) has a
+    """docs/paper-conventions.md erratum: 2ρ²I > R_p is not necessary. ρ = 0.45 violates it, yet (35) has a
     stabilising P ≻ 0 (A_p is Hurwitz)."""
     g = paper_gains(rho=0.45, beta_lam=1.0 / 0.45**2)
     assert 2 * 0.45**2 < 0.495

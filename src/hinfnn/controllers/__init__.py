@@ -8,7 +8,8 @@ then used through pure functions on an explicit state pytree. Nothing here impor
 """
 
 from .gains import Gains
-from .kinds import KINDS, Composition, FeedbackLinearization, HinfController, HinfNNController, design, register
+from .kinds import (KINDS, Composition, FeedbackLinearization, HinfController, HinfNNController, design, register,
+                    unregister)
 from .law import ControllerState, Output, ReducedOrderController, force_multiplier
 from .network import CENTRE_PRESETS_F, TanhNetwork, centres_from, paper_network_f, paper_network_p
 from .riccati import RiccatiSolution, design_riccati, solve_riccati_like
@@ -17,7 +18,7 @@ from .summary import design_summary
 from .terms import Context, ForceNetwork, PositionNetwork, RobustForce, RobustPosition, Term
 
 __all__ = [
-    "Gains", "KINDS", "Composition", "design", "register",
+    "Gains", "KINDS", "Composition", "design", "register", "unregister",
     "FeedbackLinearization", "HinfController", "HinfNNController",
     "ControllerState", "Output", "ReducedOrderController", "force_multiplier",
     "Term", "Context", "RobustPosition", "RobustForce", "PositionNetwork", "ForceNetwork",

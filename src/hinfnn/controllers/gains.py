@@ -20,7 +20,7 @@ from ..errors import DesignError
 class Gains:
     """Design parameters. Scalars are accepted for the m = 1 matrices (K_p, K_v, R_p).
 
-    ``beta_lam=None`` means "the smallest value Theorem 1 allows" (NOTES.md: the paper does not
+    ``beta_lam=None`` means "the smallest value Theorem 1 allows" (docs/paper-conventions.md: the paper does not
     give β_λ): β_λ = α_λ α_z / (2ρ²) − 1 (Remark 3; = α_λ/ρ² − 1 for α_z = 2).
     """
 
@@ -38,7 +38,7 @@ class Gains:
 
     @classmethod
     def paper(cls) -> "Gains":
-        """Sec. VI gains (R_p as the scalar 0.495: NOTES.md, the printed diag is a misprint)."""
+        """Sec. VI gains (R_p as the scalar 0.495: docs/paper-conventions.md, the printed diag is a misprint)."""
         return cls()
 
     def beta_lam_bound(self) -> float:
@@ -63,7 +63,7 @@ class Gains:
         K_v = _diag_positive("K_v", self.K_v, m)
         R_p = _spd("R_p", self.R_p, m, hint=(
             "the paper prints R_p = diag{0.495, 0.495}, a misprint: R_p is m x m and m = 1 "
-            "for the planar arm on a line (NOTES.md)" if m == 1 else None))
+            "for the planar arm on a line (docs/paper-conventions.md)" if m == 1 else None))
         Q_p = np.eye(n2) if self.Q_p is None else self.Q_p
         Q_p = _spd("Q_p", Q_p, n2)
 

@@ -66,6 +66,11 @@ def register(composition: Composition) -> None:
     KINDS[composition.kind] = composition
 
 
+def unregister(kind: str) -> None:
+    """Remove a controller kind."""
+    KINDS.pop(kind, None)
+
+
 def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bool = False,
            extra_terms: tuple = (), **options) -> ReducedOrderController:
     """Design the controller ``kind`` from the NOMINAL arm and surface: check the gains (Theorem

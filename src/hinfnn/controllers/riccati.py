@@ -7,7 +7,7 @@ Both have the form  A_pᵀP + P A_p − P B_p W B_pᵀ P + Q_p = 0  with
 
 W may be indefinite (eq. 40 with the paper's numbers), so the equation is solved through the
 stable invariant subspace of the Hamiltonian H = [[A, −B W Bᵀ], [−Q, −Aᵀ]] (ordered real Schur
-form), not by a CARE solver that assumes W ≻ 0. NOTES.md: Remark 4's "if and only if
+form), not by a CARE solver that assumes W ≻ 0. docs/paper-conventions.md: Remark 4's "if and only if
 2ρ²I > R_p" is only sufficient, so every solution is checked instead: residual, P ≻ 0,
 A_p − B_p W B_pᵀ P Hurwitz (stabilising solution) and A_p − B_p R_p⁻¹ B_pᵀ P Hurwitz
 (the nominal closed loop under v_p of eq. 33).

@@ -1,6 +1,6 @@
 """The planar two-link arm of the paper's Sec. VI in closed form.
 
-Printed error fixed (NOTES.md, "Printed errors"): entry (2,1) of the Coriolis matrix is
+Printed error fixed (docs/paper-conventions.md, "Printed errors"): entry (2,1) of the Coriolis matrix is
 ``+q̇1`` (the paper prints ``−q̇1``); with the printed sign Ṁ − 2C is not skew-symmetric.
 The closed forms are tested against the autodiff path of
 :class:`hinfnn.model.arm.PlanarPointMassArm`.
@@ -104,7 +104,7 @@ class TwoLinkArm(Arm):
         return self.g * (self.m1 * y1 + self.m2 * y2)
 
     def inverse_kinematics_closed(self, x, elbow_up: bool = True):
-        """Closed-form inverse kinematics; elbow up means q2 < 0 (NOTES.md, Initial state).
+        """Closed-form inverse kinematics; elbow up means q2 < 0 (docs/paper-conventions.md, Initial state).
 
         Returns NaN where x is out of reach (|cos q2| > 1); callers validate.
         """

@@ -1,10 +1,10 @@
-"""Task-space reduced-order model, paper eqs. (9)–(14), with the NOTES.md corrections.
+"""Task-space reduced-order model, paper eqs. (9)–(14), with the docs/paper-conventions.md corrections.
 
 Premultiplying eq. (5) by Sᵀ Ĵ⁻ᵀ gives eq. (9)
 
     M̄ ü + C̄ u̇ + Ḡ + Sᵀ Âᵀ λ = B̄ τ + B̄ ω_x,    Sᵀ Âᵀ = [0; Πᵀ]  (by eq. 4)
 
-with (printed errors fixed, NOTES.md "Printed errors"):
+with (printed errors fixed, docs/paper-conventions.md "Printed errors"):
 
     M̄ = Sᵀ Ĵ⁻ᵀ M̂ Ĵ⁻¹ S          (printed: ... M̂ Ĵ⁻ᵀ S)
     C̄ = Sᵀ Ĵ⁻ᵀ { M̂ Ĵ⁻¹ Ṡ + [Ĉ − M̂ Ĵ⁻¹ J̇̂] Ĵ⁻¹ S }
@@ -92,7 +92,7 @@ class ReducedModel:
 
 
 def reduced_model(arm, surface, q, qd) -> ReducedModel:
-    """Build M̄, C̄, Ḡ, B̄ of eq. (9) (corrected per NOTES.md) from a nominal arm and surface.
+    """Build M̄, C̄, Ḡ, B̄ of eq. (9) (corrected per docs/paper-conventions.md) from a nominal arm and surface.
 
     Implements Eq. (9). ``arm`` and ``surface`` are the controller's nominal models.
     """

@@ -7,7 +7,7 @@ For a surface in task space x = (x1, x2), x1 ∈ ℝᵐ (motion), x2 ∈ ℝᵏ 
 * Γ = ∂Ω/∂x1 = −Π⁻¹ Σ                       eq. (4)
 * u = (x1, x2 − Ω(x1)), ẋ = S u̇, S = [[I, 0], [Γ, I]],  Ṡ = dS/dt along ẋ1    eq. (6)
 
-Sign convention (NOTES.md, Conventions): θ̂ is positive inside the material, so with
+Sign convention (docs/paper-conventions.md, Conventions): θ̂ is positive inside the material, so with
 F = Âᵀλ the force the end-effector exerts on the surface, λ > 0 means pressing.
 """
 

@@ -1,4 +1,4 @@
-"""Frictionless unilateral penalty contact on the TRUE surface (NOTES.md, Contact).
+"""Frictionless unilateral penalty contact on the TRUE surface (docs/paper-conventions.md, Contact).
 
 Penetration p = θ(x)/‖∇θ(x)‖ (for the inclined line: (x1 − d_G) sin δ − x2 cos δ), normal
 force f_n = k p + c ṗ while p > 0 (clipped at 0 so the surface never pulls), zero otherwise.

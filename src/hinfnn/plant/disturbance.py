@@ -1,6 +1,6 @@
 """The joint disturbance ω_l of eq. (1): Sec. VI uses a ±3 square wave of period 1 on both joints.
 
-d(t) = +A on [φ, φ + T/2), −A on [φ + T/2, φ + T), and so on (NOTES.md: the phase φ is not
+d(t) = +A on [φ, φ + T/2), −A on [φ + T/2, φ + T), and so on (docs/paper-conventions.md: the phase φ is not
 given; it is a parameter, in seconds). The simulator holds it constant over each step, and its
 steps land on the switching instants φ + iT/2 (the scenario loader checks dt divides them).
 """

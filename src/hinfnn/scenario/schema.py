@@ -70,6 +70,10 @@ class Registry:
             return c
         return add(cls) if cls is not None else add
 
+    def unregister(self, name: str) -> None:
+        """Remove a kind (tests that add toys clean up after themselves)."""
+        self._classes.pop(name, None)
+
     def names(self) -> list[str]:
         return list(self._classes)
 
