@@ -55,7 +55,9 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import hinfnn as H  # noqa: E402
-from hinfnn.measurement import Measurement  # noqa: E402
+from hinfnn.protocols import Measurement  # noqa: E402
+
+H.configure()
 
 PERIOD = 1e-3
 #: Table rows: label -> (controller kind, F_f units or None for the scenario's 120).
@@ -89,8 +91,9 @@ def measurements(t_final: float = 1.0) -> dict:
     """q, q̇, F at 1 kHz from a closed-loop run of the paper scenario (adaptive controller,
     continuous control, dt = 0.1 ms): realistic, changing sensor values to replay."""
     sc = H.load_scenario("paper", {"controller.kind": "hinf_nn"})
-    traj = H.simulate(sc.build_plant(), sc.build_controller("hinf_nn"), sc.build_reference(),
-                      t_final=t_final, dt=1e-4, q0=sc.initial_q(), save_every=10)
+    plant = sc.build_plant()
+    traj = H.simulate(plant, sc.build_controller("hinf_nn"), sc.build_reference(),
+                      t_final=t_final, dt=1e-4, q0=sc.initial_q(plant), save_every=10)
     a = traj.arrays
     return {k: np.ascontiguousarray(a[k][:-1]) for k in ("q", "qd", "F")}
 
@@ -121,13 +124,13 @@ def _time_loop(call, n_calls: int, warmup: int, gc_off: bool) -> np.ndarray:
     return ns
 
 
-def _caller(sc, path: str, meas: dict, blocked: bool = False):
+def _caller(sc, path: str, meas: dict):
     """``call(i)`` doing sample i the way ``path`` does it; returns (call, counter of NaN τ)."""
     Q, QD, F = meas["q"], meas["qd"], meas["F"]
     m = len(Q)
     bad = [0]
     if path == "loop":
-        loop = sc.loop(sc.init(blocked=blocked))
+        loop = sc.loop(sc.init())
         update = loop.update
 
         def call(i):
@@ -137,7 +140,7 @@ def _caller(sc, path: str, meas: dict, blocked: bool = False):
                 bad[0] += 1
             return tau
     elif path == "pytree":
-        box = [sc.init(blocked=blocked)]
+        box = [sc.init()]
         update = sc.update
 
         def call(i):
@@ -152,7 +155,7 @@ def _caller(sc, path: str, meas: dict, blocked: bool = False):
     return call, bad
 
 
-def program_flops(sc, path: str = "loop", blocked: bool = False) -> float:
+def program_flops(sc, path: str = "loop") -> float:
     """XLA's cost estimate (flops) of the compiled update. With async dispatch on, XLA's CPU
     client runs a program inline on the calling thread only below 1000 flops."""
     if path == "loop":
@@ -160,14 +163,14 @@ def program_flops(sc, path: str = "loop", blocked: bool = False) -> float:
     else:
         n = sc.n_joints
         m = Measurement(q=np.zeros(n), qd=np.zeros(n), F=np.zeros(n))
-        lowered = jax.jit(sc.step).lower(0.0, PERIOD, sc.init(blocked=blocked), m)
+        lowered = jax.jit(sc.step).lower(0.0, PERIOD, sc.init(), m)
     cost = lowered.compile().cost_analysis()
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost
     return float(cost.get("flops", float("nan")))
 
 
 def measure_latency(n_calls: int = 10_000, kind: str = "hinf_nn", *, units: int | None = None,
-                    path: str = "loop", blocked: bool = False, warmup: int = 1000,
+                    path: str = "loop", warmup: int = 1000,
                     gc_off: bool = True) -> dict:
     """Latency of one sampled update called from a Python loop, τ back as NumPy, in µs.
 
@@ -180,14 +183,14 @@ def measure_latency(n_calls: int = 10_000, kind: str = "hinf_nn", *, units: int 
     """
     sc = build(kind, units)
     meas = measurements()
-    call, bad = _caller(sc, path, meas, blocked)
+    call, bad = _caller(sc, path, meas)
     t0 = time.perf_counter()
     call(0)  # compile
     compile_s = time.perf_counter() - t0
     ns = _time_loop(call, n_calls, warmup, gc_off)
-    n_units = sc.controller.network_f.size if sc.controller.learning else None
-    return dict(kind=sc.controller.kind, units=n_units, path=path, blocked=blocked, n_calls=n_calls,
-                nan_taus=bad[0], compile_s=compile_s, flops=program_flops(sc, path, blocked),
+    n_units = sc.controller.network_f.size if sc.controller.network_f is not None else None
+    return dict(kind=sc.controller.kind, units=n_units, path=path, n_calls=n_calls,
+                nan_taus=bad[0], compile_s=compile_s, flops=program_flops(sc, path),
                 async_dispatch=bool(jax.config.values["jax_cpu_enable_async_dispatch"]),
                 load_avg=os.getloadavg()[0], **_stats(ns))
 
@@ -204,7 +207,8 @@ def compare_variants(kind: str = "hinf_nn", units: int | None = None, *, n_calls
     meas = measurements()
     Q, QD, F = meas["q"], meas["qd"], meas["F"]
     m, n, ns = len(Q), sc.n_joints, sc.sample_size
-    xb, xf = sc.init(blocked=True), sc.init(blocked=False)
+    xf = sc.init()
+    xb = xf
     variants = {}
 
     def variant(name):
@@ -265,10 +269,6 @@ def compare_variants(kind: str = "hinf_nn", units: int | None = None, *, n_calls
     @variant("update: pytree, flat state (default)")
     def _():
         return pytree_caller(lambda s, t, p, mm: sc.update(t, p, s, mm), xf)
-
-    @variant("update: pytree, blocked state (≤ 64 blocks)")
-    def _():
-        return pytree_caller(lambda s, t, p, mm: sc.update(t, p, s, mm), xb)
 
     with_args = jax.jit(lambda c, r, t, p, s, mm: H.SampledController(c, r).step(t, p, s, mm))
 

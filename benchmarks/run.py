@@ -103,9 +103,9 @@ def step_profile(plant, ctrl, ref) -> dict:
     import jax.numpy as jnp
 
     S = importlib.import_module("hinfnn.sim.simulate")
-    y0 = S.initial_state(plant, ctrl)
-    chunk, _, init = S._compiled(None, 200, 10, False, tuple(S.FIELDS))
-    carry = init(ctrl, y0, plant.arm.n)
+    y0 = S.initial_state(plant, ctrl, u1_0=1.6902)
+    chunk, _, init = S._compiled(None, 200, 10, False, None)
+    carry = init(ctrl, y0, plant.n)
     args = (plant, ctrl, ref, S.Limits(), carry, jnp.asarray(0, jnp.int64), jnp.asarray(10, jnp.int64),
             jnp.asarray(DT), jnp.asarray(1, jnp.int64))
     txt = chunk.lower(*args).compile().as_text()
@@ -158,7 +158,8 @@ def case_single(args) -> dict:
     rows = {}
     for kind in KINDS:
         sc = H.load_scenario("paper", {"controller.kind": kind})
-        plant, ctrl, ref, q0 = sc.build_plant(), sc.build_controller(kind), sc.build_reference(), sc.initial_q()
+        plant, ctrl, ref = sc.build_plant(), sc.build_controller(kind), sc.build_reference()
+        q0 = sc.initial_q(plant)
         t0 = time.perf_counter()
         H.simulate(plant, ctrl, ref, t_final=0.01, dt=DT, q0=q0)
         compile_s = time.perf_counter() - t0
@@ -173,7 +174,8 @@ def case_single(args) -> dict:
                           numpy=base[kind], ops=step_profile(plant, ctrl, ref), mode="continuous")
     for kind in KINDS:  # the sampled-data mode: controller once per 1 ms, plant RK4 every 0.1 ms
         sc = H.load_scenario("paper", {"controller.kind": kind})
-        plant, ctrl, ref, q0 = sc.build_plant(), sc.build_controller(kind), sc.build_reference(), sc.initial_q()
+        plant, ctrl, ref = sc.build_plant(), sc.build_controller(kind), sc.build_reference()
+        q0 = sc.initial_q(plant)
         opts = dict(dt=DT, q0=q0, control_period=1e-3, raise_on_failure=False)
         t0 = time.perf_counter()
         H.simulate(plant, ctrl, ref, t_final=0.01, **opts)
@@ -210,7 +212,7 @@ def draw_plants(B: int, seed: int = 0, spread: float = 0.2):
         f = rng.uniform(1 - spread, 1 + spread, size=6)
         arm = H.TwoLinkArm(m1=float(arm0.m1) * f[0], m2=float(arm0.m2) * f[1], l1=float(arm0.l1) * f[2],
                            l2=float(arm0.l2) * f[3], g=float(arm0.g))
-        plant = H.Plant(arm, H.InclinedLine(delta=float(surf0.delta) * f[4], d_G=float(surf0.d_G),
+        plant = H.RigidBodyPlant(arm, H.InclinedLine(delta=float(surf0.delta) * f[4], d_G=float(surf0.d_G),
                                             scaling=surf0.scaling),
                         H.PenaltyContact(float(con0.stiffness) * f[5], float(con0.damping)), p0.disturbance)
         q0 = np.asarray(plant.initial_q(1.6902))
@@ -238,7 +240,7 @@ def case_batch(args) -> dict:
         wall = time.perf_counter() - t0
         stored = sum(v.nbytes for v in tr.arrays.values())
         metrics = [H.compute_metrics(tr.member(i)) for i in range(B)]  # what the study is for
-        done = [m for m in metrics if m["J_T"] == m["J_T"]]
+        done = [m for m in metrics if not m["partial"]]
         rows[str(B)] = dict(batch=B, horizon_s=horizon, wall_s=wall,
                             traj_steps_per_s=B * round(horizon / DT) / wall,
                             s_per_1000_runs_of_10s=1000 * T_RUN / DT / (B * round(horizon / DT) / wall),
@@ -279,8 +281,45 @@ def case_latency_sync(args) -> dict:
     return case_latency(args, sync=True)
 
 
+def case_device_run(args) -> dict:
+    """The adaptive 10-s run and a 100-plant batch (1 s each), with the devices of
+    ``--disable`` turned off in this worker (hinfnn._devices)."""
+    import hinfnn as H
+
+    sc = H.load_scenario("paper", {"controller.kind": "hinf_nn"})
+    plant, ctrl, ref = sc.build_plant(), sc.build_controller("hinf_nn"), sc.build_reference()
+    q0 = sc.initial_q(plant)
+    t0 = time.perf_counter()
+    H.simulate(plant, ctrl, ref, t_final=0.01, dt=DT, q0=q0)
+    compile_s = time.perf_counter() - t0
+    times = []
+    for _ in range(args.repeats):
+        t0 = time.perf_counter()
+        H.simulate(plant, ctrl, ref, t_final=args.horizon, dt=DT, q0=q0)
+        times.append((time.perf_counter() - t0) * T_RUN / args.horizon)
+    plants, q0s, _ = draw_plants(100, seed=args.seed)
+    H.simulate_batch(plants, ctrl, ref, t_final=0.01, dt=DT, q0=q0s, fields="metrics")
+    t0 = time.perf_counter()
+    H.simulate_batch(plants, ctrl, ref, t_final=1.0, dt=DT, q0=q0s, fields="metrics")
+    batch_wall = time.perf_counter() - t0
+    return dict(disabled=list(args.disable), compile_s=compile_s, s_per_10s_run=_stats(times),
+                batch100_traj_steps_per_s=100 * round(1.0 / DT) / batch_wall,
+                ops=step_profile(plant, ctrl, ref))
+
+
+def case_devices(args) -> dict:
+    """Each performance device of hinfnn._devices turned off in turn (a fresh process each),
+    against all on: the benchmark line that justifies each."""
+    out = {}
+    for disabled in ((), ("blocks",), ("sincos",), ("small_mm",)):
+        sub = argparse.Namespace(**{**vars(args), "disable": list(disabled)})
+        out[",".join(disabled) or "all on"] = run_worker("device_run", sub)
+    return out
+
+
 CASES = {"single": case_single, "batch": case_batch, "startup": case_startup, "latency": case_latency,
-         "latency_sync": case_latency_sync}
+         "latency_sync": case_latency_sync, "devices": case_devices, "device_run": case_device_run}
+DEFAULT_CASES = ["single", "batch", "startup", "latency", "latency_sync", "devices"]
 
 
 # --- driver --------------------------------------------------------------------------------------
@@ -294,6 +333,8 @@ def run_worker(case: str, args) -> dict:
                "--batch-horizon", str(args.batch_horizon), "--numpy-horizon", str(args.numpy_horizon),
                "--calls", str(args.calls), "--seed", str(args.seed), "--batch-fields", args.batch_fields,
                "--batches", *map(str, args.batches)]
+        if getattr(args, "disable", None):
+            cmd += ["--disable", *args.disable]
         # compile times are cold: a fresh, empty compilation cache for every worker (case 3
         # measures the cache itself)
         env = dict(os.environ, HINFNN_CACHE_DIR=str(Path(tmp) / "jax-cache"))
@@ -371,6 +412,25 @@ def print_report(res: dict) -> None:
                       f"{r.get('median_us', float('nan')):>9.1f}{r.get('p90_us', float('nan')):>9.1f}"
                       f"{r.get('p99_us', float('nan')):>9.1f}{r.get('max_us', float('nan')):>10.1f}"
                       f"{r.get('n_calls', 0):>8}")
+    dev = c.get("devices")
+    if dev and "error" not in dev:
+        base = dev.get("all on", {})
+        b_run = base.get("s_per_10s_run", {}).get("median")
+        b_batch = base.get("batch100_traj_steps_per_s")
+        print("\n5. Performance devices (hinfnn._devices), each off in turn: adaptive 10-s run, 100-plant batch")
+        hdr = f"{'devices off':<14}{'s per run':>11}{'× all on':>10}{'batch traj-steps/s':>20}{'× all on':>10}{'kernels/step':>14}"
+        print(hdr)
+        print("-" * len(hdr))
+        for name, r in dev.items():
+            if not isinstance(r, dict):
+                continue
+            if "error" in r:
+                print(f"{name:<14}{r['error']}")
+                continue
+            run = r["s_per_10s_run"]["median"]
+            bat = r["batch100_traj_steps_per_s"]
+            print(f"{name:<14}{run:>11.3f}{(run / b_run if b_run else float('nan')):>10.2f}{bat:>20,.0f}"
+                  f"{(bat / b_batch if b_batch else float('nan')):>10.2f}{fmt((r.get('ops') or {}).get('kernels'), 'd'):>14}")
     if res.get("targets"):
         print("\nTargets")
         for name, t in res["targets"].items():
@@ -414,7 +474,7 @@ def targets(c: dict) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
-    ap.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
+    ap.add_argument("--cases", nargs="*", default=DEFAULT_CASES, choices=list(CASES))
     ap.add_argument("--repeats", type=int, default=3, help="timed repetitions after the warm-up")
     ap.add_argument("--horizon", type=float, default=T_RUN, help="simulated seconds per timed single run")
     ap.add_argument("--batches", type=int, nargs="*", default=[1, 10, 100, 1000])
@@ -427,6 +487,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=RESULTS)
     ap.add_argument("--worker", choices=list(CASES), help=argparse.SUPPRESS)
     ap.add_argument("--worker-out", type=Path, help=argparse.SUPPRESS)
+    ap.add_argument("--disable", nargs="*", default=[], help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.quick:
         args.horizon, args.batch_horizon, args.numpy_horizon = 1.0, 1.0, 0.2
@@ -435,6 +496,11 @@ def main(argv=None) -> int:
     if args.worker:
         import numpy as np
 
+        import hinfnn
+
+        for device in args.disable:
+            hinfnn._devices.disable(device)
+        hinfnn.configure()
         np.seterr(all="ignore")
         res = CASES[args.worker](args)
         args.worker_out.write_text(json.dumps(res, indent=1, default=float))

@@ -8,6 +8,8 @@ from .arm import Arm, PlanarPointMassArm
 from .planar import TwoLinkArm
 from .reduced import ReducedModel, reduced_model
 from .surface import ImplicitSurface, InclinedLine, Surface
+from .taskmap import PlanarTaskMap, PoseTaskMap, PositionTaskMap
+from .urdf import UrdfArm, UrdfChain, UrdfError, load_urdf
 
 __all__ = [
     "Arm",
@@ -18,4 +20,11 @@ __all__ = [
     "ImplicitSurface",
     "ReducedModel",
     "reduced_model",
+    "UrdfArm",
+    "UrdfChain",
+    "UrdfError",
+    "load_urdf",
+    "PlanarTaskMap",
+    "PositionTaskMap",
+    "PoseTaskMap",
 ]

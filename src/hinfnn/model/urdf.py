@@ -1,0 +1,735 @@
+"""Arms from URDF files: a serial chain with rigid-body dynamics in pure JAX (float64).
+
+:func:`load_urdf` parses a URDF with the standard library and extracts the serial chain from
+a base link to an end-effector link into a :class:`UrdfChain`:
+
+* revolute, continuous and prismatic joints on the path move; fixed joints on it are merged
+  into the moving body they hang from (frames composed into the next joint's placement,
+  inertias lumped by the parallel-axis theorem);
+* everything else hanging from a moving body (side branches, links below the end-effector) is
+  merged rigidly into it, its joints *locked at zero*, whatever their type: their mass counts
+  for gravity and inertia;
+* links above the base and the base's own rigid subtree do not move and are ignored;
+* continuous joints are revolute joints without limits (one coordinate q, not Pinocchio's
+  (cos q, sin q)); joint limits are kept, not enforced; <dynamics> (damping, friction) is
+  ignored; floating, planar and <mimic> joints on the chain are errors.
+
+Inertias follow URDF: <inertial>/<origin> places the centre of mass and the axes of the
+<inertia> tensor (about the centre of mass); a link without <inertial> is massless. Rotational
+inertia may be zero (point masses); it must be positive semidefinite and physical (triangle
+inequality), and every moving body must have mass > 0 after merging.
+
+:class:`UrdfChain` computes, with 6-D spatial algebra in the base frame (Featherstone,
+*Rigid Body Dynamics Algorithms*, ch. 2–6; motion vectors (linear, angular) at the base origin,
+as in Pinocchio): the tool frame (:meth:`~UrdfChain.fk`), its geometric Jacobian and that
+Jacobian's time derivative, M(q) by the composite-rigid-body algorithm, C(q, q̇)q̇ + G(q) by
+recursive Newton–Euler, the Christoffel-symbol Coriolis matrix and its product with a vector.
+Every function works under ``jit``, ``vmap`` and ``grad``; the loop over joints is a Python
+loop over the (static) chain.
+
+:class:`UrdfArm` is an :class:`~hinfnn.model.arm.Arm` made of a chain and a task map
+(:mod:`hinfnn.model.taskmap`): ``h(q) = task(*chain.fk(q))``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import importlib.resources
+import math
+import os
+import xml.etree.ElementTree as ET
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _linalg as la
+from .._pytree import pytree_dataclass, replace, static_field
+from ..errors import ConfigError
+from .arm import Arm, ArmTerms
+
+MOVING_TYPES = ("revolute", "continuous", "prismatic")
+JOINT_TYPES = MOVING_TYPES + ("fixed", "floating", "planar")
+
+
+class UrdfError(ConfigError):
+    """A URDF file cannot be turned into a serial chain. ``file`` and ``element`` (e.g.
+    ``<joint name="elbow">``) say where; the message says what is wrong and what is allowed."""
+
+    def __init__(self, problem: str, file: str | None = None, element: str | None = None):
+        self.file = file
+        self.element = element
+        self.problem = problem
+        key = ", ".join(s for s in (file, element) if s) or None
+        super().__init__(problem, key=key)
+
+
+def asset_path(*parts: str) -> str:
+    """Path of a robot file shipped with hinfnn, e.g. ``asset_path("ur5", "ur5.urdf")``."""
+    return str(importlib.resources.files("hinfnn").joinpath("assets", *parts))
+
+
+# ---------------------------------------------------------------------------------------------
+# Parse-time geometry (NumPy, float64)
+# ---------------------------------------------------------------------------------------------
+def rpy_matrix(rpy) -> np.ndarray:
+    """URDF roll-pitch-yaw: R = Rz(yaw) Ry(pitch) Rx(roll) (fixed axes x, y, z)."""
+    (cr, cp, cy), (sr, sp, sy) = np.cos(rpy), np.sin(rpy)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def _compose(T1, T2):
+    """(R1, p1) ∘ (R2, p2): the placement of frame 2 given in frame 1, frame 1 given in 0."""
+    return T1[0] @ T2[0], T1[0] @ T2[1] + T1[1]
+
+
+def _lump(parts):
+    """Mass, centre of mass and rotational inertia about it of rigidly joined (m, c, I_c) parts
+    given in one frame (parallel-axis theorem)."""
+    m = sum(p[0] for p in parts)
+    if m <= 0:
+        return m, np.zeros(3), np.zeros((3, 3))
+    c = sum(p[0] * p[1] for p in parts) / m
+    inertia = np.zeros((3, 3))
+    for mi, ci, Ii in parts:
+        d = ci - c
+        inertia += Ii + mi * (d @ d * np.eye(3) - np.outer(d, d))
+    return m, c, inertia
+
+
+@dataclasses.dataclass
+class _Link:
+    name: str
+    mass: float
+    com: np.ndarray  # centre of mass in the link frame
+    inertia: np.ndarray  # about the centre of mass, link-frame axes
+
+
+@dataclasses.dataclass
+class _Joint:
+    name: str
+    type: str
+    parent: str
+    child: str
+    origin: tuple  # (R, p) of the joint frame in the parent link frame
+    axis: np.ndarray
+    limits: tuple  # lower, upper, effort, velocity
+    mimic: bool = False
+
+
+class _Parser:
+    """Reads links and joints; every error names the file and the element."""
+
+    def __init__(self, text: str, source: str):
+        self.source = source
+        try:
+            root = ET.fromstring(text)
+        except ET.ParseError as e:
+            raise UrdfError(f"not an XML file ({e})", source) from None
+        if root.tag != "robot":
+            raise UrdfError(f"no <robot> element: the root element is <{root.tag}>", source)
+        self.robot_name = root.get("name", "")
+        self.links: dict[str, _Link] = {}
+        self.joints: list[_Joint] = []
+        for el in root.findall("link"):
+            link = self._link(el)
+            if link.name in self.links:
+                raise UrdfError("two links have this name", source, f'<link name="{link.name}">')
+            self.links[link.name] = link
+        names = set()
+        for el in root.findall("joint"):
+            joint = self._joint(el)
+            if joint.name in names:
+                raise UrdfError("two joints have this name", source, f'<joint name="{joint.name}">')
+            names.add(joint.name)
+            self.joints.append(joint)
+
+    def _err(self, problem, element):
+        return UrdfError(problem, self.source, element)
+
+    def _floats(self, el, attr, count, where, default=None):
+        text = el.get(attr) if el is not None else None
+        if text is None:
+            if default is None:
+                raise self._err(f"attribute {attr!r} is missing", where)
+            return np.array(default, dtype=float)
+        try:
+            vals = [float(v) for v in text.split()]
+        except ValueError:
+            vals = []
+        if len(vals) != count or not all(math.isfinite(v) for v in vals):
+            raise self._err(f'{attr}="{text}" is not {count} finite number(s)', where)
+        return np.array(vals)
+
+    def _origin(self, el, where):
+        o = el.find("origin")
+        xyz = self._floats(o, "xyz", 3, where + "/<origin>", (0.0, 0.0, 0.0))
+        rpy = self._floats(o, "rpy", 3, where + "/<origin>", (0.0, 0.0, 0.0))
+        return rpy_matrix(rpy), xyz
+
+    def _link(self, el):
+        name = el.get("name")
+        if not name:
+            raise self._err("a <link> has no name", "<link>")
+        where = f'<link name="{name}">'
+        inertial = el.find("inertial")
+        if inertial is None:
+            return _Link(name, 0.0, np.zeros(3), np.zeros((3, 3)))
+        w = where + "/<inertial>"
+        mass_el = inertial.find("mass")
+        if mass_el is None:
+            raise self._err("<inertial> without <mass>", w)
+        mass = float(self._floats(mass_el, "value", 1, w + "/<mass>")[0])
+        if mass < 0:
+            raise self._err(f"negative mass {mass} (allowed: mass ≥ 0)", w + "/<mass>")
+        R, com = self._origin(inertial, w)
+        iel = inertial.find("inertia")
+        if iel is None:
+            raise self._err("<inertial> without <inertia>", w)
+        v = {k: float(self._floats(iel, k, 1, w + "/<inertia>")[0])
+             for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+        I_in = np.array([[v["ixx"], v["ixy"], v["ixz"]], [v["ixy"], v["iyy"], v["iyz"]],
+                         [v["ixz"], v["iyz"], v["izz"]]])
+        _check_inertia(I_in, self.source, w + "/<inertia>")
+        return _Link(name, mass, com, R @ I_in @ R.T)
+
+    def _joint(self, el):
+        name = el.get("name")
+        if not name:
+            raise self._err("a <joint> has no name", "<joint>")
+        where = f'<joint name="{name}">'
+        jtype = el.get("type")
+        if jtype not in JOINT_TYPES:
+            raise self._err(f"unknown joint type {jtype!r} (allowed: {', '.join(JOINT_TYPES)})", where)
+        ends = []
+        for tag in ("parent", "child"):
+            e = el.find(tag)
+            if e is None or not e.get("link"):
+                raise self._err(f'no <{tag} link="...">', where)
+            ends.append(e.get("link"))
+        axis = self._floats(el.find("axis"), "xyz", 3, where + "/<axis>", (1.0, 0.0, 0.0))
+        if jtype in MOVING_TYPES:
+            norm = np.linalg.norm(axis)
+            if norm < 1e-12:
+                raise self._err("zero axis (allowed: a nonzero vector)", where + "/<axis>")
+            axis = axis / norm
+        lim = el.find("limit")
+        limits = [-np.inf, np.inf, np.inf, np.inf]
+        if lim is not None and jtype != "continuous":
+            for i, k in enumerate(("lower", "upper", "effort", "velocity")):
+                if lim.get(k) is not None:
+                    limits[i] = float(self._floats(lim, k, 1, where + "/<limit>")[0])
+        return _Joint(name, jtype, ends[0], ends[1], self._origin(el, where), axis, tuple(limits),
+                      mimic=el.find("mimic") is not None)
+
+
+def _check_inertia(I, source, where):
+    """Rotational inertia about the centre of mass: symmetric positive semidefinite and
+    physically consistent (principal moments satisfy the triangle inequality). Zero is allowed
+    (point mass)."""
+    lam = np.linalg.eigvalsh(I)
+    tol = 1e-12 * max(1.0, float(np.abs(lam).max()))
+    if lam[0] < -tol:
+        raise UrdfError(f"inertia tensor not positive definite (principal moments {lam.tolist()}; "
+                        "allowed: all ≥ 0)", source, where)
+    if lam[0] + lam[1] < lam[2] - tol:
+        raise UrdfError(f"inertia tensor not physical (principal moments {lam.tolist()} violate "
+                        "the triangle inequality I1 + I2 ≥ I3)", source, where)
+
+
+def _did_you_mean(name, names):
+    close = difflib.get_close_matches(name, names, n=3, cutoff=0.5)
+    if close:
+        return "; did you mean " + " or ".join(repr(c) for c in close) + "?"
+    return f"; links in the file: {', '.join(sorted(names)[:20])}"
+
+
+def _extract_chain(parsed: _Parser, base_link, ee_link, tool_T):
+    """Serial chain base → ee: placements, axes, lumped inertias, tool placement (NumPy)."""
+    src, links = parsed.source, parsed.links
+    for role, name in (("base_link", base_link), ("ee_link", ee_link)):
+        if name not in links:
+            raise UrdfError(f"no link named {name!r} in the file" + _did_you_mean(name, list(links)),
+                            src, role)
+    parent_joint, children = {}, {name: [] for name in links}
+    for j in parsed.joints:
+        for end in (j.parent, j.child):
+            if end not in links:
+                raise UrdfError(f"link {end!r} is not defined in the file"
+                                + _did_you_mean(end, list(links)), src, f'<joint name="{j.name}">')
+        if j.child in parent_joint:
+            raise UrdfError(f"kinematic loop: link {j.child!r} has two parents (joints "
+                            f"{parent_joint[j.child].name!r} and {j.name!r}); a URDF must be a tree",
+                            src, f'<joint name="{j.name}">')
+        parent_joint[j.child] = j
+        children[j.parent].append(j)
+
+    path, link, seen = [], ee_link, set()
+    while link != base_link:
+        if link in seen:
+            raise UrdfError(f"kinematic loop through link {link!r}", src, f'<link name="{link}">')
+        seen.add(link)
+        if link not in parent_joint:
+            hint = " (the base is below the end-effector: swap them?)" if ee_link in _ancestors(
+                base_link, parent_joint) else ""
+            raise UrdfError(f"end-effector link {ee_link!r} is not reachable from base link "
+                            f"{base_link!r}: going up from it ends at root link {link!r}{hint}",
+                            src, "ee_link")
+        path.append(parent_joint[link])
+        link = parent_joint[link].parent
+    path.reverse()
+    for j in path:
+        if j.type in ("floating", "planar"):
+            raise UrdfError(f"joint type {j.type!r} on the chain from {base_link!r} to {ee_link!r} is "
+                            f"not supported (allowed: {', '.join(MOVING_TYPES)}, fixed)",
+                            src, f'<joint name="{j.name}">')
+        if j.mimic and j.type in MOVING_TYPES:
+            raise UrdfError("a <mimic> joint on the chain is not supported (each moving joint on the "
+                            "chain is an independent coordinate)", src, f'<joint name="{j.name}">')
+    moving = [j for j in path if j.type in MOVING_TYPES]
+    if not moving:
+        raise UrdfError(f"no moving joint between {base_link!r} and {ee_link!r}", src, "ee_link")
+    moving_names = {j.name for j in moving}
+
+    def rigid(root):
+        """Links rigidly attached to ``root`` (placements in root's frame) and the next chain
+        joint's placement in that frame."""
+        members, nxt, stack = {}, None, [(root, (np.eye(3), np.zeros(3)))]
+        while stack:
+            name, T = stack.pop()
+            members[name] = T
+            for j in children[name]:
+                if j.name in moving_names:
+                    nxt = (j, _compose(T, j.origin))
+                else:
+                    stack.append((j.child, _compose(T, j.origin)))
+        return members, nxt
+
+    _, nxt = rigid(base_link)
+    placements, bodies, tool = [], [], None
+    for i, j in enumerate(moving):
+        assert nxt is not None and nxt[0] is j
+        placements.append(nxt[1])
+        members, nxt = rigid(j.child)
+        parts = []
+        for name, (R, p) in members.items():
+            L = links[name]
+            parts.append((L.mass, R @ L.com + p, R @ L.inertia @ R.T))
+        m, c, inertia = _lump(parts)
+        where = f'<joint name="{j.name}">'
+        if m <= 0:
+            raise UrdfError(f"the body moved by this joint (links {', '.join(sorted(members))}) has "
+                            f"mass {m} (allowed: > 0)", src, where)
+        _check_inertia(inertia, src, where + " (lumped body)")
+        bodies.append((m, c, inertia, sorted(members)))
+        if i == len(moving) - 1:
+            tool = _compose(members[ee_link], tool_T)
+    return moving, placements, bodies, tool
+
+
+def _ancestors(link, parent_joint):
+    out, seen = set(), set()
+    while link in parent_joint and link not in seen:
+        seen.add(link)
+        link = parent_joint[link].parent
+        out.add(link)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Spatial algebra, motion vectors (linear, angular) at the base origin, base-frame coordinates
+# ---------------------------------------------------------------------------------------------
+def skew(v):
+    """[v]×, so that skew(v) @ u = v × u."""
+    z = jnp.zeros_like(v[0])
+    return jnp.stack([jnp.stack([z, -v[2], v[1]]), jnp.stack([v[2], z, -v[0]]),
+                      jnp.stack([-v[1], v[0], z])])
+
+
+def _cross(a, b):
+    """a × b along the last axis (explicit, fuses better than jnp.cross)."""
+    return jnp.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                      a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                      a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
+def _crm(v, m):
+    """Motion cross product v ×ₘ m (Featherstone eq. 2.31 with (linear, angular) order)."""
+    return jnp.concatenate([_cross(v[..., 3:], m[..., :3]) + _cross(v[..., :3], m[..., 3:]),
+                            _cross(v[..., 3:], m[..., 3:])], axis=-1)
+
+
+def _crf(v, f):
+    """Force cross product v ×* f = −(v ×ₘ)ᵀ f (force, moment order)."""
+    return jnp.concatenate([_cross(v[..., 3:], f[..., :3]),
+                            _cross(v[..., 3:], f[..., 3:]) + _cross(v[..., :3], f[..., :3])], axis=-1)
+
+
+def _inertia_apply(m, h, Ib, x):
+    """Spatial inertia (mass m, first moment h = m c, rotational inertia Ī about the origin)
+    times motion vectors x: (m x_l − h × x_w, h × x_l + Ī x_w). Batched over a leading axis."""
+    xl, xw = x[..., :3], x[..., 3:]
+    fl = m[..., None] * xl - _cross(h, xw)
+    fw = _cross(h, xl) + jnp.sum(Ib * xw[..., None, :], axis=-1)
+    return jnp.concatenate([fl, fw], axis=-1)
+
+
+def _rcumsum(x):
+    """Σ_{k ≥ i} x_k along axis 0 (the composite sums of the backward passes)."""
+    return jnp.cumsum(x[::-1], axis=0)[::-1]
+
+
+class _Kinematics(NamedTuple):
+    """Everything position-dependent, in the base frame: body rotations R (n,3,3) and origins
+    p (n,3), motion subspaces S (n,6), body inertias (m, h, Ī) and the tool frame."""
+
+    R: jax.Array
+    p: jax.Array
+    S: jax.Array
+    m: jax.Array
+    h: jax.Array
+    Ib: jax.Array
+    R_tool: jax.Array
+    p_tool: jax.Array
+
+
+@pytree_dataclass
+class UrdfChain:
+    """A serial chain of n revolute/prismatic joints with lumped rigid bodies.
+
+    Data (base-frame conventions of URDF): joint i's frame sits at ``placement_rot[i],
+    placement_pos[i]`` in body i−1's frame (body 0 = the base) and turns about (or slides
+    along) the unit ``axes[i]`` of that frame; body i (the frame after the joint motion) has
+    ``mass[i]``, centre of mass ``com[i]`` and rotational inertia ``inertia[i]`` about it (body
+    axes); the tool frame is ``tool_rot, tool_pos`` in body n's frame; ``gravity`` is the
+    gravitational acceleration in the base frame. Joint limits are kept, not enforced.
+    """
+
+    placement_rot: jax.Array
+    placement_pos: jax.Array
+    axes: jax.Array
+    mass: jax.Array
+    com: jax.Array
+    inertia: jax.Array
+    tool_rot: jax.Array
+    tool_pos: jax.Array
+    gravity: jax.Array
+    lower: jax.Array
+    upper: jax.Array
+    effort_limit: jax.Array
+    velocity_limit: jax.Array
+    n: int = static_field()
+    joint_types: tuple = static_field()
+    joint_names: tuple = static_field(default=())
+    body_links: tuple = static_field(default=())
+
+    # --- kinematics --------------------------------------------------------------------------
+    def _kinematics(self, q) -> _Kinematics:
+        """Forward pass: body placements (Python loop over the static joints), motion
+        subspaces S_i = (p_i × a_i, a_i) (revolute) or (a_i, 0) (prismatic), body inertias."""
+        s, c = la.sincos(q)
+        a, eye = self.axes, jnp.eye(3)
+        z = jnp.zeros_like(a[:, 0])
+        K = jnp.stack([jnp.stack([z, -a[:, 2], a[:, 1]], -1), jnp.stack([a[:, 2], z, -a[:, 0]], -1),
+                       jnp.stack([-a[:, 1], a[:, 0], z], -1)], -2)  # [a_i]×
+        rot = (c[:, None, None] * eye[None] + s[:, None, None] * K
+               + (1.0 - c)[:, None, None] * (a[:, :, None] * a[:, None, :]))  # Rodrigues, all joints
+        R, p = eye, jnp.zeros(3)
+        Rs, ps = [], []
+        for i, kind in enumerate(self.joint_types):
+            p = p + la.mm(R, self.placement_pos[i])
+            R = la.mm(R, self.placement_rot[i])
+            if kind == "prismatic":
+                p = p + la.mm(R, a[i]) * q[i]
+            else:
+                R = la.mm(R, rot[i])
+            Rs.append(R)
+            ps.append(p)
+        R, p = jnp.stack(Rs), jnp.stack(ps)
+        aw = jnp.sum(R * self.axes[:, None, :], axis=-1)  # world axes
+        prism = np.array([k == "prismatic" for k in self.joint_types])[:, None]
+        S = jnp.concatenate([jnp.where(prism, aw, _cross(p, aw)), jnp.where(prism, 0.0, aw)], axis=-1)
+        cw = p + jnp.sum(R * self.com[:, None, :], axis=-1)
+        Ic = jnp.einsum("nij,njk,nlk->nil", R, self.inertia, R)
+        Ib = Ic + self.mass[:, None, None] * (jnp.sum(cw * cw, axis=-1)[:, None, None] * eye[None]
+                                              - cw[:, :, None] * cw[:, None, :])
+        R_tool = la.mm(R[-1], self.tool_rot)
+        p_tool = p[-1] + la.mm(R[-1], self.tool_pos)
+        return _Kinematics(R, p, S, self.mass, self.mass[:, None] * cw, Ib, R_tool, p_tool)
+
+    def fk(self, q):
+        """Tool frame (position (3,), rotation (3,3)) in the base frame."""
+        k = self._kinematics(q)
+        return k.p_tool, k.R_tool
+
+    @staticmethod
+    def _jacobian(k: _Kinematics):
+        lin = k.S[:, :3] + _cross(k.S[:, 3:], k.p_tool[None, :])
+        return jnp.concatenate([lin, k.S[:, 3:]], axis=1).T
+
+    @staticmethod
+    def _jacobian_dot(k: _Kinematics, qd):
+        v = jnp.cumsum(k.S * qd[:, None], axis=0)
+        Sd = _crm(v, k.S)  # Ṡ_i = v_i ×ₘ S_i
+        pd = v[-1, :3] + _cross(v[-1, 3:], k.p_tool)  # tool-point velocity
+        lin = Sd[:, :3] + _cross(Sd[:, 3:], k.p_tool[None, :]) + _cross(k.S[:, 3:], pd[None, :])
+        return jnp.concatenate([lin, Sd[:, 3:]], axis=1).T
+
+    def frame_jacobian(self, q):
+        """Geometric Jacobian (6, n) of the tool frame: rows (ṗ_tool, ω), base-frame axes
+        (Pinocchio's LOCAL_WORLD_ALIGNED). Column i: (a_i × (p_tool − p_i), a_i) (revolute)."""
+        return self._jacobian(self._kinematics(q))
+
+    def frame_jacobian_dot(self, q, qd):
+        """d/dt of :meth:`frame_jacobian` along q̇; J̇ q̇ is the tool's classical acceleration
+        (p̈, ω̇) at q̈ = 0."""
+        return self._jacobian_dot(self._kinematics(q), qd)
+
+    # --- dynamics ----------------------------------------------------------------------------
+    def _a0(self):
+        return jnp.concatenate([-self.gravity, jnp.zeros(3)])
+
+    @staticmethod
+    def _crba(k: _Kinematics):
+        """M_ij = S_iᵀ I^c_{max(i,j)} S_j with composite inertias I^c_j = Σ_{k≥j} I_k."""
+        F = _inertia_apply(_rcumsum(k.m), _rcumsum(k.h), _rcumsum(k.Ib), k.S)  # F_j = I^c_j S_j
+        A = k.S @ F.T  # A_ij = S_i · F_j, equal to M_ij for i ≤ j
+        upper = np.triu(np.ones(A.shape, dtype=bool))
+        return jnp.where(upper, A, A.T)
+
+    @staticmethod
+    def _rnea(k: _Kinematics, qd, qdd, a0):
+        """Recursive Newton–Euler in the base frame: v_i = Σ_{k≤i} S_k q̇_k, a_i = a0 +
+        Σ_{k≤i} (S_k q̈_k + Ṡ_k q̇_k), f_i = I_i a_i + v_i ×* I_i v_i, τ_i = S_i · Σ_{k≥i} f_k."""
+        v = jnp.cumsum(k.S * qd[:, None], axis=0)
+        a = jnp.cumsum(k.S * qdd[:, None] + _crm(v, k.S) * qd[:, None], axis=0) + a0[None, :]
+        f = _inertia_apply(k.m, k.h, k.Ib, a) + _crf(v, _inertia_apply(k.m, k.h, k.Ib, v))
+        return jnp.sum(k.S * _rcumsum(f), axis=1)
+
+    @staticmethod
+    def _christoffel(k: _Kinematics, a, b):
+        """The Christoffel bilinear form Γ(a, b) = C(q, a) b, symmetric in a, b.
+
+        It is the polarization of c(v) = C(q, v) v (RNEA without gravity, q̈ = 0), written out:
+        with velocities V^a, V^b of the two velocity vectors,
+        acc_i = ½ Σ_{k≤i} (V^a_k ×ₘ S_k b_k + V^b_k ×ₘ S_k a_k),
+        f_i = I_i acc_i + ½ (V^a_i ×* I_i V^b_i + V^b_i ×* I_i V^a_i);
+        Γ(v, v) = c(v), and it equals ¼[c(a + b) − c(a − b)] without that formula's
+        cancellation.
+        """
+        Va = jnp.cumsum(k.S * a[:, None], axis=0)
+        Vb = jnp.cumsum(k.S * b[:, None], axis=0)
+        acc = 0.5 * jnp.cumsum(_crm(Va, k.S) * b[:, None] + _crm(Vb, k.S) * a[:, None], axis=0)
+        f = (_inertia_apply(k.m, k.h, k.Ib, acc)
+             + 0.5 * (_crf(Va, _inertia_apply(k.m, k.h, k.Ib, Vb))
+                      + _crf(Vb, _inertia_apply(k.m, k.h, k.Ib, Va))))
+        return jnp.sum(k.S * _rcumsum(f), axis=1)
+
+    def _coriolis(self, k: _Kinematics, qd):
+        cols = jax.vmap(lambda e: self._christoffel(k, qd, e))(jnp.eye(self.n))
+        return cols.T
+
+    def M(self, q):
+        """Joint-space inertia matrix by the composite-rigid-body algorithm."""
+        return self._crba(self._kinematics(q))
+
+    def bias(self, q, qd):
+        """C(q, q̇) q̇ + G(q) by recursive Newton–Euler (q̈ = 0)."""
+        return self._rnea(self._kinematics(q), qd, jnp.zeros_like(qd), self._a0())
+
+    def _gravity(self, k: _Kinematics):
+        """G_i = S_i · I^c_i a0: RNEA at q̇ = q̈ = 0 with composite inertias."""
+        a0 = jnp.broadcast_to(self._a0(), k.S.shape)
+        return jnp.sum(k.S * _inertia_apply(_rcumsum(k.m), _rcumsum(k.h), _rcumsum(k.Ib), a0), axis=1)
+
+    def G(self, q):
+        """Gravity torque G(q) = ∂U/∂q (RNEA at q̇ = q̈ = 0)."""
+        return self._gravity(self._kinematics(q))
+
+    def potential(self, q):
+        """Potential energy U(q) = −Σ m_i g · c_i (zero at the base origin)."""
+        k = self._kinematics(q)
+        return -jnp.sum(k.h * self.gravity[None, :])
+
+    def inverse_dynamics(self, q, qd, qdd):
+        """τ = M(q) q̈ + C(q, q̇) q̇ + G(q) (RNEA)."""
+        return self._rnea(self._kinematics(q), qd, qdd, self._a0())
+
+    def forward_dynamics(self, q, qd, tau):
+        """q̈ = M(q)⁻¹ (τ − C(q, q̇) q̇ − G(q)) (CRBA and RNEA share the forward pass)."""
+        k = self._kinematics(q)
+        return la.solve(self._crba(k), tau - self._rnea(k, qd, jnp.zeros_like(qd), self._a0()))
+
+    def C(self, q, qd):
+        """Coriolis matrix from the Christoffel symbols of M (Ṁ − 2C skew-symmetric):
+        column j is Γ(q̇, e_j) (:meth:`_christoffel`)."""
+        return self._coriolis(self._kinematics(q), qd)
+
+    def C_times(self, q, qd, v):
+        """C(q, q̇) v without forming C (one bilinear Newton–Euler pass)."""
+        return self._christoffel(self._kinematics(q), qd, v)
+
+    # --- model uncertainty -------------------------------------------------------------------
+    def perturbed(self, *, mass_scale=1.0, com_shift=0.0, payload_mass=0.0,
+                  payload_xyz=(0.0, 0.0, 0.0)) -> "UrdfChain":
+        """A chain with other inertial parameters (e.g. the "true" plant of a nominal model).
+
+        ``mass_scale`` (scalar or (n,)) scales body i's mass and rotational inertia (density
+        scaled, shape kept); ``com_shift`` (scalar, (3,) or (n, 3), body axes) moves each centre
+        of mass keeping the inertia about it; ``payload_mass`` adds a point mass at
+        ``payload_xyz`` in the tool frame to the last body (parallel-axis theorem). All
+        arguments may be traced (vmap over parameter draws).
+        """
+        s = jnp.broadcast_to(jnp.asarray(mass_scale, float), (self.n,))
+        mass = self.mass * s
+        inertia = self.inertia * s[:, None, None]
+        com = self.com + jnp.broadcast_to(jnp.asarray(com_shift, float), (self.n, 3))
+        mp = jnp.asarray(payload_mass, float)
+        cp = self.tool_pos + self.tool_rot @ jnp.asarray(payload_xyz, float)
+        m_last = mass[-1] + mp
+        c_last = (mass[-1] * com[-1] + mp * cp) / m_last
+
+        def shift(m, d):
+            return m * (jnp.sum(d * d) * jnp.eye(3) - d[:, None] * d[None, :])
+
+        I_last = inertia[-1] + shift(mass[-1], com[-1] - c_last) + shift(mp, cp - c_last)
+        return replace(self, mass=mass.at[-1].set(m_last), com=com.at[-1].set(c_last),
+                       inertia=inertia.at[-1].set(I_last))
+
+    def with_gravity(self, gravity) -> "UrdfChain":
+        """The same chain under another gravity vector (base frame)."""
+        return replace(self, gravity=jnp.asarray(gravity, float))
+
+
+def load_urdf_string(text: str, base_link: str, ee_link: str, *, tool_xyz=(0.0, 0.0, 0.0),
+                     tool_rpy=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.81),
+                     source: str = "<string>") -> UrdfChain:
+    """:func:`load_urdf` of URDF text (``source`` names it in error messages)."""
+    parsed = _Parser(text, source)
+    tool_T = (rpy_matrix(np.asarray(tool_rpy, float)), np.asarray(tool_xyz, float))
+    moving, placements, bodies, tool = _extract_chain(parsed, base_link, ee_link, tool_T)
+    f = lambda x: jnp.asarray(np.asarray(x, dtype=float))  # noqa: E731
+    return UrdfChain(
+        placement_rot=f([T[0] for T in placements]), placement_pos=f([T[1] for T in placements]),
+        axes=f([j.axis for j in moving]), mass=f([b[0] for b in bodies]),
+        com=f([b[1] for b in bodies]), inertia=f([b[2] for b in bodies]),
+        tool_rot=f(tool[0]), tool_pos=f(tool[1]), gravity=f(gravity),
+        lower=f([j.limits[0] for j in moving]), upper=f([j.limits[1] for j in moving]),
+        effort_limit=f([j.limits[2] for j in moving]), velocity_limit=f([j.limits[3] for j in moving]),
+        n=len(moving), joint_types=tuple(j.type for j in moving),
+        joint_names=tuple(j.name for j in moving), body_links=tuple(tuple(b[3]) for b in bodies))
+
+
+def load_urdf(path, base_link: str, ee_link: str, *, tool_xyz=(0.0, 0.0, 0.0),
+              tool_rpy=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.81)) -> UrdfChain:
+    """Serial chain from ``base_link`` to ``ee_link`` of a URDF file, with a fixed tool offset
+    (xyz, rpy in the end-effector link's frame) and gravity (base frame). Raises
+    :class:`UrdfError` naming the file, the element and the problem."""
+    path = os.fspath(path)
+    try:
+        with open(path, encoding="utf-8") as fh:
+            text = fh.read()
+    except OSError as e:
+        raise UrdfError(f"cannot read the file ({e.strerror})", path) from None
+    return load_urdf_string(text, base_link, ee_link, tool_xyz=tool_xyz, tool_rpy=tool_rpy,
+                            gravity=gravity, source=path)
+
+
+# ---------------------------------------------------------------------------------------------
+# The arm
+# ---------------------------------------------------------------------------------------------
+def _task_derivatives(task, p, R, Jf, Jf_dot, qd):
+    """Task Jacobian J = ∂x/∂q and J̇ from the frame Jacobian and the task map's derivative.
+
+    Column j of J is the directional derivative of the task map along the frame motion of joint
+    j, (ṗ, Ṙ) = (v_j, [ω_j]× R); J̇'s column is its time derivative, a second directional
+    derivative along (ṗ_tool, [ω_tool]× R, v̇_j, [ω̇_j]× R + [ω_j]× [ω_tool]× R).
+    """
+    def column(p, R, v, W):
+        return jax.jvp(task, (p, R), (v, W))[1]
+
+    vt, wt = Jf[:3] @ qd, Jf[3:] @ qd
+    Rd = skew(wt) @ R
+
+    def both(v, w, vd, wd):
+        W = skew(w) @ R
+        Wd = skew(wd) @ R + skew(w) @ Rd
+        return jax.jvp(column, (p, R, v, W), (vt, Rd, vd, Wd))
+
+    J, Jd = jax.vmap(both, in_axes=1, out_axes=1)(Jf[:3], Jf[3:], Jf_dot[:3], Jf_dot[3:])
+    return J, Jd
+
+
+@pytree_dataclass
+class UrdfArm(Arm):
+    """An :class:`~hinfnn.model.arm.Arm` from a :class:`UrdfChain` and a task map
+    (:mod:`hinfnn.model.taskmap`): h(q) = task(*chain.fk(q)).
+
+    J and J̇ come from the frame Jacobian and the task map's derivative (tested against the
+    autodiff of h); M by CRBA, G and C(q, q̇)q̇ by RNEA, C by the Christoffel symbols.
+    """
+
+    chain: UrdfChain
+    task: Any
+
+    @property
+    def n(self) -> int:
+        return self.chain.n
+
+    @classmethod
+    def from_urdf(cls, path, base_link, ee_link, task, **load_kwargs) -> "UrdfArm":
+        """``UrdfArm(load_urdf(path, base_link, ee_link, **load_kwargs), task)``."""
+        return cls(load_urdf(path, base_link, ee_link, **load_kwargs), task)
+
+    def h(self, q):
+        return self.task(*self.chain.fk(q))
+
+    def _J_Jdot(self, k, qd):
+        return _task_derivatives(self.task, k.p_tool, k.R_tool, self.chain._jacobian(k),
+                                 self.chain._jacobian_dot(k, qd), qd)
+
+    def J(self, q):
+        """∂h/∂q = (∂task/∂(p, R)) · frame Jacobian."""
+        k = self.chain._kinematics(q)
+        return self._J_Jdot(k, jnp.zeros_like(q))[0]
+
+    def J_dot(self, q, qd):
+        """dJ/dt along q̇ (frame Jacobian, its time derivative and the task map's derivatives)."""
+        return self._J_Jdot(self.chain._kinematics(q), qd)[1]
+
+    def M(self, q):
+        return self.chain.M(q)
+
+    def C(self, q, qd):
+        return self.chain.C(q, qd)
+
+    def C_times(self, q, qd, v):
+        """C(q, q̇) v without forming C."""
+        return self.chain.C_times(q, qd, v)
+
+    def G(self, q):
+        return self.chain.G(q)
+
+    def potential(self, q):
+        return self.chain.potential(q)
+
+    def bias(self, q, qd):
+        """C(q, q̇) q̇ + G(q) (RNEA)."""
+        return self.chain.bias(q, qd)
+
+    def terms(self, q, qd) -> ArmTerms:
+        """h, J, J̇, M, C, G sharing one forward kinematics pass."""
+        k = self.chain._kinematics(q)
+        J, J_dot = self._J_Jdot(k, qd)
+        return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=J, J_dot=J_dot, M=self.chain._crba(k),
+                        C=self.chain._coriolis(k, qd), G=self.chain._gravity(k))
+
+    def forward_dynamics(self, q, qd, tau_total, terms: ArmTerms | None = None):
+        """q̈ = M⁻¹ (τ_total − C q̇ − G); without ``terms`` by CRBA + RNEA (C is not formed)."""
+        if terms is None:
+            return self.chain.forward_dynamics(q, qd, tau_total)
+        return la.solve(terms.M, tau_total - la.mm(terms.C, qd) - terms.G)
