@@ -45,6 +45,7 @@ _CORE = [
     ("e_lam", LAMBDA, "e_λ = λ − λd"),
     ("z", LAMBDA, "z-filter state, eq. (27)"),
     ("tau", "N·m", "applied joint torque τ, eq. (24)"),
+    ("sigma_min_J", "-", "smallest singular value of the nominal Jacobian Ĵ (the singularity guard's measure)"),
     # the theorem bookkeeping
     ("J", "-", "H∞ performance index J(t), eq. (34)"),
     ("J_aug", "-", "J(t) plus Remark 1's terms (augmented designs; else J)"),
@@ -59,7 +60,8 @@ _SUMMARIES = [
     ("tau_sq", "(N·m)²", "Σ τ_i² over the steps since the previous sample, this one included", "sum"),
     ("e_u1_sq", "m²", "Σ ‖e_u1‖² over the steps since the previous sample, this one included", "sum"),
     ("e_lam_sq", "(λ units)²", "Σ ‖e_λ‖² over the steps since the previous sample, this one included", "sum"),
-    ("steps_out_of_contact", "-", "steps with zero normal force since the previous sample, this one included",
+    ("steps_out_of_contact", "-", "steps with the end-effector off the true surface (more than 1 nm above it) since "
+     "the previous sample, this one included",
      "sum"),
     ("e_u1_abs_max", "m", "max ‖e_u1‖ over the steps since the previous sample, this one included", "max"),
     ("e_lam_abs_max", LAMBDA, "max ‖e_λ‖ over the steps since the previous sample, this one included", "max"),

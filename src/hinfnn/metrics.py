@@ -108,7 +108,8 @@ def compute_metrics(traj, last: float = 2.0) -> dict:
         peak = np.abs(tau)
         peak_window = peak[first:]
         variation = np.abs(np.diff(tw, axis=0))
-        out_of_contact = np.mean(arr["normal_force"] <= 0.0) if "normal_force" in arr else math.nan
+        out_of_contact = (np.mean(arr["penetration"] < -1e-9) if "penetration" in arr else
+                          np.mean(arr["normal_force"] <= 0.0) if "normal_force" in arr else math.nan)
     if all(k in arr for k in ("J_aug", "V", "supply", "J")):
         lhs = float(arr["J_aug"][-1] + arr["V"][-1] - arr["V"][0])
         rhs = float(arr["supply"][-1])

@@ -72,11 +72,18 @@ def unregister(kind: str) -> None:
 
 
 def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bool = False,
-           extra_terms: tuple = (), **options) -> ReducedOrderController:
+           extra_terms: tuple = (), force_rate: dict | None = None, singularity_stop: float = 0.0,
+           **options) -> ReducedOrderController:
     """Design the controller ``kind`` from the NOMINAL arm and surface: check the gains (Theorem
     1's bounds, Remarks 1–3), solve the Riccati-like eq. (35) (or (40) with ``augmented``,
     Remark 1), build and check the terms. ``options``: ``network_p``, ``network_f``,
     ``centre_preset`` for the adaptive law. ``extra_terms`` are appended to the composition's.
+
+    ``force_rate`` (not in the paper): the keyword arguments of
+    :func:`~hinfnn.controllers.force_rate.design_force_rate` (``kappa`` "rule" or seconds,
+    ``tau_f``, ``zeta``, ``stiffness_min``, ``stiffness_max``, ``u1_range``, ``q_start``,
+    ``period``); a κ of 0 leaves the law as the paper's. ``singularity_stop``: the law reports a
+    fault (the simulator stops, the sampled controller returns NaN) when σ_min(Ĵ) falls below it.
 
     Raises :class:`~hinfnn.errors.DesignError` naming the condition that failed."""
     if kind not in KINDS:
@@ -90,10 +97,19 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
             raise
         P = jnp.full((2 * surface.m, 2 * surface.m), jnp.nan)
     terms = tuple(comp.terms(options)) + tuple(extra_terms)
+    if force_rate and force_rate.get("kappa", 0.0) not in (0, 0.0, None):
+        if augmented:
+            raise DesignError("the force-rate term's storage argument does not cover Remark 1's augmented "
+                              "index; use one or the other", key="force_rate.kappa", value=force_rate["kappa"])
+        from .force_rate import design_force_rate
+
+        d = design_force_rate(arm, surface, g, robust=comp.robust, **force_rate)
+        terms = terms + (T.ForceRate(kappa=jnp.asarray(d.kappa), tau_f=jnp.asarray(d.tau_f),
+                                     design=tuple(d.as_dict().items())),)
     for term in terms:
         term.check(surface.m, surface.k)
-    return ReducedOrderController(arm=arm, surface=surface, gains=g, P_p=P, terms=terms, kind=kind,
-                                  augmented=augmented)
+    return ReducedOrderController(arm=arm, surface=surface, gains=g, P_p=P, terms=terms,
+                                  sigma_stop=jnp.asarray(float(singularity_stop)), kind=kind, augmented=augmented)
 
 
 class FeedbackLinearization:

@@ -68,6 +68,7 @@ class Output:
     J: jax.Array
     J_dot: jax.Array
     ctx: T.Context
+    fault: jax.Array  # True when the law cannot be trusted at this sample (singularity guard)
 
 
 @pytree_dataclass
@@ -81,6 +82,7 @@ class ReducedOrderController:
     gains: Gains  # normalized
     P_p: jax.Array  # (2m, 2m); NaN when not designed (FL-like with an infeasible ρ)
     terms: tuple
+    sigma_stop: jax.Array = 0.0  # singularity guard: fault when σ_min(Ĵ) < sigma_stop (0: off)
     kind: str = static_field(default="")
     augmented: bool = static_field(default=False)
 
@@ -192,18 +194,36 @@ class ReducedOrderController:
         lam_f = mm(rm.Pi.T, b) + mm(C_f, u1_dot) + G_f  # eq. (26)
         tau = la.solve(rm.decoupling_matrix(), jnp.concatenate([lam_p, lam_f]))  # eq. (24)
         dz = -g.mu_z * state.z - g.alpha_z * e_lam  # eq. (27)
+        sigma = sigma_min(rm.J)
         signals = {"u1": u1, "u1_dot": u1_dot, "lam": lam, "u1_d": r.u1_d, "u1_d_dot": r.u1_d_dot,
                    "lam_d": r.lam_d, "e_u1": e_u1, "e_u1_dot": e_u1_dot, "e_lam": e_lam, "z": state.z,
-                   "tau": tau, **signals}
+                   "tau": tau, "sigma_min_J": sigma, **signals}
         return Output(tau=tau, dstate=ControllerState(z=dz, parts=dparts), signals=signals, ref=r,
-                      values=tuple(values), J=rm.J, J_dot=rm.J_dot, ctx=ctx)
+                      values=tuple(values), J=rm.J, J_dot=rm.J_dot, ctx=ctx, fault=sigma < self.sigma_stop)
 
-    def sample(self, t, period, state: ControllerState, meas, ref):
+    @property
+    def needs_start(self) -> bool:
+        """Whether some term sets its state from the first measurement (:meth:`start`)."""
+        return any(type(term).start is not T.Term.start for term in self.terms)
+
+    def start(self, t, state: ControllerState, meas, ref) -> ControllerState:
+        """The state at the first sample, from the first measurement (a term's filter starts at
+        its input, e.g. the force-rate filter at e_λ(0)). Loop layout."""
+        if not self.needs_start:
+            return state
+        out = self.evaluate(t, state, meas, ref)
+        parts = dict(state.parts)
+        for term in self.terms:
+            parts.update(term.start(out.ctx, state.parts))
+        return ControllerState(z=state.z, parts=parts)
+
+    def sample(self, t, period, state: ControllerState, meas, ref, out: Output | None = None):
         """The sampled-data update (zero-order hold): τ_k of eq. (24) at the sample and the state
         advanced by forward Euler over the period, then constrained (Remark 2's clip). Loop
         layout. The one definition used by the simulator's sampled mode and by
-        :class:`~hinfnn.controllers.sampled.SampledController`."""
-        out = self.evaluate(t, state, meas, ref)
+        :class:`~hinfnn.controllers.sampled.SampledController` (``out``: this sample's
+        :meth:`evaluate`, when the caller has it)."""
+        out = self.evaluate(t, state, meas, ref) if out is None else out
         new = self.constrain(jax.tree.map(lambda x, d: x + period * d, state, out.dstate))
         return out.tau, new
 
@@ -231,11 +251,13 @@ class ReducedOrderController:
         j = (mm(c.x_p, mm(g.Q_p, c.x_p)) + 0.5 * g.alpha_lam * g.alpha_z * mm(c.e_lam, c.e_lam)
              + g.alpha_lam * g.mu_z / (1.0 + g.beta_lam) * mm(state.z, state.z))
         extra = jnp.zeros_like(j)
-        if self.augmented:
-            for term, value in zip(self.terms, out.values):
-                e = term.extra_performance(c, value)
-                if e is not None:
-                    extra = extra + e
+        for term, value in zip(self.terms, out.values):
+            e = term.extra_performance(c, value) if self.augmented else None
+            if e is not None:
+                extra = extra + e
+            d = term.extra_dissipation(c, state.parts)
+            if d is not None:
+                extra = extra + d
         return j, extra
 
     def storage(self, state, out: Output):
@@ -295,6 +317,18 @@ class ReducedOrderController:
         """d²/dt² of the measured u1 = ĥ1(q) along a motion with joint acceleration q̈:
         (Ĵ q̈ + J̇̂ q̇)_1 (the chain rule on the controller's own observation map)."""
         return (la.mm(out.J, qdd) + la.mm(out.J_dot, qd))[: self.m]
+
+
+def sigma_min(J):
+    """The smallest singular value of Ĵ (closed form for 2 × 2; the singularity guard's measure:
+    the torque of (24) grows like 1/σ_min near a singularity)."""
+    if J.shape == (1, 1):
+        return jnp.abs(J[0, 0])
+    if J.shape == (2, 2):
+        a = jnp.sum(J * J)
+        det = J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0]
+        return jnp.sqrt(jnp.maximum(0.5 * (a - jnp.sqrt(jnp.maximum(a * a - 4.0 * det * det, 0.0))), 0.0))
+    return jnp.linalg.svd(J, compute_uv=False)[-1]
 
 
 @jax.jit

@@ -210,9 +210,18 @@ class SampledController:
         period = jnp.asarray(period, dtype=float)
         meas = _as_meas(measurement)
         ctrl = self.controller
-        tau, new = ctrl.sample(t, period, ctrl.to_loop(state), meas, self.reference)
-        ok = all_finite((t, period, meas.q, meas.qd, meas.F, tau)) & (period >= 0.0)
+        loop = ctrl.to_loop(state)
+        out = ctrl.evaluate(t, loop, meas, self.reference)
+        tau, new = ctrl.sample(t, period, loop, meas, self.reference, out=out)
+        ok = all_finite((t, period, meas.q, meas.qd, meas.F, tau)) & (period >= 0.0) & ~out.fault
         return jnp.where(ok, tau, jnp.nan), ctrl.from_loop(new)
+
+    def start_fn(self, t, state: ControllerState, measurement: Measurement) -> ControllerState:
+        """The state at the first sample from the first measurement (the controller's ``start``:
+        e.g. the force-rate filter starts at e_λ(0)). Pure; identity for the paper's laws."""
+        ctrl = self.controller
+        return ctrl.from_loop(ctrl.start(jnp.asarray(t, dtype=float), ctrl.to_loop(state), _as_meas(measurement),
+                                         self.reference))
 
     def step_packed(self, x):
         """:meth:`step` on the packed layouts: ``[t, h, q, q̇, F, state...] → [τ, state...]``."""
@@ -249,6 +258,16 @@ class SampledController:
         return jax.jit(self.step_packed)
 
     @functools.cached_property
+    def _start(self):
+        self._check_parts()
+        return jax.jit(self.start_fn)
+
+    def start(self, t, state: ControllerState, measurement: Measurement) -> ControllerState:
+        """Call once, at the first sample, before :meth:`update` when the controller has
+        filter states (``controller.needs_start``; :class:`SampledLoop` does it by itself)."""
+        return self._start(t, state, measurement) if self.controller.needs_start else state
+
+    @functools.cached_property
     def _signals(self):
         self._check_parts()
         return jax.jit(self.torque_and_signals_fn)
@@ -275,8 +294,9 @@ class SampledController:
         return self._update_packed(x)
 
     def loop(self, state: ControllerState | None = None) -> "SampledLoop":
-        """A :class:`SampledLoop` starting from ``state`` (default :meth:`init`)."""
-        return SampledLoop(self, self.init() if state is None else state)
+        """A :class:`SampledLoop` starting from ``state`` (default: :meth:`init`, then
+        :meth:`start` at the first sample)."""
+        return SampledLoop(self, self.init() if state is None else state, start=state is None)
 
     def check_sample(self, t, period, q, qd, F) -> None:
         """Raise :class:`MeasurementError` naming the input when t or period is not a finite
@@ -368,9 +388,9 @@ class SampledLoop:
             send(tau)
     """
 
-    __slots__ = ("controller", "_buf", "_fn", "_n", "_ns", "_i_q", "_i_qd", "_i_F", "rejected")
+    __slots__ = ("controller", "_buf", "_fn", "_n", "_ns", "_i_q", "_i_qd", "_i_F", "rejected", "_pending_start")
 
-    def __init__(self, controller: SampledController, state: ControllerState):
+    def __init__(self, controller: SampledController, state: ControllerState, start: bool = False):
         self.controller = controller
         self._n = n = controller.n_joints
         self._ns = controller.sample_size
@@ -379,6 +399,7 @@ class SampledLoop:
         self._buf[self._ns:] = controller.state_vector(state)
         self._fn = controller._update_packed
         self.rejected = 0
+        self._pending_start = start and controller.controller.needs_start
 
     def update(self, t, period, q, qd, F) -> np.ndarray:
         """τ (NumPy, n) of eq. (24) for this sample; the state advances by forward Euler over
@@ -387,6 +408,12 @@ class SampledLoop:
         if np.shape(q) != (n,) or np.shape(qd) != (n,) or np.shape(F) != (n,):
             self.controller.check_sample(t, period, q, qd, F)  # raises, naming the input
         b = self._buf
+        if self._pending_start:  # the controller's filters start at the first measurement
+            meas = Measurement(q=np.asarray(q, float), qd=np.asarray(qd, float), F=np.asarray(F, float))
+            if np.all(np.isfinite(meas.q)) and np.all(np.isfinite(meas.qd)) and np.all(np.isfinite(meas.F)):
+                started = self.controller.start(float(t), self.state, meas)
+                b[self._ns:] = self.controller.state_vector(started)
+                self._pending_start = False
         b[self._i_q] = q
         b[self._i_qd] = qd
         b[self._i_F] = F
@@ -410,3 +437,4 @@ class SampledLoop:
         self._buf[self._ns:] = self.controller.state_vector(
             self.controller.init() if state is None else state)
         self.rejected = 0
+        self._pending_start = state is None and self.controller.controller.needs_start

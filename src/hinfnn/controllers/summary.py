@@ -65,4 +65,9 @@ def design_summary(ctrl) -> dict:
                            "radius": float(t.network.radius) if t.network.project else None}
     if nets:
         out["networks"] = nets
+    for t in ctrl.terms:
+        if isinstance(t, T.ForceRate):
+            out["force_rate"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in t.design}
+            out["force_rate"].update(kappa=float(t.kappa), tau_f=float(t.tau_f))
+    out["singularity_stop"] = float(ctrl.sigma_stop)
     return out

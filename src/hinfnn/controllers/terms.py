@@ -102,6 +102,16 @@ class Term:
         """Its contribution to the augmented performance index (Remark 1), or None."""
         return None
 
+    def extra_dissipation(self, ctx: Context, parts: dict):
+        """A non-negative rate the term dissipates beyond the theorem's, added to the left-hand
+        side of the dissipation check (J_aug), or None. The inequality then holds in its
+        stricter form."""
+        return None
+
+    def start(self, ctx: Context, parts: dict) -> dict:
+        """Its state at the first sample, from the first measurement (default: unchanged)."""
+        return {}
+
     def constrain(self, parts: dict) -> dict:
         """Its state after an integration step put back where the theory keeps it (identity)."""
         return {}
@@ -222,6 +232,54 @@ class ForceNetwork(_NetworkTerm):
 
     def storage(self, ctx, parts):
         return 0.5 * ctx.c * ctx.gains.alpha_z / ctx.gains.gamma_2 * sq_norm(parts[self.key])
+
+
+@pytree_dataclass
+class ForceRate(Term):
+    """A force-rate term added to v_λ (not in the paper; docs/beyond-the-paper.md):
+
+        b = −κ ṡ,   τ_f ṡ = e_λ − s,
+
+    ṡ a first-order filtered derivative of e_λ with time constant τ_f; the filter state s is part
+    of the controller state and starts at s(0) = e_λ(0) (no kick at the first sample). It damps the
+    contact mode that every law of the paper leaves unstable on a compliant surface (the loop
+    polynomial m_s s³ + m_s μ_z s² + k_u K's + k_u(K'μ_z + α_z) fails Routh's test by −α_z m_s k_u).
+
+    Storage: with c = α_λ/(1+β_λ), e_λ = s + τ_f ṡ makes the new cross term of (38) an exact
+    derivative, −cα_zκ e_λᵀṡ = −d/dt(cα_zκ/2 ‖s‖²) − cα_zκτ_f ‖ṡ‖², so V gains cα_zκ/2 ‖s‖² and
+    (39) keeps its form with the extra dissipation cα_zκτ_f ‖ṡ‖² (added to J_aug by the
+    bookkeeping: the stricter check)."""
+
+    kappa: jax.Array
+    tau_f: jax.Array
+    design: tuple = static_field(default=())  # the design step's record ((name, value), ...)
+    side: ClassVar[str] = "force"
+    fields: ClassVar[dict] = {
+        "v_rate": ("λ units", "force-rate term −κ ṡ added to v_λ (not in the paper)"),
+        "s_lam": ("λ units", "filtered e_λ, the force-rate term's state"),
+    }
+
+    def state_sizes(self, m, k):
+        return {"s_lam": k}
+
+    def _s_dot(self, ctx, parts):
+        return (ctx.e_lam - parts["s_lam"]) / self.tau_f
+
+    def evaluate(self, ctx, parts):
+        s_dot = self._s_dot(ctx, parts)
+        v = -self.kappa * s_dot
+        return v, {"s_lam": s_dot}, {"v_rate": v, "s_lam": parts["s_lam"]}
+
+    def storage(self, ctx, parts):
+        s = parts["s_lam"]
+        return 0.5 * ctx.c * ctx.gains.alpha_z * self.kappa * la.mm(s, s)
+
+    def extra_dissipation(self, ctx, parts):
+        s_dot = self._s_dot(ctx, parts)
+        return ctx.c * ctx.gains.alpha_z * self.kappa * self.tau_f * la.mm(s_dot, s_dot)
+
+    def start(self, ctx, parts):
+        return {"s_lam": ctx.e_lam}
 
 
 def to_loop(terms, parts: dict) -> dict:

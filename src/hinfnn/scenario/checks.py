@@ -62,7 +62,30 @@ def check(sc) -> None:
     controllers = [sc.build_controller(kind) for kind in sc.kinds]
     for ctrl in controllers:
         ctrl.check_start(q0)
+    if sc.controller.singularity_stop > 0:
+        _check_path_against_singularity(sc, q0)
     _check_step_against_contact(sc, plant, q0)
+
+
+def _check_path_against_singularity(sc, q0) -> None:
+    """With the singularity guard on, the reference's path must keep σ_min(Ĵ) above the stop on
+    the NOMINAL model (else the run would stop by design): a DesignError naming the reference."""
+    import jax
+
+    from ..controllers.force_rate import path_poses
+    from ..controllers.law import sigma_min
+    from ..errors import DesignError
+
+    arm, surface = sc.nominal.arm.build(), sc.nominal.surface.build()
+    sig = jax.jit(lambda a, q: sigma_min(a.J(q)))
+    lo, hi = sc.reference.u1_range()
+    worst = min(((float(sig(arm, q)), u1) for u1, q in path_poses(arm, surface, (lo, hi), q0)), key=lambda p: p[0])
+    stop = sc.controller.singularity_stop
+    if not worst[0] > stop:
+        raise DesignError(f"the reference reaches u1 = {worst[1]:.4g} m, where the nominal Jacobian's smallest singular "
+                          f"value is {worst[0]:.3g}, not above controller.singularity_stop = {stop:g}: the run would "
+                          "stop there; move the reference away from the singularity or lower the stop",
+                          key="reference.u1_amplitude", value=worst[0], bound=stop)
 
 
 def _check_step_against_contact(sc, plant, q0) -> None:

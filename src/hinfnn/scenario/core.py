@@ -125,7 +125,11 @@ class Scenario:
         """Design the controller ``kind`` (default: the scenario's only kind) from the NOMINAL
         model. Raises :class:`DesignError` with the dotted key of the failing gain."""
         kind = kind or _only(self.kinds)
-        return self.controller.build(kind, self.nominal.arm.build(), self.nominal.surface.build())
+        s = self.simulation
+        q_start = self.initial_q() if self.controller.force_rate.kappa != 0.0 else None
+        return self.controller.build(kind, self.nominal.arm.build(), self.nominal.surface.build(),
+                                     u1_range=self.reference.u1_range(), q_start=q_start,
+                                     period=s.control_period if s.control == "sampled" else None)
 
     def initial_q(self, plant=None):
         """The start pose (the truth: inverse kinematics of the true arm onto the true surface)."""

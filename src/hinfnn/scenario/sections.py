@@ -211,6 +211,27 @@ def _kinds_allowed() -> str:
 
 
 @section
+class ForceRateConfig:
+    """The force-rate term of v_λ (not in the paper; docs/beyond-the-paper.md)."""
+
+    kappa: Literal["rule"] | float = param(0.0, doc="gain kappa of v_lam = -(beta_lam/2) e_lam - kappa ds/dt, s; "
+                                                     "0: off (the paper's law); \"rule\": from the stiffness range",
+                                           ge=0.0, le=10.0)
+    tau_f: Literal["auto"] | float = param("auto", doc="time constant of the filter s of e_lam, s; \"auto\": 1 ms, "
+                                                       "or the control period under sampled control", gt=0.0, le=1.0)
+    zeta: float = param(0.7, doc="damping ratio the rule gives the contact mode at the softest contact",
+                        gt=0.0, le=10.0)
+    stiffness_min: float = param(1e4, doc="softest contact the design expects, N/m (the rule's)", gt=0.0, le=1e10)
+    stiffness_max: float = param(1e6, doc="stiffest contact the design expects, N/m (sampled control: kappa must "
+                                          "stabilise it)", gt=0.0, le=1e10)
+
+    def validate(self, path):
+        if self.stiffness_max < self.stiffness_min:
+            raise ConfigError(f"must be >= stiffness_min = {self.stiffness_min:g}, got {self.stiffness_max:g}",
+                              key=f"{path}.stiffness_max")
+
+
+@section
 class ControllerConfig:
     kind: str | tuple[str, ...] = param(doc="controller(s) to run: a name of hinfnn.controllers.KINDS or a list",
                                         allowed=_kinds_allowed)
@@ -218,6 +239,10 @@ class ControllerConfig:
     gains: GainsConfig = param(doc="gains")
     network_p: NetworkConfig = param(doc="F_p network")
     network_f: NetworkFConfig = param(doc="F_f network")
+    force_rate: ForceRateConfig = param(doc="force-rate term (not in the paper)")
+    singularity_stop: float = param(0.0, doc="stop (simulator) or return NaN (sampled controller) when the smallest "
+                                             "singular value of the nominal Jacobian falls below this; 0: off",
+                                    ge=0.0, le=100.0)
 
     @property
     def kinds(self) -> list[str]:
@@ -237,15 +262,23 @@ class ControllerConfig:
         if len(set(self.kinds)) != len(self.kinds):
             raise ConfigError(f"lists a controller twice: {list(self.kinds)}", key=key)
 
-    def build(self, kind: str, arm, surface):
-        """Design the controller ``kind`` from the NOMINAL arm and surface. Raises
-        :class:`DesignError` with the dotted key of the failing gain."""
+    def build(self, kind: str, arm, surface, *, u1_range=None, q_start=None, period=None):
+        """Design the controller ``kind`` from the NOMINAL arm and surface (``u1_range``,
+        ``q_start``: the reference's span of u1 and a start pose, for the force-rate rule;
+        ``period``: the control period under sampled control). Raises :class:`DesignError` with
+        the dotted key of the failing gain."""
         from ..controllers import design
 
+        fr = self.force_rate
+        force_rate = None
+        if fr.kappa != 0.0:
+            force_rate = dict(kappa=fr.kappa, tau_f=fr.tau_f, zeta=fr.zeta, stiffness_min=fr.stiffness_min,
+                              stiffness_max=fr.stiffness_max, u1_range=u1_range, q_start=q_start, period=period)
         try:
             return design(kind, arm, surface, self.gains.build(), augmented=self.augmented,
                           network_p=self.network_p.build("controller.network_p", surface.m),
-                          network_f=self.network_f.build("controller.network_f", surface.k))
+                          network_f=self.network_f.build("controller.network_f", surface.k),
+                          force_rate=force_rate, singularity_stop=self.singularity_stop)
         except DesignError as err:
             raise prefixed(err) from None
 
@@ -257,7 +290,7 @@ def prefixed(err: DesignError) -> DesignError:
         return err
     if key in ("rho", "mu_z", "alpha_z", "alpha_lam", "beta_lam", "gamma_1", "gamma_2", "Q_p", "R_p", "K_p", "K_v"):
         full = f"controller.gains.{key}"
-    elif key.startswith("network_"):
+    elif key.startswith(("network_", "force_rate")):
         full = f"controller.{key}"
     else:
         full = key
@@ -280,6 +313,10 @@ class ReferenceConfig:
     lam_amplitude: float = param(doc="lam_d cosine amplitude", ge=-1e7, le=1e7)
     lam_period: float = param(doc="lam_d period, s", gt=0.0, le=1e6)
     lam_phase: float = param(doc="lam_d phase, rad", ge=-1e3, le=1e3)
+
+    def u1_range(self) -> tuple[float, float]:
+        """The span of u1d(t)."""
+        return self.u1_offset - abs(self.u1_amplitude), self.u1_offset + abs(self.u1_amplitude)
 
     def build(self):
         import jax.numpy as jnp

@@ -51,13 +51,17 @@ def bookkeeping(controller, xc, out, qd, qdd, acc: Accumulators):
                    "f_f": d["f_f"]}
 
 
+#: A step is out of contact when the end-effector is more than this above the true surface (m):
+#: the start pose is on the surface to rounding (|penetration| ~ 1e-16 m), which is contact.
+SEPARATED = 1e-9
+
 #: Per-step quantities summed between records (fields of the same names): the metrics' RMS values
 #: and contact fraction then cover every step, whatever the storage.
 STEP_SUMS = {
     "e_u1_sq": lambda a: jnp.sum(a["e_u1"] ** 2),
     "e_lam_sq": lambda a: jnp.sum(a["e_lam"] ** 2),
     "tau_sq": lambda a: a["tau"] ** 2,
-    "steps_out_of_contact": lambda a: jnp.where(a["normal_force"] <= 0.0, 1.0, 0.0),
+    "steps_out_of_contact": lambda a: jnp.where(a["penetration"] < -SEPARATED, 1.0, 0.0),
 }
 #: Per-step quantities whose maximum between records is kept.
 STEP_MAXES = {
@@ -87,7 +91,7 @@ def select(fields) -> tuple | None:
 
 
 def pick(record: dict, fields: tuple | None) -> dict:
-    """The stored part of a record."""
+    """The stored part of a record (keys starting with "_" are the simulator's own)."""
     if fields is None:
-        return record
+        return {k: v for k, v in record.items() if not k.startswith("_")}
     return {k: record[k] for k in fields if k in record}

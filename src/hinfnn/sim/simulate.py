@@ -69,7 +69,8 @@ def _evaluate(plant, ctrl, ref, t, y: SimState, w, held, sampled):
     meas, cache = plant.sense(t, y.plant)
     out = ctrl.evaluate(t, y.xc, meas, ref)
     tau = held if sampled else out.tau
-    record = {"t": jnp.asarray(t, dtype=float), **plant.diagnostics(y.plant, w, cache), **out.signals, "tau": tau}
+    record = {"t": jnp.asarray(t, dtype=float), **plant.diagnostics(y.plant, w, cache), **out.signals, "tau": tau,
+              "_fault": getattr(out, "fault", jnp.array(False))}
     return meas, cache, out, tau, record
 
 
@@ -104,6 +105,7 @@ class Carry:
     bad_tau: jax.Array
     bad_pen: jax.Array
     bad_parts: jax.Array
+    bad_sigma: jax.Array
     tau_peak: jax.Array
     tau_tv: jax.Array
     tau_prev: jax.Array
@@ -163,7 +165,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
         parts = sum(jnp.where(ok, 0, 1 << i) for i, ok in enumerate(finite_parts)).astype(jnp.int32)
         code = jnp.where(parts != 0, 1,
                          jnp.where(tau_peak > limits.torque, 2,
-                                   jnp.where(pen > limits.penetration, 3, 0)))
+                                   jnp.where(pen > limits.penetration, 3, jnp.where(aux["_fault"], 4, 0))))
         code = jnp.where(active, code, 0)
         status = c.status
         first_fail = (status == 0) & (code != 0)
@@ -177,6 +179,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
             bad_tau=jnp.where(first_fail, tau_peak, c.bad_tau),
             bad_pen=jnp.where(first_fail, pen, c.bad_pen),
             bad_parts=jnp.where(first_fail, parts, c.bad_parts),
+            bad_sigma=jnp.where(first_fail, aux.get("sigma_min_J", jnp.nan), c.bad_sigma),
             tau_peak=jnp.where(count, jnp.maximum(c.tau_peak, jnp.abs(tau)), c.tau_peak),
             tau_tv=jnp.where(count, c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
             tau_prev=jnp.where(count | first, tau, c.tau_prev),
@@ -231,7 +234,8 @@ def _finish(plant, ctrl, ref, limits, carry, n_steps, dt, n_hold, *, sampled, fi
     q, qd = plant.joints(y_end.plant)
     xc = ctrl.from_loop(y_end.xc)
     final = dict(q=q, qd=qd, z=xc.z, **xc.parts, J=y_end.acc.J, J_aug=y_end.acc.J_aug, supply=y_end.acc.supply)
-    details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts)
+    details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts,
+                   sigma_min_J=carry.bad_sigma)
     return rec, carry.status, carry.t_fail, details, final
 
 
@@ -243,7 +247,8 @@ def _init_carry(ctrl, y0, n):
     y0 = SimState(plant=y0.plant, xc=ctrl.to_loop(y0.xc), acc=y0.acc)
     return Carry(y=y0, held=jnp.zeros(n, f64), status=jnp.zeros((), jnp.int32),
                  t_fail=jnp.array(jnp.nan, dtype=f64), bad_tau=zero, bad_pen=zero,
-                 bad_parts=jnp.zeros((), jnp.int32), tau_peak=jnp.zeros(n, f64), tau_tv=jnp.zeros(n, f64),
+                 bad_parts=jnp.zeros((), jnp.int32), bad_sigma=jnp.array(jnp.nan, dtype=f64),
+                 tau_peak=jnp.zeros(n, f64), tau_tv=jnp.zeros(n, f64),
                  tau_prev=jnp.full(n, jnp.nan, f64),
                  sums={k: jnp.zeros(n if k == "tau_sq" else (), f64) for k in STEP_SUMS},
                  maxes={k: jnp.zeros((), f64) for k in STEP_MAXES})
@@ -376,6 +381,19 @@ def initial_state(plant, ctrl, *, q0=None, u1_0=None, qd0=None, xc0=None) -> Sim
                     xc=ctrl.init() if xc0 is None else xc0, acc=Accumulators.zero())
 
 
+@jax.jit
+def _started(plant, ctrl, ref, y0: SimState) -> SimState:
+    """The state at t = 0 with the controller's ``start`` applied to the first measurement."""
+    meas, _ = plant.sense(0.0, y0.plant)
+    xc = ctrl.from_loop(ctrl.start(0.0, ctrl.to_loop(y0.xc), meas, ref))
+    return SimState(plant=y0.plant, xc=xc, acc=y0.acc)
+
+
+def start(plant, ctrl, ref, y0: SimState) -> SimState:
+    """:func:`_started` when the controller needs it (one compiled program), else ``y0``."""
+    return _started(plant, ctrl, ref, y0) if getattr(ctrl, "needs_start", False) else y0
+
+
 def _to_numpy(rec, status, t_fail, details, final, *, info, dt, save_every) -> Trajectory:
     arrays = {k: np.asarray(v) for k, v in rec.items()}
     return Trajectory(arrays=arrays, status=np.asarray(status), t_fail=np.asarray(t_fail),
@@ -423,6 +441,8 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     fields = select(fields)
     y0 = initial_state(plant, controller, q0=q0, u1_0=u1_0, qd0=qd0, xc0=xc0)
     _check_start(controller, y0, plant)
+    if xc0 is None:
+        y0 = start(plant, controller, reference, y0)
     out = _drive(plant, controller, reference, limits or Limits(), y0, None, n_steps=n_steps,
                  save_every=save_every, n_hold=n_hold, dt=float(dt), n_joints=plant.n,
                  fields=fields, progress=progress)
@@ -454,6 +474,8 @@ def failure_reason(code: int, details: dict) -> str:
         return f"{what} (peak |tau| = {details.get('tau_peak', math.nan):.4g} N·m)"
     if code == 3:
         return f"{what} (penetration = {details.get('penetration', math.nan):.4g} m)"
+    if code == 4:
+        return f"{what} (σ_min(Ĵ) = {details.get('sigma_min_J', math.nan):.4g}, below the guard's stop)"
     return what
 
 
@@ -498,6 +520,7 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     y0s = [initial_state(member(plants, i), member(controllers, i), q0=q0s[i], u1_0=u1s[i]) for i in range(B)]
     for i in range(B):
         _check_start(member(controllers, i), y0s[i], member(plants, i))
+        y0s[i] = start(member(plants, i), member(controllers, i), member(references, i), y0s[i])
     plant0 = member(plants, 0)
     n_steps, n_hold, save_every = steps(t_final, dt, save_every, control_period, save_interval,
                                         bool(getattr(plant0, "discrete", False)))

@@ -10,7 +10,8 @@ import numpy as np
 from ..fields import FIELDS, SUMMARY_FIELDS
 
 #: Status codes of a run (``Trajectory.status``).
-STATUS = {0: "ok", 1: "non-finite state", 2: "torque limit exceeded", 3: "penetration limit exceeded"}
+STATUS = {0: "ok", 1: "non-finite state", 2: "torque limit exceeded", 3: "penetration limit exceeded",
+          4: "stopped by the controller's singularity guard"}
 
 _MERGE = {"max": np.maximum, "sum": np.add}
 
