@@ -116,8 +116,8 @@ class OffsetSensorPlant:
 class OffsetSensorPlantConfig(RigidPlantConfig):
     sensor_offset: tuple[float, ...] = param((0.0, 0.0), doc="force sensor offset, N", ge=-1e3, le=1e3)
 
-    def build(self):
-        return OffsetSensorPlant(inner=super().build(), offset=jnp.asarray(self.sensor_offset))
+    def build(self, **context):
+        return OffsetSensorPlant(inner=super().build(**context), offset=jnp.asarray(self.sensor_offset))
 
 
 @pytest.fixture

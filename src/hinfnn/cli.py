@@ -80,10 +80,31 @@ def _parser() -> argparse.ArgumentParser:
         help="reproduce the paper's Sec. VI study: figures, metrics, claims, report",
         description="Run FL-like, H-infinity-only and adaptive H-infinity NN (both F_f centre presets) "
                     "on the paper scenario, with the paper's undamped contact and with a damped one, "
-                    "and write OUT/report.md, fig3..fig9 PNGs, metrics.json, trajectory.npz, scenario.toml.")
+                    "then (unless --paper-only) the paper's laws against the stabilised ones (scenario "
+                    "paper-stable) at three contact stiffnesses, continuous and at 1 kHz; write "
+                    "OUT/report.md, fig3..fig9 and beyond_*.png, metrics.json, trajectory.npz, beyond.npz, "
+                    "scenario.toml.")
     rp.add_argument("--out", type=Path, default=Path("results/paper"), help="output folder (default: results/paper)")
     rp.add_argument("--scenario", default="paper", help="base scenario (default: paper)")
+    rp.add_argument("--paper-only", action="store_true",
+                    help="only the paper's Sec. VI study, without the Beyond-the-paper comparison (24 more runs)")
     common(rp)
+
+    d = sub.add_parser(
+        "design", formatter_class=fmt,
+        help="print the designed controller: Riccati solution, gains, v_p gains, Theorem 1's bounds, contact mode",
+        description="Design the scenario's controller(s) from the nominal model, as a run would, and print the "
+                    "design: the resolved gains (beta_lam too), P_p of the Riccati-like equation with its residual "
+                    "and closed-loop eigenvalues, v_p's gains, Theorem 1's bounds with their margins, the networks, "
+                    "the force-rate term's design, and the linearised contact mode (frequency, damping ratio) at the "
+                    "scenario's contact stiffness with and without the force-rate term.",
+        epilog="examples:\n  hinfnn design paper\n  hinfnn design paper-stable --set controller.kind=hinf\n"
+               "  hinfnn design paper --json > design.json\n")
+    d.add_argument("scenario", help="shipped scenario name or path to a .toml file")
+    d.add_argument("--json", action="store_true", help="print the design as JSON")
+    d.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario value (repeatable)")
+    d.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
 
     k = sub.add_parser("keys", formatter_class=fmt, help="list every scenario key with its meaning and range",
                        description="Every key a scenario file or --set accepts.",
@@ -200,7 +221,8 @@ def cmd_reproduce(args) -> int:
     progress = Progress(args.quiet, "reproducing the paper study")
     t0 = time.perf_counter()
     target = reproduce(args.out, base=base, force=args.force, progress=progress,
-                       log=lambda m: print(m, file=sys.stderr), command=command_line(args))
+                       log=lambda m: print(m, file=sys.stderr), command=command_line(args),
+                       beyond=not args.paper_only)
     progress.done()
     if not args.quiet:
         import json
@@ -210,6 +232,74 @@ def cmd_reproduce(args) -> int:
         doc = json.loads((target / "metrics.json").read_text())
         print(metrics_table(doc, markdown=False))
         print(f"report: {target}/report.md  ({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+def cmd_design(args) -> int:
+    import json
+
+    from .analysis import contact_modes
+    from .controllers import design_summary
+    from .io import dumps_json
+    from .scenario import Scenario
+
+    sc = Scenario.load(args.scenario, args.overrides)
+    k = sc.plant.contact.stiffness
+    out = {}
+    for kind in sc.kinds:
+        one = sc.single(kind)
+        d = design_summary(one.build_controller(kind))
+        with_term = one.controller.force_rate.kappa != 0.0
+        other = one.with_overrides({"controller.force_rate.kappa": 0.0 if with_term else "rule"})
+        modes = {}
+        for label, s2 in (("as designed", one), ("without the force-rate term" if with_term else
+                                                 "with the force-rate term (kappa by the rule)", other)):
+            try:
+                r = contact_modes(s2, kind, k)
+                modes[label] = dict(mode=str(r["least_damped"]), omega=r["least_damped"].omega,
+                                    zeta=r["least_damped"].zeta, stable=r["stable"], kappa=r["kappa"])
+            except Exception as err:  # noqa: BLE001 - a design the other variant refuses is information
+                modes[label] = dict(error=str(err))
+        d["contact_mode"] = dict(stiffness=k, **modes)
+        out[kind] = d
+    if args.json:
+        print(dumps_json(out), end="")
+        return 0
+    for kind, d in out.items():
+        g = d["gains"]
+        print(f"{kind}: terms {', '.join(d['terms']) or '(none: the CT law)'}{', augmented' if d['augmented'] else ''}")
+        print(f"  gains: K_p {g['K_p']}, K_v {g['K_v']}, rho {g['rho']:g}, mu_z {g['mu_z']:g}, alpha_z {g['alpha_z']:g}, "
+              f"alpha_lam {g['alpha_lam']:g}, beta_lam {g['beta_lam']:.6g}, gamma_1 {g['gamma_1']:g}, "
+              f"gamma_2 {g['gamma_2']:g}, Q_p {g['Q_p']}, R_p {g['R_p']}")
+        for name, b in d["bounds"].items():
+            print(f"  bound {name}: {b['value']:.6g} vs {b['bound']:.6g} (margin {b['margin']:+.4g}): {b['rule']}")
+        print(f"  P_p {json.dumps(d['P_p'])}")
+        ric = d.get("riccati", {})
+        if "residual" in ric:
+            eig = ", ".join(f"{re:.4g}{im:+.4g}j" for re, im in ric["closed_loop_eigs"])
+            print(f"  Riccati eq. ({ric['equation']}): residual {ric['residual']:.2e}, min eig P {ric['min_eig_P']:.4g}, "
+                  f"closed loop {eig}, Remark 4's condition {'holds' if ric['remark4_holds'] else 'fails'}")
+        else:
+            print(f"  Riccati: {ric.get('error')}")
+        if "v_p_gains" in d:
+            print(f"  v_p = -[{', '.join(f'{v:.4g}' for v in d['v_p_gains'][0])}] x_p")
+        for key, n in d.get("networks", {}).items():
+            print(f"  network {key}: {n['units']} units, centres {n['first_centre']:g} .. {n['last_centre']:g}, "
+                  f"slope {n['slope']:g}" + (f", radius {n['radius']:g}" if n["radius"] else ""))
+        fr = d.get("force_rate")
+        if fr:
+            print(f"  force rate: kappa {fr['kappa']:.4g} s ({'rule' if fr['rule'] else 'given'}: zeta {fr['zeta']:g}, "
+                  f"K' {fr['K_prime']:.4g}, m_n {fr['m_n_min']:.4g}..{fr['m_n_max']:.4g} kg, k {fr['stiffness_min']:g}"
+                  f"..{fr['stiffness_max']:g} N/m), tau_f {fr['tau_f']:g} s"
+                  + (f", sampled window {fr['window'][0]:.3g}..{fr['window'][1]:.3g} s" if fr.get("window") else ""))
+        if d["singularity_stop"] > 0:
+            print(f"  singularity guard: stop when sigma_min(J) < {d['singularity_stop']:g}")
+        cm = d["contact_mode"]
+        for label, m in cm.items():
+            if label == "stiffness":
+                continue
+            text = m.get("error") or f"{m['mode']} ({'stable' if m['stable'] else 'UNSTABLE'})"
+            print(f"  contact mode at {cm['stiffness']:g} N/m, {label}: {text}")
     return 0
 
 
@@ -276,7 +366,7 @@ def cmd_cache(args) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "keys": cmd_keys, "scenarios": cmd_scenarios,
+COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "design": cmd_design, "keys": cmd_keys, "scenarios": cmd_scenarios,
             "show": cmd_show, "cache": cmd_cache}
 
 

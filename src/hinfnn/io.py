@@ -190,8 +190,9 @@ def dumps_json(obj) -> str:
     return json.dumps(_nan_to_none(obj), indent=2, default=_json_default, allow_nan=False) + "\n"
 
 
-def trajectory_npz_bytes(runs: dict, max_interval: float | None = 1e-3) -> bytes:
-    """The ``trajectory.npz`` content for named Trajectories (decimated to ``max_interval``)."""
+def trajectory_npz_bytes(runs: dict, max_interval: float | None = 1e-3, fields=None) -> bytes:
+    """The ``trajectory.npz`` content for named Trajectories (decimated to ``max_interval``;
+    ``fields``: only these arrays)."""
     payload: dict[str, Any] = {
         "__format__": np.array(FORMAT),
         "__hinfnn_version__": np.array(version()),
@@ -202,7 +203,8 @@ def trajectory_npz_bytes(runs: dict, max_interval: float | None = 1e-3) -> bytes
             raise ValueError(f"run name {name!r} must not contain '/'")
         t = traj.decimated(max_interval) if max_interval else traj
         for field, arr in t.arrays.items():
-            payload[f"{name}/{field}"] = arr
+            if fields is None or field in fields:
+                payload[f"{name}/{field}"] = arr
         for field, arr in t.final.items():
             payload[f"{name}/__final__/{field}"] = arr
         payload[f"{name}/__status__"] = np.asarray(t.status)

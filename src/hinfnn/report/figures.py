@@ -722,3 +722,84 @@ def run_figures(runs: dict[str, Trajectory], out_dir, *,
               _Panel(r"$\|\hat\Theta_f\|$", _series(learners, "theta_f_norm"),
                      title=r"$F_f$ (force) weights")])
     return written
+
+
+# --- beyond the paper ---------------------------------------------------------------------------------
+
+
+def beyond_figures(runs: dict[str, Trajectory], metrics: dict[str, dict], cases: list[dict], out_dir,
+                   *, stiffness: float = 1e5) -> list[Path]:
+    """The "Beyond the paper" figures of ``hinfnn reproduce``.
+
+    ``beyond_lambda_u1.png``: λ(t) and u1(t) of the paper's and the stabilised laws at
+    ``stiffness``, continuous control. ``beyond_bars.png``: RMS e_λ, RMS e_u1 and the time out of
+    contact of every case, paper law beside stabilised, a run that stopped marked with the time
+    it stopped. ``cases``: [{"name", "kind", "variant", "mode", "k", "label"}] in plot order.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    pick = [c for c in cases if c["mode"] == "cont" and c["k"] == stiffness]
+    group = _prepare([(c["name"], runs[c["name"]]) for c in pick if c["name"] in runs],
+                     lambda name, traj: next(c["label"] for c in pick if c["name"] == name))
+    if group:
+        t_end = _t_end(group)
+        fig = _build(f"Beyond the paper: force and motion on the undamped {stiffness:.0e} N/m contact",
+                     _contact_note(group),
+                     [_Panel(_lambda_label(group), _series(group, "lam"), _reference(group, "lam_d"), zoom=True),
+                      _Panel(r"$u_1$ (m)", _series(group, "u1"), _reference(group, "u1_d"))],
+                     SIZE_TALL, t_end, _zoom_windows(t_end))
+        written.append(_save(fig, out_dir / "beyond_lambda_u1.png"))
+    written.append(_beyond_bars(metrics, cases, out_dir / "beyond_bars.png"))
+    return written
+
+
+def _beyond_bars(metrics: dict, cases: list[dict], path: Path) -> Path:
+    keys = []  # (kind, mode, k) in order
+    for c in cases:
+        key = (c["kind"], c["mode"], c["k"])
+        if key not in keys:
+            keys.append(key)
+    fig = Figure(figsize=(SIZE_TALL[0] / DPI, SIZE_TALL[1] / DPI), dpi=DPI, facecolor="white")
+    gs = fig.add_gridspec(3, 1, left=0.09, right=0.985, top=0.9, bottom=0.17, hspace=0.35)
+    panels = [("rms_e_lam", r"RMS $e_\lambda$ (log)", True, 1.0), ("rms_e_u1", r"RMS $e_{u1}$ (m)", False, 1.0),
+              ("fraction_out_of_contact", "out of contact (%)", False, 100.0)]
+    x = np.arange(len(keys))
+    width = 0.38
+    colors = {"paper": "#9e9e9e", "stable": "#1a9641"}
+    for row, (metric, ylabel, log, scale) in enumerate(panels):
+        ax = fig.add_subplot(gs[row])
+        for j, variant in enumerate(("paper", "stable")):
+            values, stopped = [], []
+            for kind, mode, k in keys:
+                c = next((c for c in cases if (c["kind"], c["mode"], c["k"], c["variant"]) == (kind, mode, k, variant)),
+                         None)
+                m = metrics.get(c["name"]) if c else None
+                v = m.get(metric) if m else None
+                values.append(scale * v if v is not None and math.isfinite(v) else np.nan)
+                stopped.append(m is not None and m.get("status") != "ok")
+            xs = x + (j - 0.5) * width
+            bars = ax.bar(xs, np.nan_to_num(values, nan=0.0), width, color=colors[variant],
+                          label="paper law" if variant == "paper" else "stabilised (force rate, Q_p, guard)",
+                          edgecolor="black", linewidth=0.4, zorder=2)
+            for b, s, v in zip(bars, stopped, values):
+                if s:
+                    b.set_hatch("///")
+                if s and row == 0:
+                    ax.text(b.get_x() + b.get_width() / 2, max(v, 1e-3) if np.isfinite(v) else 1e-3, "stopped",
+                            rotation=90, ha="center", va="bottom", fontsize=7)
+        if log:
+            ax.set_yscale("log")
+        _style_axes(ax, ylabel, xlabel=None)
+        ax.set_xticks(x)
+        ax.set_xticklabels([f"{'H∞-only' if kind == 'hinf' else 'adaptive'}\n{'cont.' if mode == 'cont' else '1 kHz'}"
+                            f"\n{k:.0e}" for kind, mode, k in keys] if row == 2 else [""] * len(keys),
+                           fontsize=_FONT["tick"])
+        if row == 0:
+            ax.legend(fontsize=_FONT["legend"], loc="upper right", frameon=False)
+    fig.suptitle("Beyond the paper: the paper's laws and the stabilised ones on an undamped contact",
+                 fontsize=_FONT["title"], fontweight="bold", y=0.97)
+    fig.text(0.01, 0.012, "Each pair: the same law, control mode and contact stiffness (N/m), 10 s; hatched: the "
+             "run stopped (its metrics up to then). Out of contact: the end-effector more than 1 nm above the "
+             "surface.", fontsize=_FONT["note"], color="0.25")
+    return _save(fig, path)

@@ -110,7 +110,8 @@ class Scenario:
     # --- building the library objects ----------------------------------------------------------------
     def build_plant(self):
         """The true plant (``plant.engine`` chooses the class)."""
-        return self.plant.build()
+        s = self.simulation
+        return self.plant.build(dt=s.dt, control_period=s.control_period if s.control == "sampled" else None)
 
     def build_arm(self, who: str):
         return getattr(self, who).arm.build()

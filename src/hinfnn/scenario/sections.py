@@ -126,7 +126,9 @@ class PlantConfig:
     contact: ContactConfig = param(doc="contact law")
     disturbance: DisturbanceConfig = param(doc="joint disturbance")
 
-    def build(self):
+    def build(self, **context):
+        """The plant object. ``context``: ``dt`` (the simulation step) and ``control_period``
+        (None for continuous control), for engines that step themselves."""
         raise NotImplementedError
 
 
@@ -135,11 +137,32 @@ class PlantConfig:
 class RigidPlantConfig(PlantConfig):
     """hinfnn's own plant: rigid-body arm, penalty contact on the true surface."""
 
-    def build(self):
+    def build(self, **context):
         from ..plant import RigidBodyPlant
 
         return RigidBodyPlant(arm=self.arm.build(), surface=self.surface.build(), contact=self.contact.build(),
                               disturbance=self.disturbance.build())
+
+
+@PLANTS.register("mujoco")
+@section
+class MujocoPlantConfig(PlantConfig):
+    """MuJoCo as the true plant (optional extra ``hinfnn[mujoco]``; docs/mujoco.md): the true arm
+    and surface as MJCF, the contact converted from N/m and N·s/m, stepped every simulation dt
+    (MuJoCo's timestep) with the torque held over the control period (sampled-data control)."""
+
+    integrator: Literal["RK4", "implicit", "implicitfast", "Euler"] = param(
+        "RK4", doc="MuJoCo's integrator (RK4 or implicit are accurate at the contact's frequency)")
+    callback: Literal["host", "pure_callback"] = param(
+        "host", doc="how the compiled loop calls MuJoCo ('pure_callback': JAX's public API, ~4x slower)")
+
+    def build(self, *, dt=1e-4, control_period=None, **context):
+        from ..plant.mujoco import MujocoPlant, require_mujoco
+
+        require_mujoco()
+        return MujocoPlant.from_models(self.arm.build(), self.surface.build(), self.contact.build(),
+                                       self.disturbance.build(), control_period=dt, timestep=dt,
+                                       integrator=self.integrator, callback=self.callback)
 
 
 @section

@@ -1,0 +1,378 @@
+"""MuJoCo as the true plant (hinfnn.plant.mujoco, optional extra; docs/mujoco.md).
+
+* the generated MJCF is the built-in arm: M(q), the bias at q̇ = 0 (= G) and at q̇ ≠ 0
+  (= C q̇ + G), the tip position, at 20 random q;
+* the contact is the requested spring-damper: steady penetration P/k, free oscillation
+  frequency √(k/m_eff) and damping ratio c/(2√(k m_eff)), for k = 1e5, 1e6 N/m, c = 0, 200 N·s/m;
+* the paper's H∞-only controller gives the same λ(t), u1(t) on MuJoCo as on the built-in plant;
+* the plant is a pure function of its state (replays, vmap, the two callback paths agree);
+* errors: missing extra, timestep not dividing the control period, bad integrator.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco")
+
+import hinfnn as H  # noqa: E402
+from hinfnn.errors import ConfigError  # noqa: E402
+from hinfnn.plant import mujoco as hm  # noqa: E402
+from hinfnn.plant.mujoco import MujocoPlant, mjcf_two_link  # noqa: E402
+
+DELTA_TRUE = 91.0 / 360.0 * np.pi
+TRUE_ARM = H.TwoLinkArm(1.2, 1.1, 1.02724, 0.98041)
+TRUE_SURFACE = H.InclinedLine(DELTA_TRUE, 0.8)
+N_IN = np.array([np.sin(DELTA_TRUE), -np.cos(DELTA_TRUE)])  # inward unit normal
+H_CTRL = 1e-4  # 10 kHz control
+
+
+def _rel(a, b):
+    return np.linalg.norm(np.asarray(a) - np.asarray(b)) / np.linalg.norm(np.asarray(b))
+
+
+@pytest.fixture(scope="module")
+def q_start():
+    """The paper's start pose: tip at x1 = 1.6902 on the true surface, elbow up."""
+    return np.asarray(H.RigidBodyPlant(TRUE_ARM, TRUE_SURFACE, H.PenaltyContact(), H.SquareWave.none())
+                      .initial_q(1.6902))
+
+
+# --------------------------------------------------------------------------------------------
+# MJCF
+# --------------------------------------------------------------------------------------------
+def test_mjcf_is_the_builtin_arm():
+    xml = mjcf_two_link(TRUE_ARM, TRUE_SURFACE, H.PenaltyContact(1e5, 200.0), timestep=1e-4,
+                        integrator="RK4")
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "tip")
+    rng = np.random.default_rng(7)
+    worst = np.zeros(4)
+    for _ in range(20):
+        q = rng.uniform(-np.pi, np.pi, 2)
+        qd = rng.uniform(-3.0, 3.0, 2)
+        d.qpos[:] = q
+        d.qvel[:] = 0.0
+        mujoco.mj_forward(m, d)
+        M = np.zeros((2, 2))
+        mujoco.mj_fullM(m, d, M)
+        bias_static = d.qfrc_bias.copy()
+        x = d.site_xpos[site][[0, 2]]
+        d.qvel[:] = qd
+        mujoco.mj_forward(m, d)
+        worst = np.maximum(worst, [
+            _rel(M, TRUE_ARM.M(q)),
+            _rel(bias_static, TRUE_ARM.G(q)),
+            _rel(x, TRUE_ARM.h(q)),
+            _rel(d.qfrc_bias, TRUE_ARM.C(q, qd) @ qd + TRUE_ARM.G(q)),
+        ])
+    assert np.all(worst < 1e-6), worst
+    # the rotational inertia given to the point masses is what makes M differ at all
+    assert worst[0] < 1e-9
+
+
+def test_mjcf_contact_parameters():
+    """solref is the direct (negative) form with k̃ = (1 − d) W k, c̃ = (1 − d) W c, W the
+    contact row's efc_diagA; solimp is flat at d = IMPEDANCE."""
+    k, c = 1e5, 200.0
+    xml = mjcf_two_link(TRUE_ARM, TRUE_SURFACE, H.PenaltyContact(k, c), timestep=1e-4, integrator="RK4")
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    pen_q = np.asarray(TRUE_ARM.inverse_kinematics_closed(jnp.array([1.7, 0.9 * np.tan(DELTA_TRUE)])
+                                                          + 1e-3 * N_IN))
+    d.qpos[:] = pen_q
+    mujoco.mj_forward(m, d)
+    assert d.ncon == 1 and d.nefc == 1
+    W = d.efc_diagA[0]
+    tip_body = m.geom_bodyid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "tip")]
+    assert W == pytest.approx(m.body_invweight0[tip_body, 0], rel=1e-12)
+    dd = hm.IMPEDANCE
+    np.testing.assert_allclose(m.pair_solref[0], [-(1 - dd) * W * k, -(1 - dd) * W * c], rtol=1e-12)
+    np.testing.assert_allclose(m.pair_solimp[0][:2], [dd, dd])
+    # the geometric distance MuJoCo sees is minus the tip's penetration into the TRUE surface
+    assert -d.contact.dist[0] == pytest.approx(1e-3, rel=1e-9)
+    assert d.efc_KBIP[0, 2] == pytest.approx(dd)
+
+
+# --------------------------------------------------------------------------------------------
+# Contact calibration
+# --------------------------------------------------------------------------------------------
+def _fit_oscillation(t, p):
+    """p(t) = p_eq + e^{−σt}(a cos ω_d t + b sin ω_d t) by least squares, guessed from the data
+    (mean of the second half, zero crossings). Returns p_eq, ω_n, ζ and the worst residual."""
+    from scipy.optimize import least_squares
+
+    p_eq0 = p[len(p) // 2:].mean()
+    s = np.sign(p - p_eq0)
+    crossings = t[1:][s[1:] != s[:-1]]
+    wd0 = np.pi / np.median(np.diff(crossings))
+
+    def res(th):
+        p_eq, sig, wd, a, b = th
+        return p_eq + np.exp(-sig * t) * (a * np.cos(wd * t) + b * np.sin(wd * t)) - p
+
+    fit = least_squares(res, [p_eq0, 0.0, wd0, p[0] - p_eq0, 0.0], x_scale="jac")
+    p_eq, sig, wd, _, _ = fit.x
+    wn = float(np.hypot(wd, sig))
+    return float(p_eq), wn, float(sig / wn), float(np.abs(fit.fun).max())
+
+
+CALIBRATION = [(1e5, 0.0), (1e5, 200.0), (1e6, 0.0), (1e6, 200.0)]
+
+
+@pytest.mark.parametrize("k,c", CALIBRATION)
+def test_contact_is_the_requested_spring_damper(k, c, q_start):
+    """Gravity off, a constant joint torque τ = Jᵀ(P n) pressing with P = 50 N along the inward
+    normal n; released at rest from 1.5 P/k (the contact stays closed). The penetration must
+    settle about P/k and ring at √(k/m_eff) with damping ratio c/(2√(k m_eff))."""
+    P = 50.0
+    arm = H.TwoLinkArm(1.2, 1.1, 1.02724, 0.98041, g=0.0)
+    plant = MujocoPlant.from_models(arm, TRUE_SURFACE, H.PenaltyContact(k, c), H.SquareWave.none(2),
+                                    control_period=H_CTRL)
+    tau = jnp.asarray(np.asarray(arm.J(q_start)).T @ (P * N_IN))
+    x0 = np.asarray(arm.h(q_start)) + 1.5 * P / k * N_IN
+    s0 = plant.initial_state(arm.inverse_kinematics_closed(jnp.asarray(x0)))
+    assert float(s0.penetration) == pytest.approx(1.5 * P / k, rel=1e-6)
+    n_steps = 1000 if k == 1e5 else 400  # about 5 and 6 periods
+
+    @jax.jit
+    def run(s):
+        def body(s, i):
+            s1, _ = plant.step(i * H_CTRL, s, tau, H_CTRL)
+            return s1, (s1.penetration, s1.normal_force, s1.F)
+        return jax.lax.scan(body, s, jnp.arange(n_steps))
+
+    s_end, (p, fn, F) = run(s0)
+    p = np.concatenate([[float(s0.penetration)], np.asarray(p)])
+    t = H_CTRL * np.arange(n_steps + 1)
+    assert np.all(p > 0.2 * P / k)  # never left the surface
+    # the sensed force is MuJoCo's normal force along the inward normal
+    np.testing.assert_allclose(np.asarray(F), np.asarray(fn)[:, None] * N_IN, atol=1e-9)
+
+    p_eq, wn, zeta, worst_residual = _fit_oscillation(t, p)
+    q_end = np.asarray(s_end.q)
+    J, M = np.asarray(arm.J(q_end)), np.asarray(arm.M(q_end))
+    m_eff = 1.0 / (N_IN @ J @ np.linalg.solve(M, J.T) @ N_IN)
+    wn_req = np.sqrt(k / m_eff)
+    zeta_req = c / (2.0 * np.sqrt(k * m_eff))
+    print(f"k={k:g} c={c:g}: p_eq/(P/k) = {p_eq / (P / k):.5f}, ω_n/√(k/m_eff) = {wn / wn_req:.5f}, "
+          f"ζ = {zeta:.5f} (requested {zeta_req:.5f}), m_eff = {m_eff:.4f} kg")
+    assert worst_residual < 1e-3 * P / k  # it IS a linear damped oscillation
+    assert p_eq == pytest.approx(P / k, rel=0.02)
+    assert wn == pytest.approx(wn_req, rel=0.05)
+    if c > 0:
+        assert zeta == pytest.approx(zeta_req, rel=0.05)
+        # and, once settled, the static balance: penetration P/k, normal force P
+        assert p[-1] == pytest.approx(P / k, rel=0.02)
+        assert float(fn[-1]) == pytest.approx(P, rel=0.02)
+    else:
+        assert abs(zeta) < 0.005  # undamped within the 5 % of a ζ = 0.1 resolution
+
+
+def test_contact_calibration_with_substeps_and_other_integrators(q_start):
+    """The same static load and frequency with 4 MuJoCo steps per control period (RK4) and
+    with semi-implicit Euler (one step): the conversion does not depend on the integrator."""
+    P, k, c = 50.0, 1e5, 200.0
+    arm = H.TwoLinkArm(1.2, 1.1, 1.02724, 0.98041, g=0.0)
+    tau = jnp.asarray(np.asarray(arm.J(q_start)).T @ (P * N_IN))
+    for kw in (dict(timestep=H_CTRL / 4, integrator="RK4"), dict(integrator="Euler")):
+        plant = MujocoPlant.from_models(arm, TRUE_SURFACE, H.PenaltyContact(k, c), H.SquareWave.none(2),
+                                        control_period=H_CTRL, **kw)
+        s0 = plant.initial_state(arm.inverse_kinematics_closed(
+            jnp.asarray(np.asarray(arm.h(q_start)) + 1.5 * P / k * N_IN)))
+
+        @jax.jit
+        def run(s):
+            return jax.lax.scan(lambda s, i: (plant.step(i * H_CTRL, s, tau, H_CTRL)[0],) * 2, s,
+                                jnp.arange(1000))
+
+        _, states = run(s0)
+        p = np.concatenate([[float(s0.penetration)], np.asarray(states.penetration)])
+        p_eq, wn, zeta, _ = _fit_oscillation(H_CTRL * np.arange(1001), p)
+        J, M = np.asarray(arm.J(q_start)), np.asarray(arm.M(q_start))
+        m_eff = 1.0 / (N_IN @ J @ np.linalg.solve(M, J.T) @ N_IN)
+        assert p_eq == pytest.approx(P / k, rel=0.02), kw
+        assert wn == pytest.approx(np.sqrt(k / m_eff), rel=0.05), kw
+        assert zeta == pytest.approx(c / (2 * np.sqrt(k * m_eff)), rel=0.05), kw
+
+
+# --------------------------------------------------------------------------------------------
+# Closed loop against the built-in plant
+# --------------------------------------------------------------------------------------------
+def test_hinf_closed_loop_matches_builtin_plant(q_start):
+    """0.2 s of the paper's H∞-only controller at 10 kHz, damped contact (200 N·s/m), on the
+    built-in plant (RK4, dt = control period) and on MuJoCo (RK4, timestep = control period).
+
+    Both integrate M q̈ + C q̇ + G + Jᵀ F = τ + ω with the same held τ and disturbance; MuJoCo's
+    contact differs from the penalty law only by its soft-constraint residue d·a0/W (d = 1e-4,
+    a0 the unconstrained normal acceleration: ≈ 0.02 N at the first, violent sample, < 0.005 N
+    later) and an added normal mass of 3e-4 kg (2e-4 of m_eff). Tolerance: |Δλ| ≤ 0.05 (1e-3 of
+    λ's range), |Δu1| ≤ 1e-6 m; measured 0.014 and 4e-8 m."""
+    ctrl = H.HinfController.design(H.TwoLinkArm(1.5, 1.0, 1.0, 1.0), H.InclinedLine(delta=np.pi / 4, d_G=0.8))
+    ref = H.CosineReference.paper()
+    contact = H.PenaltyContact(1e5, 200.0)
+    dist = H.SquareWave.paper()
+    builtin = H.RigidBodyPlant(TRUE_ARM, TRUE_SURFACE, contact, dist)
+    np.testing.assert_allclose(np.asarray(builtin.initial_q(1.6902)), q_start)
+    T = 0.2
+    traj = H.simulate(builtin, ctrl, ref, q0=q_start, t_final=T, dt=H_CTRL, control_period=H_CTRL, save_every=1,
+                      fields=("lam", "u1", "penetration", "disturbance"))  # fewer fields: faster compile
+
+    plant = MujocoPlant.from_models(TRUE_ARM, TRUE_SURFACE, contact, dist, control_period=H_CTRL)
+    n_steps = int(round(T / H_CTRL))
+    # the simulator's own discrete-plant path (sampled data at every step, MuJoCo stepping the plant)
+    mj = H.simulate(plant, ctrl, ref, q0=q_start, t_final=T, dt=H_CTRL, save_every=1,
+                    fields=("lam", "u1", "penetration", "disturbance"))
+    lam, u1, pen, w = mj.lam, mj.u1, mj.penetration, mj.disturbance
+    A = traj.arrays
+    assert A["lam"].shape[0] == n_steps + 1
+    d_lam = np.abs(np.asarray(lam)[:, 0] - A["lam"][:, 0])
+    d_u1 = np.abs(np.asarray(u1)[:, 0] - A["u1"][:, 0])
+    print(f"max |Δλ| = {d_lam.max():.3g} (λ up to {np.abs(A['lam']).max():.3g}), "
+          f"max |Δu1| = {d_u1.max():.3g} m, max |Δp| = {np.abs(np.asarray(pen) - A['penetration']).max():.3g} m")
+    assert d_lam.max() < 0.05
+    assert d_u1.max() < 1e-6
+    np.testing.assert_allclose(np.asarray(pen), A["penetration"], atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(w), A["disturbance"])
+    assert np.abs(A["lam"]).max() > 40.0  # a real pressing run, not a trivial one
+
+
+# --------------------------------------------------------------------------------------------
+# Purity, batching, both callback paths
+# --------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def paper_mujoco_plant():
+    return MujocoPlant.from_models(TRUE_ARM, TRUE_SURFACE, H.PenaltyContact(1e5, 200.0), H.SquareWave.paper(),
+                                   control_period=H_CTRL)
+
+
+def test_step_is_a_pure_function_of_the_state(paper_mujoco_plant, q_start):
+    """Stepping from a state is the same as MuJoCo's own loop on one MjData (the state carries
+    everything, the warm start included), whichever path and batching is used."""
+    plant = paper_mujoco_plant
+    tau = jnp.array([-150.0, -70.0])
+    s = plant.initial_state(q_start)
+    states = []
+    for k in range(20):
+        s, qdd = plant.step(k * H_CTRL, s, tau, H_CTRL)
+        states.append(s)
+    # MuJoCo's own loop
+    m = plant.model
+    d = mujoco.MjData(m)
+    d.qpos[:] = q_start
+    for k in range(20):
+        d.qfrc_applied[:] = np.asarray(tau) + np.asarray(plant.disturbance((k + 0.5) * H_CTRL))
+        mujoco.mj_step(m, d)
+    np.testing.assert_array_equal(np.asarray(s.q), d.qpos)
+    np.testing.assert_array_equal(np.asarray(s.qd), d.qvel)
+    np.testing.assert_array_equal(np.asarray(qdd), d.qacc)
+    assert float(s.normal_force) > 0.0
+    # jit, the pure_callback path, vmap over a batch of states: the same numbers
+    s10 = states[9]
+    ref_next = plant.step(10 * H_CTRL, s10, tau, H_CTRL)
+    jitted = jax.jit(lambda st: plant.step(10 * H_CTRL, st, tau, H_CTRL))(s10)
+    pure = MujocoPlant(plant._engine, plant.disturbance, plant.control_period, "pure_callback")
+    via_pure = jax.jit(lambda st: pure.step(10 * H_CTRL, st, tau, H_CTRL))(s10)
+    batch = jax.tree.map(lambda a, b: jnp.stack([a, b]), s10, states[4])
+    batched = jax.jit(jax.vmap(lambda st: plant.step(10 * H_CTRL, st, tau, H_CTRL)))(batch)
+    for other in (jitted, via_pure, jax.tree.map(lambda a: a[0], batched)):
+        for a, b in zip(jax.tree.leaves(ref_next), jax.tree.leaves(other)):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    second = plant.step(10 * H_CTRL, states[4], tau, H_CTRL)
+    for a, b in zip(jax.tree.leaves(second), jax.tree.leaves(jax.tree.map(lambda a: a[1], batched))):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # the disturbance is data: a vmapped batch of plants that differ only in it
+    dist = plant.disturbance
+    flipped = H.SquareWave(-dist.amplitude, dist.period, dist.phase)
+    plants = jax.tree.map(lambda a, b: jnp.stack([a, b]), plant,
+                          MujocoPlant(plant._engine, flipped, plant.control_period))
+    by_plant = jax.jit(jax.vmap(lambda pl: pl.step(10 * H_CTRL, s10, tau, H_CTRL)[0].qd))(plants)
+    np.testing.assert_array_equal(np.asarray(by_plant[0]), np.asarray(ref_next[0].qd))
+    other = MujocoPlant(plant._engine, flipped, plant.control_period).step(10 * H_CTRL, s10, tau, H_CTRL)
+    np.testing.assert_array_equal(np.asarray(by_plant[1]), np.asarray(other[0].qd))
+    assert not np.array_equal(np.asarray(by_plant[0]), np.asarray(by_plant[1]))
+    # initial_state: eager, jitted and vmapped agree
+    q_pair = jnp.stack([jnp.asarray(q_start), jnp.asarray(q_start) + 0.01])
+    eager = [plant.initial_state(q) for q in q_pair]
+    pairs = [(eager[1], jax.jit(plant.initial_state)(q_pair[1]))]
+    vmapped = jax.vmap(plant.initial_state)(q_pair)
+    pairs += [(eager[i], jax.tree.map(lambda a: a[i], vmapped)) for i in range(2)]
+    for want, got in pairs:
+        for a, b in zip(jax.tree.leaves(want), jax.tree.leaves(got)):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_sense_and_bad_inputs(paper_mujoco_plant, q_start):
+    plant = paper_mujoco_plant
+    assert plant.n == 2 and plant.discrete is True
+    s0 = plant.initial_state(q_start)
+    meas, diag = plant.sense(0.0, s0)
+    np.testing.assert_array_equal(np.asarray(meas.q), q_start)
+    np.testing.assert_array_equal(np.asarray(meas.qd), np.zeros(2))
+    # at zero penetration MuJoCo's soft contact still carries d·a0/W of the load (gravity here):
+    # 0.003 N, docs/mujoco.md
+    assert abs(float(diag["penetration"])) < 1e-12 and 0.0 <= float(diag["normal_force"]) < 0.01
+    np.testing.assert_allclose(np.asarray(diag["x_true"]), np.asarray(TRUE_ARM.h(q_start)), atol=1e-14)
+    np.testing.assert_array_equal(np.asarray(diag["disturbance"]), [3.0, 3.0])
+    assert set(diag) == {"normal_force", "penetration", "F", "x_true", "disturbance"}
+    # above the surface: negative penetration = minus the height, no force
+    up = plant.initial_state(np.asarray(q_start) + np.array([0.05, 0.0]))
+    x = np.asarray(TRUE_ARM.h(np.asarray(q_start) + np.array([0.05, 0.0])))
+    assert float(up.penetration) == pytest.approx((x[0] - 0.8) * np.sin(DELTA_TRUE) - x[1] * np.cos(DELTA_TRUE),
+                                                  abs=1e-12)
+    assert float(up.penetration) < 0 and float(up.normal_force) == 0.0
+    # a NaN torque poisons the state instead of reaching MuJoCo
+    bad, _ = plant.step(0.0, s0, jnp.array([np.nan, 0.0]), H_CTRL)
+    assert np.all(np.isnan(np.asarray(bad.q)))
+    ok, _ = plant.step(0.0, s0, jnp.zeros(2), H_CTRL)  # and the plant still works afterwards
+    assert np.all(np.isfinite(np.asarray(ok.q)))
+    with pytest.raises(ConfigError) as err:
+        plant.step(0.0, s0, jnp.zeros(2), 1.5e-4)
+    assert err.value.key == "plant.timestep"
+
+
+# --------------------------------------------------------------------------------------------
+# Errors
+# --------------------------------------------------------------------------------------------
+def test_configuration_errors():
+    args = (TRUE_ARM, TRUE_SURFACE, H.PenaltyContact(1e5, 0.0), H.SquareWave.paper())
+    with pytest.raises(ConfigError) as err:
+        MujocoPlant.from_models(*args, control_period=1e-3, timestep=3e-4)
+    assert err.value.key == "plant.timestep" and "divide" in str(err.value)
+    with pytest.raises(ConfigError) as err:
+        MujocoPlant.from_models(*args, control_period=1e-3, integrator="Verlet")
+    assert err.value.key == "plant.integrator"
+    with pytest.raises(ConfigError) as err:
+        MujocoPlant.from_models(TRUE_ARM, TRUE_SURFACE, H.PenaltyContact(-1.0, 0.0), H.SquareWave.paper(),
+                                control_period=1e-3)
+    assert err.value.key == "plant.contact.stiffness"
+    plant = MujocoPlant.from_models(*args, control_period=1e-3, timestep=2.5e-4)
+    assert plant.timestep == 2.5e-4
+
+
+def test_missing_extra_is_a_config_error(monkeypatch):
+    monkeypatch.setitem(sys.modules, "mujoco", None)  # `import mujoco` now raises ImportError
+    with pytest.raises(ConfigError) as err:
+        MujocoPlant.from_models(TRUE_ARM, TRUE_SURFACE, H.PenaltyContact(), H.SquareWave.paper(),
+                                control_period=1e-4)
+    assert err.value.key == "plant.engine"
+    assert "plant.engine = \"mujoco\" needs the optional extra: pip install 'hinfnn[mujoco]'" in str(err.value)
+    with pytest.raises(ConfigError):
+        mjcf_two_link(TRUE_ARM, TRUE_SURFACE, H.PenaltyContact(), timestep=1e-4, integrator="RK4")
+
+
+def test_hinfnn_imports_without_mujoco():
+    code = ("import sys; sys.modules['mujoco'] = None\n"
+            "import hinfnn, hinfnn.plant.mujoco\n"
+            "assert 'mujoco' not in [m for m in sys.modules if sys.modules[m] is not None]\n"
+            "print('ok')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         env={**__import__("os").environ, "HINFNN_CACHE_DIR": "off", "JAX_PLATFORMS": "cpu"})
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
