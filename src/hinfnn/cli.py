@@ -106,6 +106,19 @@ def _parser() -> argparse.ArgumentParser:
                    help="override a scenario value (repeatable)")
     d.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
 
+    cp = sub.add_parser(
+        "compare", formatter_class=fmt,
+        help="run a scenario with one key at several values side by side (e.g. the built-in plant vs MuJoCo)",
+        description="Run SCENARIO once per value of one key (given as --set KEY=V1,V2,...), with the same "
+                    "controller(s), and write metrics.json (metrics and ratios to the first value also in "
+                    "compare.md), trajectory.npz, scenario.toml and figures overlaying lambda(t), u1(t), tau(t) "
+                    "and the contact of every run.",
+        epilog="examples:\n  hinfnn compare paper --set plant.engine=hinfnn,mujoco --set plant.contact.damping=200 "
+               "--set controller.kind=hinf\n  hinfnn compare paper --set plant.contact.stiffness=1e4,1e5,1e6\n")
+    cp.add_argument("scenario", help="shipped scenario name or path to a .toml file")
+    cp.add_argument("--out", type=Path, default=None, help="output folder (default: results/compare-<name>)")
+    common(cp)
+
     k = sub.add_parser("keys", formatter_class=fmt, help="list every scenario key with its meaning and range",
                        description="Every key a scenario file or --set accepts.",
                        epilog="example:\n  hinfnn keys | grep contact\n")
@@ -303,6 +316,37 @@ def cmd_design(args) -> int:
     return 0
 
 
+def cmd_compare(args) -> int:
+    from .compare import compare, split_values
+    from .errors import ConfigError
+    from .report.markdown import metrics_table
+    from .scenario import Scenario, parse_override
+
+    fixed, varied = [], []
+    for item in args.overrides:
+        key, sep, raw = item.partition("=")
+        parts = split_values(raw) if sep else []
+        if len(parts) > 1:
+            varied.append((key.strip(), [parse_override(f"{key}={p}")[1] for p in parts]))
+        else:
+            fixed.append(item)
+    if len(varied) != 1:
+        raise ConfigError(f"give exactly one key with several values (--set KEY=V1,V2), got {len(varied)}"
+                          + (f": {', '.join(k for k, _ in varied)}" if varied else ""), key="--set")
+    key, values = varied[0]
+    sc = Scenario.load(args.scenario, fixed)
+    for v in values:  # every value is checked before anything runs
+        sc.with_overrides([(key, v)])
+    progress = Progress(args.quiet, f"comparing {key}")
+    target, doc = compare(sc, key, values, args.out or Path("results") / f"compare-{sc.name}", force=args.force,
+                          progress=progress, log=lambda m: print(m, file=sys.stderr), command=command_line(args))
+    progress.done()
+    if not args.quiet:
+        print(metrics_table(doc, markdown=False))
+        print(f"results: {target}/ (compare.md, metrics.json, trajectory.npz, scenario.toml, *.png)")
+    return 1 if any(r["status"] != "ok" for r in doc["runs"]) else 0
+
+
 def cmd_keys(args) -> int:
     from .scenario import keys
 
@@ -366,7 +410,7 @@ def cmd_cache(args) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "design": cmd_design, "keys": cmd_keys, "scenarios": cmd_scenarios,
+COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "design": cmd_design, "compare": cmd_compare, "keys": cmd_keys, "scenarios": cmd_scenarios,
             "show": cmd_show, "cache": cmd_cache}
 
 

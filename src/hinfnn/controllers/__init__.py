@@ -15,13 +15,13 @@ from .network import CENTRE_PRESETS_F, TanhNetwork, centres_from, paper_network_
 from .riccati import RiccatiSolution, design_riccati, solve_riccati_like
 from .sampled import MeasurementError, SampledController, SampledLoop
 from .summary import design_summary
-from .terms import Context, ForceNetwork, PositionNetwork, RobustForce, RobustPosition, Term
+from .terms import Context, ForceNetwork, ForceRate, PositionNetwork, RobustForce, RobustPosition, Term
 
 __all__ = [
     "Gains", "KINDS", "Composition", "design", "register", "unregister",
     "FeedbackLinearization", "HinfController", "HinfNNController",
     "ControllerState", "Output", "ReducedOrderController", "force_multiplier",
-    "Term", "Context", "RobustPosition", "RobustForce", "PositionNetwork", "ForceNetwork",
+    "Term", "Context", "RobustPosition", "RobustForce", "PositionNetwork", "ForceNetwork", "ForceRate",
     "TanhNetwork", "CENTRE_PRESETS_F", "centres_from", "paper_network_p", "paper_network_f",
     "RiccatiSolution", "design_riccati", "solve_riccati_like",
     "SampledController", "SampledLoop", "MeasurementError", "design_summary",
