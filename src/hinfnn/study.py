@@ -102,6 +102,8 @@ def beyond_document(base: Scenario, runs, trajs, metrics, designs, modes) -> dic
     entries = [run_entry(n, trajs[n], overrides=o, design=designs[n], metrics=metrics[n], label=beyond_label(n, k))
                for n, _, k, o in runs]
     out = dict(cases=cases, runs=entries, sampled_stiffness_max=SAMPLED_STIFFNESS_MAX)
+    if not any(c["mode"] == "mujoco" for c in cases):
+        out["mujoco_skipped"] = "MuJoCo is not installed (pip install 'hinfnn[mujoco]')"
     cont = next((designs[c["name"]].get("force_rate") for c in cases
                  if c["variant"] == "stable" and c["mode"] == "cont" and c["kind"] == "hinf"), None)
     samp = next((designs[c["name"]].get("force_rate") for c in cases
@@ -180,6 +182,8 @@ BEYOND_STIFFNESS = (1e4, 1e5, 1e6)
 BEYOND_KINDS = ("hinf", "hinf_nn")
 #: Control modes: continuous (the paper's) and zero-order hold at 1 kHz, as a robot runs.
 BEYOND_MODES = {"cont": {}, "1kHz": {"simulation.control": "sampled", "simulation.control_period": 1e-3}}
+#: The contact stiffness of the MuJoCo side-by-side (N/m, undamped), when MuJoCo is installed.
+MUJOCO_STIFFNESS = 1e5
 #: The stabilised design under 1 kHz control: no force-rate gain stabilises 1e6 N/m at 1 kHz with
 #: Theorem 1's β_λ (the design step says so), so it is designed for contacts up to 1e5 N/m.
 SAMPLED_STIFFNESS_MAX = 1e5
@@ -212,8 +216,8 @@ def beyond_label(name: str, kind: str) -> str:
     from .controllers import KINDS
 
     _, variant, mode, k = name.rsplit("_", 3)
-    return (f"{KINDS[kind].label}, {'paper law' if variant == 'paper' else 'stabilised'}, "
-            f"{'continuous' if mode == 'cont' else 'ZOH 1 kHz'}, k = {k[1:]} N/m")
+    how = {"cont": "continuous", "1kHz": "ZOH 1 kHz", "10kHz": "ZOH 10 kHz", "mujoco": "MuJoCo plant, 10 kHz"}[mode]
+    return f"{KINDS[kind].label}, {'paper law' if variant == 'paper' else 'stabilised'}, {how}, k = {k[1:]} N/m"
 
 
 def run_beyond(base: Scenario, progress=None):
@@ -242,6 +246,42 @@ def run_beyond(base: Scenario, progress=None):
         m["status"] = "ok" if int(traj.status) == 0 else "diverged"
         metrics[name] = m
     stable = Scenario.load("paper-stable", [(k, v) for k, v in base.overrides if k != "controller.kind"])
+    # MuJoCo as the plant (when the optional extra is installed): the same laws on the undamped
+    # 1e5 N/m contact at 10 kHz, beside the built-in plant's continuous runs
+    mj_runs = []
+    try:
+        from .plant.mujoco import require_mujoco
+
+        require_mujoco()
+    except Exception:  # noqa: BLE001 - the comparison is optional: the report says it was skipped
+        mj_runs = None
+    if mj_runs is not None:
+        for kind in BEYOND_KINDS:
+            for variant, sc in (("paper", base), ("stable", stable)):
+                common = {"plant.contact.stiffness": MUJOCO_STIFFNESS, "plant.contact.damping": 0.0,
+                          "controller.kind": kind}
+                # MuJoCo runs the controller every step (sampled data at 1/dt); its built-in twin does too
+                twin = {**common, "simulation.control": "sampled", "simulation.control_period": sc.simulation.dt}
+                mj_runs.append((beyond_name(kind, variant, "10kHz", MUJOCO_STIFFNESS), sc.with_overrides(twin), kind,
+                                twin))
+                o = {**common, "plant.engine": "mujoco"}
+                mj_runs.append((beyond_name(kind, variant, "mujoco", MUJOCO_STIFFNESS), sc.with_overrides(o), kind, o))
+        specs = []
+        for name, sc, kind, _ in mj_runs:
+            spec = sc.run(kind, name)
+            specs.append(spec)
+            designs[name] = design_summary(spec.controller)
+        t1 = time.perf_counter()
+        mj_trajs = simulate_many(specs, progress=progress, save_every=1, fields=BEYOND_FIELDS + METRICS_FIELDS)
+        seconds += time.perf_counter() - t1
+        for name, traj in mj_trajs.items():
+            m = compute_metrics(traj)
+            t, tau = traj.t, traj.tau_abs_max
+            m["peak_abs_tau1_after_0.1s"] = float(np.max(tau[t > 0.1, 0])) if np.any(t > 0.1) else math.nan
+            m["status"] = "ok" if int(traj.status) == 0 else "diverged"
+            metrics[name] = m
+        trajs.update(mj_trajs)
+        runs = runs + mj_runs
     modes = {}
     for kind in BEYOND_KINDS:
         for variant, sc in (("paper", base), ("stable", stable)):

@@ -750,18 +750,19 @@ def beyond_figures(runs: dict[str, Trajectory], metrics: dict[str, dict], cases:
                       _Panel(r"$u_1$ (m)", _series(group, "u1"), _reference(group, "u1_d"))],
                      SIZE_TALL, t_end, _zoom_windows(t_end))
         written.append(_save(fig, out_dir / "beyond_lambda_u1.png"))
-    written.append(_beyond_bars(metrics, cases, out_dir / "beyond_bars.png"))
+    horizon = max((float(np.asarray(t.arrays["t"])[-1]) for t in runs.values()), default=0.0)
+    written.append(_beyond_bars(metrics, cases, out_dir / "beyond_bars.png", horizon))
     return written
 
 
-def _beyond_bars(metrics: dict, cases: list[dict], path: Path) -> Path:
+def _beyond_bars(metrics: dict, cases: list[dict], path: Path, horizon: float) -> Path:
     keys = []  # (kind, mode, k) in order
     for c in cases:
         key = (c["kind"], c["mode"], c["k"])
         if key not in keys:
             keys.append(key)
     fig = Figure(figsize=(SIZE_TALL[0] / DPI, SIZE_TALL[1] / DPI), dpi=DPI, facecolor="white")
-    gs = fig.add_gridspec(3, 1, left=0.09, right=0.985, top=0.9, bottom=0.17, hspace=0.35)
+    gs = fig.add_gridspec(3, 1, left=0.09, right=0.985, top=0.88, bottom=0.13, hspace=0.3)
     panels = [("rms_e_lam", r"RMS $e_\lambda$ (log)", True, 1.0), ("rms_e_u1", r"RMS $e_{u1}$ (m)", False, 1.0),
               ("fraction_out_of_contact", "out of contact (%)", False, 100.0)]
     x = np.arange(len(keys))
@@ -782,24 +783,27 @@ def _beyond_bars(metrics: dict, cases: list[dict], path: Path) -> Path:
             bars = ax.bar(xs, np.nan_to_num(values, nan=0.0), width, color=colors[variant],
                           label="paper law" if variant == "paper" else "stabilised (force rate, Q_p, guard)",
                           edgecolor="black", linewidth=0.4, zorder=2)
-            for b, s, v in zip(bars, stopped, values):
+            for b, s in zip(bars, stopped):
                 if s:
                     b.set_hatch("///")
-                if s and row == 0:
-                    ax.text(b.get_x() + b.get_width() / 2, max(v, 1e-3) if np.isfinite(v) else 1e-3, "stopped",
-                            rotation=90, ha="center", va="bottom", fontsize=7)
         if log:
             ax.set_yscale("log")
         _style_axes(ax, ylabel, xlabel=None)
         ax.set_xticks(x)
-        ax.set_xticklabels([f"{'H∞-only' if kind == 'hinf' else 'adaptive'}\n{'cont.' if mode == 'cont' else '1 kHz'}"
+        how = {"cont": "cont.", "1kHz": "1 kHz", "10kHz": "10 kHz", "mujoco": "MuJoCo"}
+        ax.set_xticklabels([f"{'H∞-only' if kind == 'hinf' else 'adaptive'}\n{how.get(mode, mode)}"
                             f"\n{k:.0e}" for kind, mode, k in keys] if row == 2 else [""] * len(keys),
                            fontsize=_FONT["tick"])
         if row == 0:
-            ax.legend(fontsize=_FONT["legend"], loc="upper right", frameon=False)
+            handles, labels = ax.get_legend_handles_labels()
     fig.suptitle("Beyond the paper: the paper's laws and the stabilised ones on an undamped contact",
-                 fontsize=_FONT["title"], fontweight="bold", y=0.97)
-    fig.text(0.01, 0.012, "Each pair: the same law, control mode and contact stiffness (N/m), 10 s; hatched: the "
-             "run stopped (its metrics up to then). Out of contact: the end-effector more than 1 nm above the "
-             "surface.", fontsize=_FONT["note"], color="0.25")
+                 fontsize=_FONT["title"], fontweight="bold", y=0.975)
+    handles.append(Patch(facecolor="white", edgecolor="black", hatch="///", linewidth=0.4))
+    labels.append("the run stopped (metrics up to then)")
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.945), ncol=3, frameon=False,
+               fontsize=_FONT["legend"])
+    fig.text(0.01, 0.012, f"Each pair: the same law, control mode and contact stiffness (N/m), {horizon:.3g} s runs. "
+             "cont.: continuous control; 1 kHz, 10 kHz: zero-order hold;\nMuJoCo: MuJoCo as the plant, 10 kHz hold. "
+             "Out of contact: the end-effector more than 1 nm above the surface.",
+             fontsize=_FONT["note"], color="0.25", linespacing=1.35)
     return _save(fig, path)
