@@ -20,8 +20,10 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/hinfnn reproduce --out results/paper --force
 
+# Two pytest-xdist workers (CI and this project's machines have 2 cores); the modules whose tests
+# share compiled programs and expensive fixtures stay on one worker (xdist_group marks).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadgroup
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py

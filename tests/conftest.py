@@ -4,10 +4,20 @@ implicit rank promotion is an error, as in diffrax's test suite."""
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 
-# No persistent compilation cache: the suite must not write into the user's ~/.cache (and each
-# test of the cache sets HINFNN_CACHE_DIR for its own subprocesses). Set before `import hinfnn`.
-os.environ["HINFNN_CACHE_DIR"] = "off"
+# A compilation cache private to this test session, never the user's ~/.cache: the programs one
+# test process compiles (a pytest-xdist worker, a CLI subprocess) are loaded by the others. The
+# first process (the xdist controller, or pytest alone) creates it; workers and subprocesses
+# inherit HINFNN_CACHE_DIR. The tests of the cache itself set their own folders.
+_SESSION_CACHE = "HINFNN_TEST_SESSION_CACHE"
+if _SESSION_CACHE not in os.environ:
+    os.environ[_SESSION_CACHE] = tempfile.mkdtemp(prefix="hinfnn-test-cache-")
+    _OWN_CACHE = True
+else:
+    _OWN_CACHE = False
+os.environ["HINFNN_CACHE_DIR"] = os.environ[_SESSION_CACHE]
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
@@ -16,8 +26,13 @@ from hypothesis import settings  # noqa: E402
 
 import hinfnn as H  # noqa: E402
 
-H.configure(cache=False)
+H.configure()
 jax.config.update("jax_numpy_rank_promotion", "raise")
+
+
+def pytest_unconfigure(config):
+    if _OWN_CACHE and not hasattr(config, "workerinput"):
+        shutil.rmtree(os.environ[_SESSION_CACHE], ignore_errors=True)
 
 settings.register_profile("ci", deadline=None, derandomize=True, print_blob=True)
 settings.load_profile("ci")

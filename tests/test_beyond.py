@@ -19,6 +19,9 @@ from hinfnn.analysis import contact_modes, force_loop_polynomial, loop_constants
 from hinfnn.controllers import ForceRate, SampledController
 from hinfnn.protocols import Measurement
 
+#: one xdist worker runs this module: its tests share compiled programs and expensive fixtures
+pytestmark = pytest.mark.xdist_group("beyond")
+
 STABLE = {"controller.force_rate.kappa": "rule", "controller.gains.Q_p": [[1e4, 0.0], [0.0, 1.0]]}
 
 

@@ -153,10 +153,11 @@ def test_second_process_reuses_programs_and_an_unusable_folder_does_not_fail(tmp
 
 @pytest.fixture
 def cache_state(monkeypatch):
-    """Leave the test process's cache as it was (off, see conftest.py) whatever a test does."""
+    """Leave the test process's cache as it was (the session's, see conftest.py) whatever a test does."""
     monkeypatch.setattr(_cache, "_warned", False)
+    before = _cache.cache_dir()
     yield
-    _cache.enable_cache(None)
+    _cache.enable_cache(before)
 
 
 def test_enable_cache_degrades_with_one_warning(tmp_path, cache_state):
@@ -255,9 +256,10 @@ def test_computing_without_float64_is_a_clear_error():
 # --- the command, in process (the test session runs with the cache off) ---------------------
 
 
-def test_cache_command_when_off(capsys):
-    assert _cache.cache_dir() is None
+def test_cache_command_when_off(capsys, monkeypatch, cache_state):
+    monkeypatch.setenv("HINFNN_CACHE_DIR", "off")
     assert cli.main(["cache", "--path"]) == 0
+    assert _cache.cache_dir() is None
     assert capsys.readouterr().out == ""
     assert cli.main(["cache"]) == 0
     assert "off" in capsys.readouterr().out

@@ -19,12 +19,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-mujoco = pytest.importorskip("mujoco")
+import mujoco  # noqa: E402  (installed by `make test`: the test extra; a missing one must fail, not skip)
 
 import hinfnn as H  # noqa: E402
 from hinfnn.errors import ConfigError  # noqa: E402
 from hinfnn.plant import mujoco as hm  # noqa: E402
 from hinfnn.plant.mujoco import MujocoPlant, mjcf_two_link  # noqa: E402
+
+#: one xdist worker runs this module: its tests share compiled programs and expensive fixtures
+pytestmark = pytest.mark.xdist_group("mujoco")
 
 DELTA_TRUE = 91.0 / 360.0 * np.pi
 TRUE_ARM = H.TwoLinkArm(1.2, 1.1, 1.02724, 0.98041)

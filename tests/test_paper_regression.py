@@ -18,6 +18,9 @@ import hinfnn as H
 from hinfnn.report.claims import evaluate
 from hinfnn.study import run_study
 
+#: one xdist worker runs this module: its tests share compiled programs and expensive fixtures
+pytestmark = pytest.mark.xdist_group("paper_study")
+
 RECORDED = {
     "fl": {
         "rms_e_u1": 0.1137164,

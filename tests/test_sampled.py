@@ -18,6 +18,9 @@ import hinfnn as H
 from hinfnn.controllers import MeasurementError
 from hinfnn.protocols import Measurement
 
+#: one xdist worker runs this module: its tests share compiled programs and expensive fixtures
+pytestmark = pytest.mark.xdist_group("sampled")
+
 KINDS = ("fl", "hinf", "hinf_nn")
 PERIOD = 1e-3
 DT = 1e-4

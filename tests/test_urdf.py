@@ -19,6 +19,9 @@ from hinfnn.model.arm import Arm, PlanarPointMassArm
 from hinfnn.model.taskmap import PlanarTaskMap, PoseTaskMap, PositionTaskMap, so3_exp, so3_log
 from hinfnn.model.urdf import UrdfArm, UrdfError, asset_path, load_urdf, load_urdf_string, rpy_matrix
 
+#: one xdist worker runs this module: its tests share compiled programs and expensive fixtures
+pytestmark = pytest.mark.xdist_group("urdf")
+
 UR5 = asset_path("ur5", "ur5.urdf")
 SEC6 = asset_path("planar", "sec6_two_link.urdf")
 THREE = asset_path("planar", "three_link.urdf")
