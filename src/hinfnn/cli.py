@@ -11,12 +11,12 @@ Ctrl-C or SIGTERM while JAX loads ends the command like at any other moment.
 
 from __future__ import annotations
 
+from . import _signals  # noqa: I001  (first: nothing else to import before the handlers)
+
 import argparse
 import sys
 import time
 from pathlib import Path
-
-from . import _signals
 
 EXAMPLES_RUN = """examples:
   hinfnn run paper                   # writes results/runs/paper-<UTC time>/
@@ -181,23 +181,48 @@ def _parser() -> argparse.ArgumentParser:
 
 
 class Progress:
-    """Progress on stderr (tqdm: steps done, rate, ETA), shown only for runs longer than a few
-    seconds and never with ``--quiet``; ``names`` are the runs of the chunk being simulated."""
+    """Progress on stderr with an ETA, never with ``--quiet``. On a terminal: a tqdm bar (steps
+    done, rate, time left) once a run has lasted 3 s; otherwise (a log file, a pipe) one line
+    every 10 s, ``LABEL: 12.0 % (10 s, about 73 s left)``. ``names``: the runs of the chunk
+    being simulated."""
 
-    def __init__(self, quiet: bool, label: str):
+    def __init__(self, quiet: bool, label: str, stream=None):
         self.quiet = quiet
         self.label = label
+        self.stream = stream or sys.stderr
         self.bar = None
+        self.t0 = time.perf_counter()
+        self.last = 0.0
+        try:
+            self.tty = self.stream.isatty()
+        except (AttributeError, ValueError):
+            self.tty = False
 
     def __call__(self, done: int, total: int, names=None):
         if self.quiet:
             return
+        if self.tty:
+            self._bar(done, total, names)
+            return
+        now = time.perf_counter()
+        elapsed = now - self.t0
+        if elapsed < 3.0 or (now - self.last < 10.0 and done < total):
+            return
+        self.last = now
+        frac = done / max(total, 1)
+        left = elapsed * (1 - frac) / frac if frac > 0 else float("nan")
+        eta = f", about {_duration(left)} left" if frac > 0 and done < total else ""
+        msg = f"{self.label}: {100 * frac:5.1f} %  ({_duration(elapsed)}{eta})"
+        if names:
+            msg += f"  [{', '.join(names)}]"
+        print(msg, file=self.stream, flush=True)
+
+    def _bar(self, done, total, names):
         if self.bar is None:
             from tqdm import tqdm
 
             self.bar = tqdm(total=total, desc=self.label, unit="step", unit_scale=True, delay=3.0,
-                            file=sys.stderr, leave=False, dynamic_ncols=True, mininterval=0.5,
-                            disable=None)  # None: only on a terminal
+                            file=self.stream, leave=False, dynamic_ncols=True, mininterval=0.5)
         if names:
             self.bar.set_postfix_str(", ".join(names)[:40], refresh=False)
         self.bar.update(done - self.bar.n)
@@ -206,6 +231,12 @@ class Progress:
         if self.bar is not None:
             self.bar.close()
             self.bar = None
+
+
+def _duration(seconds: float) -> str:
+    from .resources import duration
+
+    return duration(seconds)
 
 
 # --- commands -----------------------------------------------------------------------------------
@@ -430,6 +461,8 @@ def main(argv=None) -> int:
 
     saved_showwarning = warnings.showwarning
     warnings.showwarning = _one_line_warning
+    if argv is None:  # a program: a signal held too long during an import ends it at once
+        _signals.on_hard_exit = _hard_exit
     box: dict = {}
     try:
         return _main(argv, box)
@@ -446,7 +479,19 @@ def main(argv=None) -> int:
         if trace is not None:
             trace.close()
         warnings.showwarning = saved_showwarning
+        _signals.on_hard_exit = None
         _signals.restore(previous)
+
+
+def _hard_exit(signum: int) -> None:
+    import os
+    import signal
+
+    _signals.ignore()
+    word = "interrupted" if signum == signal.SIGINT else "terminated"
+    print(f"hinfnn: {word}; no output was written", file=sys.stderr)
+    sys.stderr.flush()
+    os._exit(_signals.EXIT_INTERRUPTED if signum == signal.SIGINT else _signals.EXIT_TERMINATED)
 
 
 def _main(argv, box: dict) -> int:

@@ -390,11 +390,12 @@ _Interrupted = Terminated  # the name earlier versions raised from the SIGTERM h
 
 @contextlib.contextmanager
 def _terminate_as_exception():
-    def handler(signum, frame):
-        raise Terminated(f"terminated by signal {signum}")
+    """SIGTERM raises :class:`Terminated` in the block (as Ctrl-C raises KeyboardInterrupt), so
+    that the temporary folder is removed; the ``hinfnn`` command has installed the same handler."""
+    from . import _signals
 
     try:
-        previous = signal.signal(signal.SIGTERM, handler)
+        previous = signal.signal(signal.SIGTERM, _signals.handler)
     except ValueError:  # not in the main thread
         yield
         return
