@@ -261,7 +261,8 @@ def _make_parents(parent: Path, shown: Path) -> list[Path]:
         missing.append(p)
         p = p.parent
     if not p.is_dir():
-        raise _out_error(f"{p} is a file, not a folder (in {shown})")
+        where = p if shown.is_absolute() else Path(os.path.relpath(p))
+        raise _out_error(f"{where} is a file, not a folder (in {shown})")
     created = []
     try:
         for d in reversed(missing):
@@ -343,17 +344,20 @@ def reserve_output(out, *, command: str = "run", name: str = "result", force: bo
                 busy = f"{cand_shown} is being written by another hinfnn process" + (f" (pid {owner})" if owner > 0 else "")
                 if force and i == 1:
                     raise _out_error(f"{busy}; wait for it to finish or choose another --out")
-                note = note or f"{busy}; writing to {{new}} instead"
+                note = note or busy + "; writing to {new} instead"
                 continue
             res = Reservation(cand, lock, None, created, shown)
             if cand.exists() and not cand.is_dir():
                 res.release(keep_parents=True)
                 res = None
                 continue
-            if not cand.exists() or _is_empty_dir(cand):
-                break
+            try:
+                if not cand.exists() or _is_empty_dir(cand):
+                    break
+                foreign = foreign_files(cand) if force and i == 1 else None
+            except OSError as err:
+                raise _out_error(f"cannot read {cand_shown}: {err.strerror or err}") from None
             if force and i == 1:
-                foreign = foreign_files(cand)
                 if not foreign:
                     break
                 res.release(keep_parents=True)
@@ -364,7 +368,7 @@ def reserve_output(out, *, command: str = "run", name: str = "result", force: bo
             res.release(keep_parents=True)
             res = None
             if note is None:
-                note = f"{shown} is not empty; writing to {{new}} instead (use --force to replace it)"
+                note = f"{shown} is not empty; writing to " + "{new} instead (use --force to replace it)"
     except BaseException:
         if res is not None:
             res.release(keep_parents=True)
@@ -372,7 +376,7 @@ def reserve_output(out, *, command: str = "run", name: str = "result", force: bo
             with contextlib.suppress(OSError):
                 d.rmdir()
         raise
-    res.note = note.format(new=cand_shown) if note and cand != path else None
+    res.note = note.replace("{new}", str(cand_shown)) if note and cand != path else None
     res.target = cand if text.startswith("~") else cand_shown
     return res
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import re
 
 from .errors import ConfigError
 
@@ -26,20 +27,48 @@ class ResourceError(ConfigError):
     """A command would need more memory than the machine has available."""
 
 
+#: Environment variable that caps the memory hinfnn plans with (``8GB``, ``512MB``, ``2e9``).
+ENV_MAX_MEMORY = "HINFNN_MAX_MEMORY"
+_UNITS = {"": 1, "B": 1, "K": 1e3, "KB": 1e3, "M": 1e6, "MB": 1e6, "G": 1e9, "GB": 1e9, "T": 1e12, "TB": 1e12,
+          "KIB": 2**10, "MIB": 2**20, "GIB": 2**30, "TIB": 2**40}
+
+
+def parse_size(text: str) -> int:
+    """``"8GB"`` -> 8e9, ``"512 MiB"``, ``"2e9"`` (bytes). ValueError for anything else."""
+    m = re.fullmatch(r"\s*([0-9.]+(?:e[+-]?[0-9]+)?)\s*([A-Za-z]*)\s*", text)
+    if not m or m.group(2).upper() not in _UNITS:
+        raise ValueError(text)
+    value = float(m.group(1)) * _UNITS[m.group(2).upper()]
+    if not math.isfinite(value) or value <= 0:
+        raise ValueError(text)
+    return int(value)
+
+
 def available_memory() -> int | None:
     """Bytes of memory available to a new allocation (Linux ``MemAvailable``; else free pages),
-    or None when the system does not say."""
+    capped by ``HINFNN_MAX_MEMORY`` when set, or None when the system does not say."""
+    found = None
     try:
         with open("/proc/meminfo", encoding="ascii") as f:
             for line in f:
                 if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
+                    found = int(line.split()[1]) * 1024
+                    break
     except (OSError, ValueError, IndexError):
         pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
+    if found is None:
+        try:
+            found = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (ValueError, OSError, AttributeError):
+            found = None
+    cap = os.environ.get(ENV_MAX_MEMORY, "").strip()
+    if cap:
+        try:
+            limit = parse_size(cap)
+        except ValueError:
+            raise ConfigError(f"must be a size such as 8GB, 512MB or 2e9, got {cap!r}", key=ENV_MAX_MEMORY) from None
+        found = limit if found is None else min(found, limit)
+    return found
 
 
 def size(n: float) -> str:
