@@ -2,7 +2,8 @@
 
 One row per stored sample; the first column is ``run`` (the run's name), then ``t [s]`` and one
 column per component of every stored field, named with the field, the component (1-based, as
-the paper's τ1, τ2) and the unit of :data:`hinfnn.fields.FIELDS`: ``tau_1 [N·m]``,
+the paper's τ1, τ2; none for a field of one number per sample) and the unit of
+:data:`hinfnn.fields.FIELDS`: ``tau_1 [N·m]``,
 ``tau_2 [N·m]``, ``lam [λ units]``, ``J [-]``. Runs are stacked in the folder's order; a field
 one run does not store is empty (NaN) in the others' rows. A run that stopped early (diverged)
 is exported up to its last sample at or before ``t_fail`` (the simulator repeats the last good
@@ -37,12 +38,13 @@ def _rows_of(traj) -> int:
 
 
 def field_columns(name: str, arr: np.ndarray) -> list[tuple[str, np.ndarray]]:
-    """The columns of one field: ``name [unit]`` for a scalar per sample, ``name_i [unit]``
-    (``name_i_j`` for matrices) for each component, 1-based."""
+    """The columns of one field: ``name [unit]`` for one number per sample (a scalar or a
+    vector of one, as u1 and λ of the planar arm), else ``name_i [unit]`` (``name_i_j`` for
+    matrices) for each component, 1-based."""
     arr = np.asarray(arr)
     u = unit(name)
-    if arr.ndim == 1:
-        return [(f"{name} [{u}]", arr)]
+    if arr.ndim == 1 or math.prod(arr.shape[1:]) == 1:
+        return [(f"{name} [{u}]", arr.reshape(arr.shape[0]))]
     flat = arr.reshape(arr.shape[0], -1)
     return [(f"{name}_{'_'.join(str(i + 1) for i in idx)} [{u}]", flat[:, k])
             for k, idx in enumerate(np.ndindex(arr.shape[1:]))]
