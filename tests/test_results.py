@@ -449,6 +449,8 @@ def test_export_csv_equals_the_npz_exactly(tmp_path, result, capsys):
     assert head[:2] == ["run", "t [s]"]
     assert {"tau_1 [N·m]", "tau_2 [N·m]", "lam [λ units]", "J [-]", "q_1 [rad]", "u1 [m]"} <= set(head)
     npz = _npz(out / "trajectory.npz")
+    units = json.loads(str(npz["__units__"]))
+    assert units["tau"] == "N·m" and units["t"] == "s" and units["lam"] == "λ units"
     names = [str(n) for n in npz["__runs__"]]
     assert [r[0] for r in body] == [n for n in names for _ in range(len(npz[f"{n}/t"]))]
     col = {h: i for i, h in enumerate(head)}

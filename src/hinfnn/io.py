@@ -7,7 +7,8 @@ complete folder is renamed into place (:class:`OutputFolder`). An interrupted or
 
 ``trajectory.npz`` stores, for each run NAME, the arrays as ``NAME/FIELD``, the run's resolved
 scenario as ``NAME/__scenario__`` (TOML text) and its status; plus ``__format__``,
-``__hinfnn_version__`` and ``__runs__`` (the names in order). :func:`load` reads a folder (or the
+``__hinfnn_version__``, ``__runs__`` (the names in order) and ``__units__`` (JSON text: the unit of
+every stored field). :func:`load` reads a folder (or the
 npz file) back.
 """
 
@@ -533,10 +534,14 @@ def dumps_json(obj) -> str:
 
 def trajectory_npz_bytes(runs: dict, max_interval: float | None = 1e-3) -> bytes:
     """The ``trajectory.npz`` content for named Trajectories (decimated to ``max_interval``)."""
+    from .fields import unit
+
+    stored = sorted({f for traj in runs.values() for f in traj.arrays})
     payload: dict[str, Any] = {
         "__format__": np.array(FORMAT),
         "__hinfnn_version__": np.array(version()),
         "__runs__": np.array(list(runs), dtype=str),
+        "__units__": np.array(json.dumps({f: unit(f) for f in stored}, ensure_ascii=False)),
     }
     for name, traj in runs.items():
         if "/" in name:
