@@ -191,7 +191,7 @@ def test_hostile_scenario_name_stays_under_results(tmp_path, cache, name):
     ("", "is empty"),
     ("   ", "is empty"),
     (".", "is the current folder"),
-    ("/proc/foo", "cannot write in /proc"),
+    ("/proc/foo", "cannot create /proc/foo"),
     ("existing_file/sub", "existing_file is a file, not a folder"),
     ("existing_file", "exists and is not a folder"),
     ("x" * 300, "characters long"),

@@ -502,7 +502,7 @@ def _main(argv, box: dict) -> int:
         parser.print_help()
         return 2
     try:
-        if args.command not in ("keys", "scenarios", "show", "plot", "export", "cache"):
+        if args.command not in ("keys", "scenarios", "show", "plot", "export"):
             from ._config import configure
 
             configure()

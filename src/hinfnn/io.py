@@ -340,7 +340,7 @@ def reserve_output(out, *, command: str = "run", name: str = "result", force: bo
             try:
                 owner = _take_lock(lock, cand)
             except OSError as err:
-                raise _out_error(f"cannot write in {path.parent}: {err.strerror or err}") from None
+                raise _out_error(f"cannot create {cand_shown}: {err.strerror or err} (in {path.parent})") from None
             if owner is not None:
                 busy = f"{cand_shown} is being written by another hinfnn process" + (f" (pid {owner})" if owner > 0 else "")
                 if force and i == 1:
