@@ -514,3 +514,36 @@ def test_sampled_loop_rejects_a_wrong_force_shape():
     with pytest.raises(MeasurementError):
         loop.update(0.0, 1e-3, q, np.zeros(2), 5.0)
     assert np.all(np.isfinite(loop.update(0.0, 1e-3, q, np.zeros(2), np.zeros(2))))
+
+
+def test_force_replacement_without_atomic_exchange(tmp_path, result, monkeypatch):
+    """Where the file system cannot swap two folders atomically, the old result is moved aside,
+    the new one renamed in, the old one deleted: same outcome, no leftovers."""
+    monkeypatch.setattr("hinfnn.io._exchange", lambda a, b: False)
+    out = tmp_path / "r"
+    shutil.copytree(result, out)
+    assert cli.main(["run", "paper", "--set", "simulation.t_final=0.02", "--set", "controller.kind=fl",
+                     "--out", str(out), "--force", "--quiet"]) == 0
+    assert set(H.load(out).trajectories) == {"fl"} and foreign_files(out) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
+
+
+def test_files_added_during_a_run_are_kept(tmp_path, result, monkeypatch):
+    """A file dropped into the target while the result is computed: the result goes to the next
+    free name and the command says so; nothing of the user's is deleted."""
+    import hinfnn.io as hio
+    from hinfnn import runner
+
+    out = tmp_path / "r"
+    shutil.copytree(result, out)
+
+    class Dropping(hio.OutputFolder):
+        def _commit(self):
+            (self.target / "late.txt").write_text("mine")
+            return super()._commit()
+
+    monkeypatch.setattr(hio, "OutputFolder", Dropping)
+    res = runner.run_scenario(H.load_scenario("paper", ["simulation.t_final=0.02", "controller.kind=fl"]),
+                              out=out, force=True, log=lambda m: None)
+    assert res.target == tmp_path / "r-2" and "did not write appeared" in res.note
+    assert (out / "late.txt").read_text() == "mine" and _complete(out) and _complete(tmp_path / "r-2")
