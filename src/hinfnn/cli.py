@@ -513,6 +513,12 @@ def _main(argv, box: dict) -> int:
         return COMMANDS[args.command](args)
     except (KeyboardInterrupt, _signals.Terminated):
         raise
+    except BrokenPipeError:  # `hinfnn export DIR --csv --out - | head`: the reader has left
+        import os
+
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # no second error when Python flushes stdout at exit
+        return 1
     except BaseException as err:  # noqa: BLE001 - the CLI's last line of defence
         if isinstance(err, SystemExit):
             raise
