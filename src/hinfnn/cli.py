@@ -265,9 +265,13 @@ def cmd_run(args) -> int:
         trace.mark("scenario_loaded")
     fields = _fields(args.fields)
     if fields is not None:
+        from .errors import ConfigError
         from .sim.recorder import select
 
-        select(fields)  # unknown names: ConfigError before anything runs
+        try:
+            select(fields)  # unknown names: before anything runs
+        except ConfigError as err:
+            raise ConfigError(str(err).removeprefix("fields: "), key="--fields") from None
     kinds = sc.kinds
     progress = Progress(args.quiet, f"simulating {', '.join(kinds)}")
     log = (lambda m: print(m, file=sys.stderr))  # even with --quiet: where the result goes matters
