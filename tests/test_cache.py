@@ -128,7 +128,8 @@ def test_second_process_reuses_programs_and_an_unusable_folder_does_not_fail(tmp
     finally:
         _, err = unusable.communicate(timeout=900)
     assert unusable.returncode == 0, err
-    assert err.count("CacheWarning") == 1, err
+    # one warning, on one line, without the source path of the code that raised it
+    assert err.count("hinfnn: warning: compilation cache off") == 1 and ".py:" not in err, err
     assert (tmp_path / "unusable" / "metrics.json").exists() and blocker.read_text() == "in the way"
 
     # `hinfnn cache --path` in a process configured by the environment ...

@@ -71,8 +71,12 @@ def test_reproduce_short_horizon_writes_every_file(tmp_path, capsys):
         _check_png(out / f"{stem}.png")
         _check_png(out / f"{stem}_damped.png")
     report = (out / "report.md").read_text()
-    for needle in ("## Claims", "held", "paper-conventions.md", "fig5_u1.png", "### Summary", "10 runs, each 0.3 s"):
+    for needle in ("## Claims", "held", "paper-conventions.md", "fig5_u1.png", "### Summary", "10 runs, each 0.3 s",
+                   f"Command: `hinfnn reproduce --set simulation.t_final=0.3 --out {out}`"):
         assert needle in report
+    doc = json.loads((out / "metrics.json").read_text())
+    assert doc["command"] == f"hinfnn reproduce --set simulation.t_final=0.3 --out {out}"
+    assert (out / ".hinfnn-result").exists()
     assert (out / "scenario.toml").exists() and (out / "trajectory.npz").exists()
     # writing again without --force picks a new numbered folder and says so
     assert cli.main(["reproduce", "--set", "simulation.t_final=0.02", "--out", str(out), "--quiet"]) == 0
@@ -190,7 +194,8 @@ def test_missing_file_and_bad_toml_exit_2(tmp_path, capsys):
 
 def test_help_texts_are_complete(capsys):
     for argv in (["--help"], ["run", "--help"], ["reproduce", "--help"], ["keys", "--help"],
-                 ["scenarios", "--help"], ["show", "--help"]):
+                 ["scenarios", "--help"], ["show", "--help"], ["plot", "--help"], ["export", "--help"],
+                 ["cache", "--help"]):
         with pytest.raises(SystemExit) as ex:
             cli.main(argv)
         assert ex.value.code == 0

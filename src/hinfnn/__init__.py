@@ -6,23 +6,37 @@ fast JAX simulator of the true plant with stiff contact.
 
 Importing hinfnn changes no process-wide setting: call :func:`configure` once (float64 and the
 persistent compilation cache; the ``hinfnn`` command does it) before running anything.
+
+The names below are imported on first use (``hinfnn.simulate`` imports JAX then, not
+``import hinfnn``): the ``hinfnn`` command installs its signal handlers before JAX is loaded, so
+Ctrl-C during start-up is handled like Ctrl-C at any other moment.
 """
 
-from ._config import configure
-from ._cache import cache_dir, clear_cache, enable_cache
-from .controllers import (FeedbackLinearization, Gains, HinfController, HinfNNController, SampledController,
-                          SampledLoop, TanhNetwork)
+from __future__ import annotations
+
+import importlib
+
 from .errors import ConfigError, DesignError, HinfnnError, SimulationError
-from .metrics import compute_metrics
-from .model import ImplicitSurface, InclinedLine, PlanarPointMassArm, TwoLinkArm, reduced_model
-from .plant import PenaltyContact, RigidBodyPlant, SquareWave
-from .protocols import Measurement
-from .reference import CosineReference
-from .scenario import Scenario, load_scenario
-from .sim import Limits, Trajectory, simulate, simulate_batch, simulate_many
-from .io import LoadError, load
 
 __version__ = "0.2.0"
+
+#: Public name -> the module that defines it (imported on first access).
+_LAZY = {
+    "configure": "._config",
+    "cache_dir": "._cache", "enable_cache": "._cache", "clear_cache": "._cache",
+    "FeedbackLinearization": ".controllers", "HinfController": ".controllers", "HinfNNController": ".controllers",
+    "SampledController": ".controllers", "SampledLoop": ".controllers", "Gains": ".controllers",
+    "TanhNetwork": ".controllers",
+    "compute_metrics": ".metrics",
+    "ImplicitSurface": ".model", "InclinedLine": ".model", "PlanarPointMassArm": ".model", "TwoLinkArm": ".model",
+    "reduced_model": ".model",
+    "PenaltyContact": ".plant", "RigidBodyPlant": ".plant", "SquareWave": ".plant",
+    "Measurement": ".protocols",
+    "CosineReference": ".reference",
+    "Scenario": ".scenario", "load_scenario": ".scenario",
+    "Limits": ".sim", "Trajectory": ".sim", "simulate": ".sim", "simulate_batch": ".sim", "simulate_many": ".sim",
+    "LoadError": ".io", "load": ".io",
+}
 
 __all__ = [
     "configure", "cache_dir", "enable_cache", "clear_cache",
@@ -33,3 +47,16 @@ __all__ = [
     "simulate", "simulate_batch", "simulate_many", "Limits", "Trajectory", "compute_metrics", "Scenario",
     "load_scenario", "load", "LoadError", "__version__",
 ]
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'hinfnn' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value  # the next access is a plain attribute
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

@@ -1,23 +1,32 @@
 """The ``hinfnn`` command: argument parsing and printing only; the work is in the library.
 
-Exit codes: 0 success; 2 user error (bad scenario, bad override, infeasible design, unreadable
-result) with a one-line message; 1 anything else (including a run that diverged); 130 when
-interrupted. ``--debug`` shows tracebacks.
+Exit codes: 0 success; 2 user error (bad scenario, bad override, infeasible design, bad or busy
+output folder, not enough memory, unreadable result) with a one-line message; 1 anything else
+(including a run that diverged); 130 interrupted (Ctrl-C, SIGINT); 143 terminated (SIGTERM).
+``--debug`` shows tracebacks. Python warnings are printed as one line ``hinfnn: warning: ...``.
+
+Nothing heavy is imported at module level: :func:`main` installs the signal handlers first, so
+Ctrl-C or SIGTERM while JAX loads ends the command like at any other moment.
 """
 
 from __future__ import annotations
 
+from . import _signals  # noqa: I001  (first: nothing else to import before the handlers)
+
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
 
 EXAMPLES_RUN = """examples:
-  hinfnn run paper
+  hinfnn run paper                   # writes results/runs/paper-<UTC time>/
   hinfnn run paper --set controller.kind=hinf --set plant.contact.damping=200
   hinfnn run paper --set 'controller.kind=["fl", "hinf", "hinf_nn"]' --out results/three
-  hinfnn run my_scenario.toml --set simulation.t_final=2 --force
+  hinfnn run my_scenario.toml --set simulation.t_final=2 --out results/mine --force
+  hinfnn run paper --set simulation.t_final=1000 --fields metrics   # long: store only what the metrics need
+
+--force replaces OUT only if hinfnn wrote it (it holds .hinfnn-result and nothing else);
+without it, a non-empty OUT is kept and the result goes to OUT-2, OUT-3, ...
 """
 EXAMPLES_REPRODUCE = """examples:
   hinfnn reproduce                       # writes results/paper/ (report.md, figures, metrics.json)
@@ -32,14 +41,34 @@ EXAMPLES_CACHE = """examples:
 The folder is $HINFNN_CACHE_DIR, else $XDG_CACHE_HOME/hinfnn/jax, else ~/.cache/hinfnn/jax;
 HINFNN_CACHE_DIR=off disables the cache. Deleting the folder at any time is safe.
 """
+EXAMPLES_PLOT = """examples:
+  hinfnn plot results/runs/paper-20261129T170102Z            redraw every figure in place
+  hinfnn plot results/three --figures tau,lambda --zoom 1:1.1,9:9.1
+  hinfnn plot results/paper --out /tmp/figs                  the study's Figs. 3-9 elsewhere
+"""
+EXAMPLES_EXPORT = """examples:
+  hinfnn export results/three --csv                 results/three/trajectory.csv (every run)
+  hinfnn export results/three --parquet --run hinf  results/three/trajectory-hinf.parquet
+  hinfnn export results/three --csv --out - | head  to standard output
+
+Columns: run, t [s], then one per component with its unit: tau_1 [N·m], tau_2 [N·m], lam [λ units] ...
+In Python: hinfnn.load("results/three").to_pandas() (the same table).
+"""
 EXAMPLES_MAIN = """examples:
   hinfnn reproduce                 the paper's Sec. VI study into results/paper/
   hinfnn run paper --set controller.kind=hinf --set plant.contact.damping=200
   hinfnn keys                      every scenario key, its meaning and allowed values
-  hinfnn show results/paper        the metrics of a saved result
+  hinfnn show results/paper        the metrics and designed controllers of a saved result
+  hinfnn plot DIR / export DIR     redraw the figures / write the trajectories as CSV or Parquet
   hinfnn cache                     the compilation cache that makes later starts fast
 
-Exit codes: 0 ok, 2 bad input (scenario, override, infeasible gains), 1 other failures, 130 interrupted.
+exit codes:
+  0    ok
+  1    a run diverged (its metrics up to then are kept, marked partial), or another failure
+  2    bad input: scenario, override, infeasible gains, output folder, not enough memory,
+       unreadable result (one line naming the key or file)
+  130  interrupted (Ctrl-C / SIGINT); nothing half-written is left behind
+  143  terminated (SIGTERM); nothing half-written is left behind
 """
 
 
@@ -72,7 +101,11 @@ def _parser() -> argparse.ArgumentParser:
                     "OUT/metrics.json, OUT/trajectory.npz, OUT/scenario.toml and figures. Several "
                     "controllers (controller.kind = [...]) give one run each.")
     r.add_argument("scenario", help="shipped scenario name (see `hinfnn scenarios`) or path to a .toml file")
-    r.add_argument("--out", type=Path, default=None, help="output folder (default: results/<scenario name>)")
+    r.add_argument("--out", default=None, metavar="DIR",
+                   help="output folder (default: results/runs/<scenario name>-<UTC time>)")
+    r.add_argument("--fields", default="all", metavar="WHAT",
+                   help="what the runs store: all (default), metrics (only what the metrics need: less memory "
+                        "for long runs), or field names separated by commas")
     common(r)
 
     rp = sub.add_parser(
@@ -84,7 +117,7 @@ def _parser() -> argparse.ArgumentParser:
                     "paper-stable) at three contact stiffnesses, continuous and at 1 kHz; write "
                     "OUT/report.md, fig3..fig9 and beyond_*.png, metrics.json, trajectory.npz, beyond.npz, "
                     "scenario.toml.")
-    rp.add_argument("--out", type=Path, default=Path("results/paper"), help="output folder (default: results/paper)")
+    rp.add_argument("--out", default=None, metavar="DIR", help="output folder (default: results/paper)")
     rp.add_argument("--scenario", default="paper", help="base scenario (default: paper)")
     rp.add_argument("--paper-only", action="store_true",
                     help="only the paper's Sec. VI study, without the Beyond-the-paper comparison (24 more runs)")
@@ -127,11 +160,43 @@ def _parser() -> argparse.ArgumentParser:
                        description="The scenarios shipped with hinfnn (usable by name).",
                        epilog="example:\n  hinfnn scenarios\n")
     s.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
-    sh = sub.add_parser("show", formatter_class=fmt, help="print the metrics table of a saved result",
-                        description="Load a result folder written by `hinfnn run` or `reproduce` and print "
-                                    "its metrics.", epilog="example:\n  hinfnn show results/paper\n")
-    sh.add_argument("folder", type=Path)
+    sh = sub.add_parser("show", formatter_class=fmt, help="print the metrics and designed controllers of a saved result",
+                        description="Read DIR/metrics.json (nothing else is needed) of a result written by "
+                                    "`hinfnn run` or `reproduce` and print its metrics table, why any run stopped "
+                                    "early, and the designed controllers (gains with the resolved beta_lam, "
+                                    "Theorem 1's bounds and margins, P_p and the Riccati residual, v_p's gains, "
+                                    "the networks).",
+                        epilog="examples:\n  hinfnn show results/paper\n  hinfnn show results/three --no-design\n")
+    sh.add_argument("folder", type=Path, metavar="DIR")
+    sh.add_argument("--no-design", action="store_true", help="only the metrics table")
     sh.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    pl = sub.add_parser("plot", formatter_class=fmt, epilog=EXAMPLES_PLOT,
+                        help="redraw the figures of a saved result from its trajectory.npz",
+                        description="Draw the figures of a result folder again from DIR/trajectory.npz: a run's "
+                                    "u1, lambda, tau, J, contact and weights figures, or the paper study's "
+                                    "Figs. 3-9 for both contacts. They replace the folder's figures unless --out "
+                                    "is given.")
+    pl.add_argument("folder", type=Path, metavar="DIR")
+    pl.add_argument("--figures", default=None, metavar="NAMES",
+                    help="only these figures, separated by commas (run: u1, lambda, tau, J, contact, weights; "
+                         "study: fig3_u1_fl ... fig9_J)")
+    pl.add_argument("--zoom", default=None, metavar="A0:A1,B0:B1",
+                    help="the time windows (s) of the two zoom panels (default: 6-7 %% and 96-98 %% of the run)")
+    pl.add_argument("--out", default=None, metavar="FOLDER", help="write the figures there instead of into DIR")
+    pl.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    ex = sub.add_parser("export", formatter_class=fmt, epilog=EXAMPLES_EXPORT,
+                        help="write the trajectories of a saved result as a CSV or Parquet table",
+                        description="Write DIR/trajectory.npz as a table: one row per stored sample, a column "
+                                    "'run', then one column per field component with its unit in the name. "
+                                    "A run that stopped early is exported up to t_fail. CSV numbers are exact "
+                                    "(they read back to the same float64).")
+    ex.add_argument("folder", type=Path, metavar="DIR")
+    ex.add_argument("--csv", action="store_true", help="write DIR/trajectory[-RUN].csv")
+    ex.add_argument("--parquet", action="store_true", help="write DIR/trajectory[-RUN].parquet (needs pyarrow)")
+    ex.add_argument("--run", default=None, metavar="NAME", help="only this run (default: every run, stacked)")
+    ex.add_argument("--out", default=None, metavar="FILE",
+                    help="write here instead (a file, an existing folder, or - for standard output with --csv)")
+    ex.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     ca = sub.add_parser(
         "cache", formatter_class=fmt, epilog=EXAMPLES_CACHE,
         help="show or clear the compilation cache (compiled simulator programs reused across runs)",
@@ -150,23 +215,48 @@ def _parser() -> argparse.ArgumentParser:
 
 
 class Progress:
-    """Progress on stderr (tqdm: steps done, rate, ETA), shown only for runs longer than a few
-    seconds and never with ``--quiet``; ``names`` are the runs of the chunk being simulated."""
+    """Progress on stderr with an ETA, never with ``--quiet``. On a terminal: a tqdm bar (steps
+    done, rate, time left) once a run has lasted 3 s; otherwise (a log file, a pipe) one line
+    every 10 s, ``LABEL: 12.0 % (10 s, about 73 s left)``. ``names``: the runs of the chunk
+    being simulated."""
 
-    def __init__(self, quiet: bool, label: str):
+    def __init__(self, quiet: bool, label: str, stream=None):
         self.quiet = quiet
         self.label = label
+        self.stream = stream or sys.stderr
         self.bar = None
+        self.t0 = time.perf_counter()
+        self.last = 0.0
+        try:
+            self.tty = self.stream.isatty()
+        except (AttributeError, ValueError):
+            self.tty = False
 
     def __call__(self, done: int, total: int, names=None):
         if self.quiet:
             return
+        if self.tty:
+            self._bar(done, total, names)
+            return
+        now = time.perf_counter()
+        elapsed = now - self.t0
+        if elapsed < 3.0 or (now - self.last < 10.0 and done < total):
+            return
+        self.last = now
+        frac = done / max(total, 1)
+        left = elapsed * (1 - frac) / frac if frac > 0 else float("nan")
+        eta = f", about {_duration(left)} left" if frac > 0 and done < total else ""
+        msg = f"{self.label}: {100 * frac:5.1f} %  ({_duration(elapsed)}{eta})"
+        if names:
+            msg += f"  [{', '.join(names)}]"
+        print(msg, file=self.stream, flush=True)
+
+    def _bar(self, done, total, names):
         if self.bar is None:
             from tqdm import tqdm
 
             self.bar = tqdm(total=total, desc=self.label, unit="step", unit_scale=True, delay=3.0,
-                            file=sys.stderr, leave=False, dynamic_ncols=True, mininterval=0.5,
-                            disable=None)  # None: only on a terminal
+                            file=self.stream, leave=False, dynamic_ncols=True, mininterval=0.5)
         if names:
             self.bar.set_postfix_str(", ".join(names)[:40], refresh=False)
         self.bar.update(done - self.bar.n)
@@ -177,17 +267,29 @@ class Progress:
             self.bar = None
 
 
+def _duration(seconds: float) -> str:
+    from .resources import duration
+
+    return duration(seconds)
+
+
 # --- commands -----------------------------------------------------------------------------------
 
 
+def _fields(text: str):
+    """``--fields``: all -> None, metrics -> "metrics", else the names."""
+    text = text.strip()
+    if text in ("all", ""):
+        return None
+    if text == "metrics":
+        return "metrics"
+    return [f.strip() for f in text.split(",") if f.strip()]
+
+
 def cmd_run(args) -> int:
-    from .controllers import design_summary
-    from .io import OutputFolder, atomic_write_bytes, atomic_write_text, choose_output, dumps_json, \
-        trajectory_npz_bytes
     from .report.markdown import metrics_table
-    from .results import metrics_document, run_entry
+    from .runner import run_scenario
     from .scenario import Scenario
-    from .sim import simulate_many
 
     trace = getattr(args, "startup_trace", None)
     if trace:
@@ -195,27 +297,26 @@ def cmd_run(args) -> int:
     sc = Scenario.load(args.scenario, args.overrides)
     if trace:
         trace.mark("scenario_loaded")
-    out = args.out or Path("results") / sc.name
-    target, note = choose_output(out, args.force)
-    if note:  # even with --quiet: the result is not where the user asked
-        print(note, file=sys.stderr)
+    fields = _fields(args.fields)
+    if fields is not None:
+        from .errors import ConfigError
+        from .sim.recorder import select
+
+        try:
+            select(fields)  # unknown names: before anything runs
+        except ConfigError as err:
+            raise ConfigError(str(err).removeprefix("fields: "), key="--fields") from None
     kinds = sc.kinds
     progress = Progress(args.quiet, f"simulating {', '.join(kinds)}")
-    with OutputFolder(target) as folder:
-        runs = [sc.run(kind) for kind in kinds]
-        trajs = simulate_many(runs, progress=trace.wrap(progress) if trace else progress)
-        progress.done()
-        if trace:
-            trace.done()
-        entries = [run_entry(r.name, trajs[r.name], overrides=dict(sc.overrides), design=design_summary(r.controller))
-                   for r in runs]
-        doc = metrics_document(sc, entries, command=command_line(args))
-        atomic_write_text(folder.path / "metrics.json", dumps_json(doc))
-        atomic_write_bytes(folder.path / "trajectory.npz", trajectory_npz_bytes(trajs, sc.simulation.output_interval))
-        atomic_write_text(folder.path / "scenario.toml", sc.to_toml())
-        from .report import run_figures  # matplotlib (0.5 s): imported once the simulation is done
-
-        run_figures(trajs, folder.path)
+    log = (lambda m: print(m, file=sys.stderr))  # even with --quiet: where the result goes matters
+    res = run_scenario(sc, out=args.out, force=args.force, fields=fields,
+                       progress=trace.wrap(progress) if trace else progress, command=command_line(args), log=log)
+    progress.done()
+    if trace:
+        trace.done()
+    if res.note:
+        log(f"hinfnn: {res.note}")
+    doc, target = res.doc, res.target
     if not args.quiet:
         print(metrics_table(doc, markdown=False))
         print(f"results: {target}/ (metrics.json, trajectory.npz, scenario.toml, *.png)")
@@ -238,12 +339,10 @@ def cmd_reproduce(args) -> int:
                        beyond=not args.paper_only)
     progress.done()
     if not args.quiet:
-        import json
-
+        from .io import load_metrics
         from .report.markdown import metrics_table
 
-        doc = json.loads((target / "metrics.json").read_text())
-        print(metrics_table(doc, markdown=False))
+        print(metrics_table(load_metrics(target), markdown=False))
         print(f"report: {target}/report.md  ({time.perf_counter() - t0:.0f} s)")
     return 0
 
@@ -365,15 +464,63 @@ def cmd_scenarios(args) -> int:
 
 
 def cmd_show(args) -> int:
+    from .io import load_metrics
+    from .report.markdown import design_text, metrics_table
+
+    doc = load_metrics(args.folder)
+    print(metrics_table(doc, markdown=False))
+    if not args.no_design:
+        print()
+        print(design_text(doc))
+    return 0
+
+
+def _zoom(text: str | None):
+    """``--zoom A0:A1,B0:B1`` -> [(A0, A1), (B0, B1)]."""
+    if text is None:
+        return None
+    from .errors import ConfigError
+
+    try:
+        windows = [tuple(float(x) for x in part.split(":")) for part in text.split(",")]
+    except ValueError:
+        windows = []
+    if len(windows) != 2 or any(len(w) != 2 or not w[0] < w[1] for w in windows):
+        raise ConfigError(f"must be two time windows START:END,START:END with START < END, got {text!r}",
+                          key="--zoom")
+    return windows
+
+
+def cmd_plot(args) -> int:
+    from .report.replot import replot
+
+    only = [f.strip() for f in args.figures.split(",") if f.strip()] if args.figures else None
+    written = replot(args.folder, only=only, out=args.out, zoom_windows=_zoom(args.zoom))
+    for path in written:
+        print(path)
+    if not written:
+        print(f"hinfnn: no figure drawn: the runs of {args.folder} lack the fields they need", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_export(args) -> int:
+    from .errors import ConfigError
+    from .export import csv_text, export
     from .io import load
 
-    res = load(args.folder)
-    if res.metrics is None:
-        print(f"{args.folder}: no metrics.json", file=sys.stderr)
-        return 2
-    from .report.markdown import metrics_table
-
-    print(metrics_table(res.metrics, markdown=False))
+    formats = [f for f, on in (("csv", args.csv), ("parquet", args.parquet)) if on]
+    if not formats:
+        raise ConfigError("give the format: --csv or --parquet (or both)", key="export")
+    if args.out == "-":
+        if formats != ["csv"]:
+            raise ConfigError("standard output (-) takes --csv only", key="--out")
+        sys.stdout.write(csv_text(load(args.folder), args.run))
+        return 0
+    if args.out is not None and len(formats) > 1 and not Path(args.out).is_dir():
+        raise ConfigError("with both --csv and --parquet, --out must be a folder", key="--out")
+    for fmt in formats:
+        print(export(args.folder, fmt, run=args.run, out=args.out))
     return 0
 
 
@@ -410,8 +557,9 @@ def cmd_cache(args) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "design": cmd_design, "compare": cmd_compare, "keys": cmd_keys, "scenarios": cmd_scenarios,
-            "show": cmd_show, "cache": cmd_cache}
+COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "design": cmd_design, "compare": cmd_compare,
+            "keys": cmd_keys, "scenarios": cmd_scenarios, "show": cmd_show, "plot": cmd_plot,
+            "export": cmd_export, "cache": cmd_cache}
 
 
 def _interrupted_exit(code: int, argv) -> int:
@@ -434,50 +582,97 @@ def command_line(args) -> str:
     return "hinfnn " + " ".join(shlex.quote(a) for a in getattr(args, "argv", []))
 
 
+def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+    """``warnings.showwarning`` of the command: ``hinfnn: warning: TEXT`` on one line, without the
+    source file and line a user cannot act on."""
+    text = " ".join(str(message).split())
+    text = text.removeprefix("hinfnn: ").removeprefix("warning: ")
+    try:
+        print(f"hinfnn: warning: {text}", file=file or sys.stderr)
+    except (OSError, ValueError):
+        pass
+
+
 def main(argv=None) -> int:
+    # First: Ctrl-C / SIGTERM from here on, JAX's import included, end the command cleanly.
+    previous = _signals.install()
+    import warnings
+
+    saved_showwarning = warnings.showwarning
+    warnings.showwarning = _one_line_warning
+    if argv is None:  # a program: a signal held too long during an import ends it at once
+        _signals.on_hard_exit = _hard_exit
+    box: dict = {}
+    try:
+        return _main(argv, box)
+    except KeyboardInterrupt:
+        _signals.ignore()  # a second Ctrl-C while leaving changes nothing
+        print("hinfnn: interrupted; no output was written", file=sys.stderr)
+        return _interrupted_exit(_signals.EXIT_INTERRUPTED, argv)
+    except _signals.Terminated:
+        _signals.ignore()
+        print("hinfnn: terminated; no output was written", file=sys.stderr)
+        return _interrupted_exit(_signals.EXIT_TERMINATED, argv)
+    finally:
+        trace = getattr(box.get("args"), "startup_trace", None)
+        if trace is not None:
+            trace.close()
+        warnings.showwarning = saved_showwarning
+        _signals.on_hard_exit = None
+        _signals.restore(previous)
+
+
+def _hard_exit(signum: int) -> None:
+    import os
+    import signal
+
+    _signals.ignore()
+    word = "interrupted" if signum == signal.SIGINT else "terminated"
+    print(f"hinfnn: {word}; no output was written", file=sys.stderr)
+    sys.stderr.flush()
+    os._exit(_signals.EXIT_INTERRUPTED if signum == signal.SIGINT else _signals.EXIT_TERMINATED)
+
+
+def _main(argv, box: dict) -> int:
     parser = _parser()
-    args = parser.parse_args(argv)
+    args = box["args"] = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     if args.command is None:
         parser.print_help()
         return 2
-    if args.command not in ("keys", "scenarios"):
-        from ._config import configure
-
-        configure()
-    if args.command == "run":
-        from ._startup import StartupTrace
-
-        args.startup_trace = StartupTrace.from_env()
-    from .errors import ConfigError, DesignError
-    from .io import LoadError
-
     try:
+        if args.command not in ("keys", "scenarios", "show", "plot", "export"):
+            from ._config import configure
+
+            configure()
+        if args.command == "run":
+            from ._startup import StartupTrace
+
+            args.startup_trace = StartupTrace.from_env()
         return COMMANDS[args.command](args)
-    except (ConfigError, DesignError, LoadError) as err:
-        if getattr(args, "debug", False):
-            raise
-        kind = type(err).__name__
-        text = "\\n".join(str(err).splitlines())
-        print(f"hinfnn: {kind}: {text}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("hinfnn: interrupted; no output was written", file=sys.stderr)
-        return _interrupted_exit(130, argv)
+    except (KeyboardInterrupt, _signals.Terminated):
+        raise
+    except BrokenPipeError:  # `hinfnn export DIR --csv --out - | head`: the reader has left
+        import os
+
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # no second error when Python flushes stdout at exit
+        return 1
     except BaseException as err:  # noqa: BLE001 - the CLI's last line of defence
         if isinstance(err, SystemExit):
             raise
-        if getattr(args, "debug", False) or type(err).__name__ == "_Interrupted":
-            if type(err).__name__ == "_Interrupted":
-                print("hinfnn: terminated; no output was written", file=sys.stderr)
-                return _interrupted_exit(143, argv)
+        from .errors import ConfigError, DesignError, LoadError
+
+        if getattr(args, "debug", False):
             raise
-        print(f"hinfnn: error: {type(err).__name__}: {err} (run with --debug for the traceback)",
-              file=sys.stderr)
+        if isinstance(err, (ConfigError, DesignError, LoadError)):
+            kind = type(err).__name__
+            text = "\\n".join(str(err).splitlines())
+            print(f"hinfnn: {kind}: {text}", file=sys.stderr)
+            return 2
+        text = " ".join(str(err).split())
+        print(f"hinfnn: error: {type(err).__name__}: {text} (run with --debug for the traceback)", file=sys.stderr)
         return 1
-    finally:
-        if getattr(args, "startup_trace", None) is not None:
-            args.startup_trace.close()
 
 
 if __name__ == "__main__":

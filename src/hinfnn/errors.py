@@ -44,3 +44,12 @@ class SimulationError(HinfnnError, RuntimeError):
         self.t_fail = t_fail
         self.details = details or {}
         super().__init__(message)
+
+
+class LoadError(HinfnnError, ValueError):
+    """A result file is missing, truncated, or not written by hinfnn."""
+
+
+class HinfnnWarning(UserWarning):
+    """Something the user should know that does not stop a command (the ``hinfnn`` command
+    prints it as one line ``hinfnn: warning: ...``)."""

@@ -7,7 +7,8 @@ complete folder is renamed into place (:class:`OutputFolder`). An interrupted or
 
 ``trajectory.npz`` stores, for each run NAME, the arrays as ``NAME/FIELD``, the run's resolved
 scenario as ``NAME/__scenario__`` (TOML text) and its status; plus ``__format__``,
-``__hinfnn_version__`` and ``__runs__`` (the names in order). :func:`load` reads a folder (or the
+``__hinfnn_version__``, ``__runs__`` (the names in order) and ``__units__`` (JSON text: the unit of
+every stored field). :func:`load` reads a folder (or the
 npz file) back.
 """
 
@@ -15,25 +16,30 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import datetime
+import errno
 import io
+import itertools
 import json
 import math
 import os
+import re
 import shutil
 import signal
+import socket
 import tempfile
+import time
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from .errors import HinfnnError
+from ._signals import Terminated
+from .errors import HinfnnError, LoadError
 
 FORMAT = "hinfnn-trajectory-1"
 
 
-class LoadError(HinfnnError, ValueError):
-    """A result file is missing, truncated, or not written by hinfnn."""
 
 
 def version() -> str:
@@ -79,34 +85,322 @@ def _is_empty_dir(p: Path) -> bool:
     return p.is_dir() and not any(p.iterdir())
 
 
+# --- result folders: names, the marker, reservation ---------------------------------------------
+
+#: The file hinfnn writes into every result folder (JSON: format, version, command, the files it
+#: wrote). ``--force`` replaces only a folder that has it and no other files (or an empty one).
+MARKER = ".hinfnn-result"
+MARKER_FORMAT = "hinfnn-result-1"
+#: Longest folder name hinfnn makes from a scenario name, and accepts as the last part of --out.
+MAX_NAME = 80
+_MAX_OUT_NAME = 200
+#: Files a result folder written before the marker existed may hold (recognised by metrics.json).
+_LEGACY_FILES = re.compile(r"(metrics\.json|trajectory\.npz|scenario\.toml|report\.md|[^/]+\.png)\Z")
+
+
+def safe_name(name: str, *, fallback: str = "scenario") -> str:
+    """A folder name made from a scenario name: letters, digits, ``_``, ``-`` and single dots only
+    (no path separators, no ``..``, no leading dot), at most :data:`MAX_NAME` characters."""
+    s = re.sub(r"[^\w.-]+", "_", str(name))
+    s = re.sub(r"\.{2,}", "_", s)
+    s = re.sub(r"_{2,}", "_", s).strip("._-")
+    s = s[:MAX_NAME].rstrip("._-")
+    return s or fallback
+
+
+def timestamp(now: datetime.datetime | None = None) -> str:
+    """UTC time as ``20261129T170102Z`` (sorts in time order, no characters a shell or a file
+    system minds)."""
+    now = now or datetime.datetime.now(datetime.timezone.utc)
+    return now.astimezone(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+
+
+def default_output(command: str, name: str, now: datetime.datetime | None = None) -> Path:
+    """Where a command writes when ``--out`` is not given: ``results/paper`` for ``reproduce``,
+    ``results/<command>s/<safe name>-<UTC time>`` for every other command (``results/runs/...``
+    for ``run``), so that no two commands share a default folder."""
+    if command == "reproduce":
+        return Path("results") / "paper"
+    return Path("results") / f"{command}s" / f"{safe_name(name)}-{timestamp(now)}"
+
+
+def read_marker(folder: Path) -> dict | None:
+    """The marker of a result folder (None when there is none or it is not hinfnn's)."""
+    try:
+        doc = json.loads((Path(folder) / MARKER).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(doc, dict) or doc.get("format") != MARKER_FORMAT or not isinstance(doc.get("files"), list):
+        return None
+    return doc
+
+
+def _entries(folder: Path) -> list[str]:
+    return sorted(p.name + ("/" if p.is_dir() and not p.is_symlink() else "") for p in Path(folder).iterdir())
+
+
+def _legacy_result(folder: Path) -> bool:
+    try:
+        doc = json.loads((folder / "metrics.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and str(doc.get("format", "")).startswith("hinfnn-metrics")
+
+
+def foreign_files(folder: Path) -> list[str]:
+    """The entries of ``folder`` that hinfnn did not write (folders end with ``/``): all of them
+    for a folder without a marker, those the marker does not list otherwise. A result folder
+    written before markers existed is recognised by its metrics.json and hinfnn's file names."""
+    folder = Path(folder)
+    names = _entries(folder)
+    marker = read_marker(folder)
+    if marker is not None:
+        owned = {str(f) for f in marker["files"]} | {MARKER}
+        return [n for n in names if n not in owned]
+    if _legacy_result(folder):
+        return [n for n in names if not _LEGACY_FILES.match(n)]
+    return names
+
+
+def write_marker(folder: Path, *, kind: str, command: str, files=None) -> Path:
+    """Write (or rewrite, keeping ``created``) the marker of a result folder; ``files``: what
+    hinfnn wrote there (default: every entry but the marker)."""
+    folder = Path(folder)
+    old = read_marker(folder) or {}
+    doc = {"format": MARKER_FORMAT, "hinfnn_version": version(), "kind": old.get("kind", kind),
+           "command": old.get("command", command),
+           "created": old.get("created", datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")),
+           "files": sorted(files if files is not None else (n for n in _entries(folder) if n != MARKER))}
+    return atomic_write_text(folder / MARKER, json.dumps(doc, indent=2) + "\n")
+
+
+def add_to_marker(folder: Path, names) -> None:
+    """Record files hinfnn added to an existing result folder (``plot``, ``export``) so that
+    ``--force`` still recognises the folder as hinfnn's."""
+    folder = Path(folder)
+    marker = read_marker(folder)
+    if marker is None:
+        if not _legacy_result(folder):
+            return  # not a result folder (e.g. plot --out FOLDER): nothing to keep up to date
+        files = [n for n in _entries(folder) if _LEGACY_FILES.match(n)]
+        write_marker(folder, kind="run", command="", files=set(files) | set(names))
+        return
+    write_marker(folder, kind=marker.get("kind", "run"), command=marker.get("command", ""),
+                 files=set(marker["files"]) | set(names))
+
+
+def _out_error(message: str) -> Exception:
+    from .errors import ConfigError
+
+    return ConfigError(message, key="--out")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _lock_owner(lock: Path) -> int | None:
+    """The pid of the live process that holds ``lock`` (None: the lock is stale or unreadable
+    garbage left by a killed process on this host)."""
+    try:
+        doc = json.loads(lock.read_text(encoding="utf-8"))
+        pid, host = int(doc["pid"]), str(doc.get("host", ""))
+    except (OSError, ValueError, KeyError, TypeError):
+        try:  # being written right now (created, not yet filled): give it a moment
+            if time.time() - lock.stat().st_mtime < 5.0:
+                return -1
+        except OSError:
+            return None
+        return None
+    if host and host != socket.gethostname():
+        return pid  # another machine's process: cannot tell, assume it is alive
+    return pid if _pid_alive(pid) else None
+
+
+class Reservation:
+    """An output folder reserved for this process: ``target`` is where the result goes,
+    ``note`` says why it is not where the user asked (or None). Held by a lock file beside the
+    target (``.NAME.hinfnn-lock``, created with O_EXCL), released by :meth:`release` (the
+    :class:`OutputFolder` that writes the result releases it)."""
+
+    def __init__(self, target: Path, lock: Path, note: str | None, created: list[Path], requested: Path):
+        self.target = target
+        self.lock = lock
+        self.note = note
+        self.requested = requested
+        self._created = created  # parent folders this reservation made (removed again if unused)
+
+    def release(self, *, keep_parents: bool = False) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            self.lock.unlink()
+        if not keep_parents:
+            for p in reversed(self._created):
+                with contextlib.suppress(OSError):
+                    p.rmdir()
+        self._created = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        self.release()
+        return False
+
+
+def _make_parents(parent: Path, shown: Path) -> list[Path]:
+    missing = []
+    p = parent
+    while not p.exists():
+        if p.is_symlink():  # a dangling link
+            raise _out_error(f"{p} is a broken symbolic link")
+        missing.append(p)
+        p = p.parent
+    if not p.is_dir():
+        where = p if shown.is_absolute() else Path(os.path.relpath(p))
+        raise _out_error(f"{where} is a file, not a folder (in {shown})")
+    created = []
+    try:
+        for d in reversed(missing):
+            d.mkdir()
+            created.append(d)
+    except OSError as err:
+        for d in reversed(created):
+            with contextlib.suppress(OSError):
+                d.rmdir()
+        raise _out_error(f"cannot create folder {err.filename or d}: {err.strerror or err}") from None
+    return created
+
+
+def _take_lock(lock: Path, target: Path) -> int | None:
+    """Create the lock (None) or return the pid holding it. Other OS errors propagate."""
+    for _ in range(3):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            owner = _lock_owner(lock)
+            if owner is not None:
+                return owner
+            with contextlib.suppress(FileNotFoundError):
+                lock.unlink()  # stale: its process is gone
+            continue
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump({"pid": os.getpid(), "host": socket.gethostname(), "target": str(target),
+                       "since": time.time()}, f)
+        return None
+    return -1
+
+
+def reserve_output(out, *, command: str = "run", name: str = "result", force: bool = False) -> Reservation:
+    """Decide and reserve the output folder of a command, before any work is done.
+
+    ``out``: the folder the user asked for (``--out``; None: :func:`default_output` of
+    ``command`` and the scenario ``name``). It may not be empty, the current folder or one
+    containing it, a file, or inside a file; its parent is created if needed (and removed
+    again if the command ends without a result). A missing or empty folder is used as is. A
+    folder that already holds something is kept: the result goes to ``OUT-2``, ``OUT-3`` …
+    (said in ``note``), unless ``force``: then a folder hinfnn wrote (its marker and nothing
+    else) is replaced when the result is complete, and any other is refused naming the files
+    hinfnn did not write. Two processes never get the same folder: the reservation is a lock
+    file created atomically beside it; a folder another live process is writing is skipped
+    (or, with ``force``, refused).
+
+    Every problem is a :class:`~hinfnn.errors.ConfigError` with key ``--out`` (exit 2).
+    """
+    if out is None:
+        out = default_output(command, name)
+    text = os.fspath(out)
+    if text.strip() == "":
+        raise _out_error("is empty; give the folder to write to (default: a new folder under results/)")
+    if "\0" in text:
+        raise _out_error("contains a NUL character")
+    shown = Path(text)
+    path = Path(os.path.abspath(os.path.expanduser(text)))
+    cwd = Path.cwd()
+    if path == Path(path.anchor) or path == cwd or path in cwd.parents:
+        raise _out_error(f"{text!r} is {'the current folder' if path == cwd else 'a folder that contains the current one'}; "
+                         "give a new folder's name")
+    if len(path.name) > _MAX_OUT_NAME:
+        raise _out_error(f"the folder name is {len(path.name)} characters long; at most {_MAX_OUT_NAME}")
+    if path.exists() and not path.is_dir():
+        raise _out_error(f"output path {shown} exists and is not a folder")
+    created = _make_parents(path.parent, shown)
+    note = None
+    res = None
+    try:
+        for i in itertools.count(1):
+            cand = path if i == 1 else path.with_name(f"{path.name}-{i}")
+            cand_shown = shown if i == 1 else Path(f"{shown}-{i}")
+            lock = cand.with_name(f".{cand.name}.hinfnn-lock")
+            try:
+                owner = _take_lock(lock, cand)
+            except OSError as err:
+                raise _out_error(f"cannot create {cand_shown}: {err.strerror or err} (in {path.parent})") from None
+            if owner is not None:
+                busy = f"{cand_shown} is being written by another hinfnn process" + (f" (pid {owner})" if owner > 0 else "")
+                if force and i == 1:
+                    raise _out_error(f"{busy}; wait for it to finish or choose another --out")
+                note = note or busy + "; writing to {new} instead"
+                continue
+            res = Reservation(cand, lock, None, created, shown)
+            if cand.exists() and not cand.is_dir():
+                res.release(keep_parents=True)
+                res = None
+                continue
+            try:
+                if not cand.exists() or _is_empty_dir(cand):
+                    break
+                foreign = foreign_files(cand) if force and i == 1 else None
+            except OSError as err:
+                raise _out_error(f"cannot read {cand_shown}: {err.strerror or err}") from None
+            if force and i == 1:
+                if not foreign:
+                    break
+                res.release(keep_parents=True)
+                res = None
+                listed = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+                raise _out_error(f"{shown} holds files hinfnn did not write ({listed}); --force replaces only a "
+                                 "folder hinfnn wrote: choose another --out, or move those files away")
+            res.release(keep_parents=True)
+            res = None
+            if note is None:
+                note = f"{shown} is not empty; writing to " + "{new} instead (use --force to replace it)"
+    except BaseException:
+        if res is not None:
+            res.release(keep_parents=True)
+        for d in reversed(created):
+            with contextlib.suppress(OSError):
+                d.rmdir()
+        raise
+    res.note = note.replace("{new}", str(cand_shown)) if note and cand != path else None
+    res.target = cand if text.startswith("~") else cand_shown
+    return res
+
+
 def choose_output(out: Path, force: bool) -> tuple[Path, str | None]:
-    """Where to write: ``out`` if it is missing or empty or ``force``; else the first free
-    ``out-2``, ``out-3`` … . Returns the folder and a sentence saying why it changed (or None)."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        from .errors import ConfigError
-
-        raise ConfigError(f"output path {out} exists and is not a folder", key="--out")
-    if not out.exists() or _is_empty_dir(out) or force:
-        return out, None
-    i = 2
-    while Path(f"{out}-{i}").exists():
-        i += 1
-    new = Path(f"{out}-{i}")
-    return new, f"{out} is not empty; writing to {new} instead (use --force to replace it)"
+    """(folder, note) of :func:`reserve_output`, released at once (no protection against a
+    concurrent writer: use :func:`reserve_output` and pass the reservation to OutputFolder)."""
+    res = reserve_output(out, force=force)
+    res.release(keep_parents=True)
+    return res.target, res.note
 
 
-class _Interrupted(BaseException):
-    """Raised from the SIGTERM handler so that cleanup runs as for Ctrl-C."""
+_Interrupted = Terminated  # the name earlier versions raised from the SIGTERM handler
 
 
 @contextlib.contextmanager
 def _terminate_as_exception():
-    def handler(signum, frame):
-        raise _Interrupted(f"terminated by signal {signum}")
+    """SIGTERM raises :class:`Terminated` in the block (as Ctrl-C raises KeyboardInterrupt), so
+    that the temporary folder is removed; the ``hinfnn`` command has installed the same handler."""
+    from . import _signals
 
     try:
-        previous = signal.signal(signal.SIGTERM, handler)
+        previous = signal.signal(signal.SIGTERM, _signals.handler)
     except ValueError:  # not in the main thread
         yield
         return
@@ -116,21 +410,55 @@ def _terminate_as_exception():
         signal.signal(signal.SIGTERM, previous)
 
 
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux renameat2 RENAME_EXCHANGE). False where unsupported."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    fn.restype = ctypes.c_int
+    at_fdcwd, rename_exchange = -100, 2
+    if fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), os.fspath(b))
+
+
 class OutputFolder:
-    """Context manager: files written into ``.path`` (a temporary folder) appear in ``target``
+    """Context manager: files written into ``.path`` (a temporary folder) appear in the target
     only if the block completes; otherwise the target stays exactly as it was.
 
-    With an existing target (``--force``) the old folder is moved aside, the new one renamed in
-    and the old one deleted, with SIGINT/SIGTERM blocked during the two renames.
+    ``target``: a :class:`Reservation` (from :func:`reserve_output`; released on exit) or a
+    folder. On success the marker (``.hinfnn-result``: ``kind``, ``command`` and the files
+    written) is added and the folder is put in place in one step: renamed in, or, over an
+    existing result (``--force``), swapped with it atomically (the old one is then deleted),
+    with SIGINT/SIGTERM blocked meanwhile. Should files hinfnn did not write appear in the
+    target while the result is computed, it is kept and the result goes to the next free name
+    (``moved_to`` says where).
     """
 
-    def __init__(self, target: Path):
-        self.target = Path(target)
+    def __init__(self, target, *, kind: str = "run", command: str = ""):
+        self.reservation = target if isinstance(target, Reservation) else None
+        self.target = Path(target.target if self.reservation else target)
+        self.kind = kind
+        self.command = command
         self.path: Path | None = None
+        self.moved_to: Path | None = None
 
     def __enter__(self) -> "OutputFolder":
-        self.target.parent.mkdir(parents=True, exist_ok=True)
-        self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.partial-", dir=self.target.parent))
+        try:
+            self.target.parent.mkdir(parents=True, exist_ok=True)
+            self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.partial-", dir=self.target.parent))
+        except BaseException:
+            if self.reservation is not None:
+                self.reservation.release()
+            raise
         os.chmod(self.path, 0o777 & ~_umask())  # mkdtemp makes 0700
         self._signals = _terminate_as_exception()
         self._signals.__enter__()
@@ -139,24 +467,38 @@ class OutputFolder:
     def __exit__(self, exc_type, exc, tb):
         try:
             if exc_type is None:
+                write_marker(self.path, kind=self.kind, command=self.command)
                 self._commit()
         finally:
             if self.path is not None and self.path.exists():
                 shutil.rmtree(self.path, ignore_errors=True)
             self._signals.__exit__(None, None, None)
+            if self.reservation is not None:
+                self.reservation.release(keep_parents=exc_type is None)
         return False
 
     def _commit(self):
+        if self.target.is_dir() and any(self.target.iterdir()) and foreign_files(self.target):
+            # someone put files there while we computed: keep them, take the next free name
+            res = reserve_output(self.target, force=False)
+            try:
+                os.replace(self.path, res.target)
+            finally:
+                res.release(keep_parents=True)
+            self.moved_to = res.target
+            return
         blocked = {signal.SIGINT, signal.SIGTERM}
         old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, blocked)
         try:
-            backup = None
-            if self.target.exists():
+            if not self.target.exists():
+                os.replace(self.path, self.target)
+            elif _exchange(self.path, self.target):
+                shutil.rmtree(self.path, ignore_errors=True)  # now the old result
+            else:
                 backup = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.old-", dir=self.target.parent))
                 backup.rmdir()
                 os.replace(self.target, backup)
-            os.replace(self.path, self.target)
-            if backup is not None:
+                os.replace(self.path, self.target)
                 shutil.rmtree(backup, ignore_errors=True)
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
@@ -193,10 +535,14 @@ def dumps_json(obj) -> str:
 def trajectory_npz_bytes(runs: dict, max_interval: float | None = 1e-3, fields=None) -> bytes:
     """The ``trajectory.npz`` content for named Trajectories (decimated to ``max_interval``;
     ``fields``: only these arrays)."""
+    from .fields import unit
+
+    stored = sorted({f for traj in runs.values() for f in traj.arrays if fields is None or f in fields})
     payload: dict[str, Any] = {
         "__format__": np.array(FORMAT),
         "__hinfnn_version__": np.array(version()),
         "__runs__": np.array(list(runs), dtype=str),
+        "__units__": np.array(json.dumps({f: unit(f) for f in stored}, ensure_ascii=False)),
     }
     for name, traj in runs.items():
         if "/" in name:
@@ -233,6 +579,14 @@ class SavedResult:
     metrics: dict | None
     version: str
     path: Path
+
+    def to_pandas(self, run: str | None = None):
+        """The trajectories as a pandas DataFrame: one row per stored sample, a ``run`` column,
+        then one column per field component with its unit (``tau_1 [N·m]``); ``run`` selects
+        one run. The same table as ``hinfnn export`` (see :mod:`hinfnn.export`)."""
+        from .export import to_pandas
+
+        return to_pandas(self, run)
 
     @property
     def trajectory(self):
@@ -316,13 +670,29 @@ def load(path: str | Path) -> SavedResult:
             scenario = Scenario.load(sc_file, check=False)
         except ConfigError as err:
             raise LoadError(f"{sc_file} is not a valid hinfnn scenario: {err}") from None
-    metrics = None
     m_file = folder / "metrics.json"
-    if m_file.exists():
-        try:
-            metrics = json.loads(m_file.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as err:
-            raise LoadError(f"{m_file} is not valid JSON (truncated?): {err}") from None
-        if not isinstance(metrics, dict) or not isinstance(metrics.get("runs"), list):
-            raise LoadError(f"{m_file} is not a hinfnn metrics file (no \"runs\" list)")
+    metrics = load_metrics(m_file) if m_file.exists() else None
     return SavedResult(trajectories=runs, scenario=scenario, metrics=metrics, version=ver, path=path)
+
+
+def load_metrics(path: str | Path) -> dict:
+    """The results document (``metrics.json``) of a result folder, or of the file given, checked
+    for the layout hinfnn writes (a ``runs`` list of objects with ``name`` and ``metrics``).
+    Needs nothing else of the folder. Raises :class:`LoadError` naming the file."""
+    path = Path(path)
+    m_file = path / "metrics.json" if path.is_dir() else path
+    if not m_file.exists():
+        where = path if path.is_dir() else path.parent
+        raise LoadError(f"{where} does not exist" if not where.exists() else f"{where} has no metrics.json")
+    try:
+        metrics = json.loads(m_file.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise LoadError(f"{m_file} is not valid JSON (truncated?): {err}") from None
+    except OSError as err:
+        raise LoadError(f"{m_file} cannot be read: {err.strerror or err}") from None
+    if not isinstance(metrics, dict) or not isinstance(metrics.get("runs"), list):
+        raise LoadError(f"{m_file} is not a hinfnn metrics file (no \"runs\" list)")
+    for i, run in enumerate(metrics["runs"]):
+        if not isinstance(run, dict) or not isinstance(run.get("name"), str) or not isinstance(run.get("metrics"), dict):
+            raise LoadError(f"{m_file} is not a hinfnn metrics file (run {i} has no \"name\" and \"metrics\")")
+    return metrics

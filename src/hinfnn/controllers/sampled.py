@@ -402,8 +402,15 @@ class SampledLoop:
         self._pending_start = start and controller.controller.needs_start
 
     def update(self, t, period, q, qd, F) -> np.ndarray:
-        """τ (NumPy, n) of eq. (24) for this sample; the state advances by forward Euler over
-        ``period`` (eqs. (27), (30), (31)) unless the sample was unusable (τ all NaN)."""
+        """τ (NumPy, shape (n,), N·m) of eq. (24) for this sample; the state advances by forward
+        Euler over ``period`` (eqs. (27), (30), (31)) unless the sample was unusable (τ all NaN).
+
+        ``t``, ``period``: the sample time and the time until the next sample, s. ``q``, ``qd``:
+        joint angles (rad) and rates (rad/s), shape (n,). ``F``: the task-space force vector the
+        end-effector exerts on the surface, shape (n,) (for the paper's planar arm: the contact
+        force in N along the plane's x and y axes, as a force/torque sensor gives it after the
+        transform to the base frame); the controller turns it into λ itself. A wrong shape
+        raises :class:`MeasurementError` naming the input (the state is not touched)."""
         n = self._n
         if np.shape(q) != (n,) or np.shape(qd) != (n,) or np.shape(F) != (n,):
             self.controller.check_sample(t, period, q, qd, F)  # raises, naming the input

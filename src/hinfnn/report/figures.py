@@ -48,7 +48,8 @@ from matplotlib.transforms import blended_transform_factory
 from ..io import atomic_write
 from ..sim.trajectory import STATUS, Trajectory
 
-__all__ = ["paper_figures", "run_figures", "DPI", "SIZE", "SIZE_TALL"]
+__all__ = ["paper_figures", "run_figures", "sparse_note", "RUN_FIGURES", "PAPER_FIGURES", "DPI", "SIZE",
+           "SIZE_TALL"]
 
 #: Resolution of every figure (dots per inch); sizes below are in pixels at this resolution.
 DPI = 160
@@ -563,6 +564,47 @@ def _t_end(runs: list[_Run]) -> float:
     return max(ends) if ends and max(ends) > 0 else 1.0
 
 
+#: Fewer stored samples than this per period of the reference make a figure meaningless.
+MIN_SAMPLES_PER_PERIOD = 50
+
+#: Names of the figures each function can draw (``only=``).
+RUN_FIGURES = ("u1", "lambda", "tau", "J", "contact", "weights")
+PAPER_FIGURES = ("fig3_u1_fl", "fig4_lambda_fl", "fig5_u1", "fig6_lambda", "fig7_tau1", "fig8_tau2", "fig9_J")
+
+
+def sparse_note(runs: dict[str, Trajectory]) -> str | None:
+    """A sentence when the stored samples are too far apart to draw the reference (fewer than
+    :data:`MIN_SAMPLES_PER_PERIOD` per period of the cosine reference), else None."""
+    worst = None
+    for traj in runs.values():
+        sc = _scenario(traj)
+        t = np.asarray(traj.arrays.get("t", ()))
+        if sc is None or t.ndim != 1 or len(t) < 2:
+            continue
+        interval = float(t[1] - t[0])
+        period = min(sc.reference.u1_period, sc.reference.lam_period)
+        per = period / interval if interval > 0 else math.inf
+        if per < MIN_SAMPLES_PER_PERIOD and (worst is None or per < worst[0]):
+            worst = (per, interval, period, len(t))
+    if worst is None:
+        return None
+    per, interval, period, n = worst
+    return (f"the runs are stored every {interval:g} s ({n} samples, {per:.2g} per period of the {period:g}-s "
+            f"reference): the figures cannot show the reference or the response; store at most "
+            f"{period / MIN_SAMPLES_PER_PERIOD:g} s apart (simulation.output_interval)")
+
+
+def warn_sparse(runs: dict[str, Trajectory]) -> None:
+    """Warn (:class:`hinfnn.errors.HinfnnWarning`) when :func:`sparse_note` has something to say."""
+    note = sparse_note(runs)
+    if note:
+        import warnings
+
+        from ..errors import HinfnnWarning
+
+        warnings.warn(note, HinfnnWarning, stacklevel=3)
+
+
 # --- the paper's figures -------------------------------------------------------------------
 
 
@@ -571,7 +613,8 @@ def _paper_label(name: str, traj: Trajectory) -> str:
 
 
 def paper_figures(runs: dict[str, Trajectory], out_dir, *, suffix: str = "",
-                  zoom_windows: Sequence[tuple[float, float]] | None = None) -> list[Path]:
+                  zoom_windows: Sequence[tuple[float, float]] | None = None,
+                  only: Sequence[str] | None = None) -> list[Path]:
     """Write the paper's Figs. 3–9 (Sec. VI) as PNG files in ``out_dir``; return their paths.
 
     ``runs`` holds the study's runs under the names ``fl`` (FL-like), ``hinf`` (H∞-only),
@@ -583,10 +626,12 @@ def paper_figures(runs: dict[str, Trajectory], out_dir, *, suffix: str = "",
     of the zoom panels A and B (default 6–7 % and 96–98 % of the run's length).
 
     Files: ``fig3_u1_fl``, ``fig4_lambda_fl`` (FL-like), ``fig5_u1``, ``fig6_lambda``,
-    ``fig7_tau1``, ``fig8_tau2`` (H∞-only vs adaptive), ``fig9_J`` (all, log scale).
+    ``fig7_tau1``, ``fig8_tau2`` (H∞-only vs adaptive), ``fig9_J`` (all, log scale); ``only``:
+    draw just these (names without suffix and ``.png``).
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    warn_sparse(runs)
     use_suffix = bool(suffix) and any(k.endswith(suffix) for k in runs)
 
     def pick(names):
@@ -608,7 +653,7 @@ def paper_figures(runs: dict[str, Trajectory], out_dir, *, suffix: str = "",
     written = []
 
     def emit(name, title, group, panels_fn, size=SIZE, extra=""):
-        if not group:
+        if not group or (only is not None and name not in only):
             return
         panels = panels_fn(group)
         if not any(p.series for p in panels):
@@ -670,16 +715,19 @@ def _run_label(name: str, traj: Trajectory) -> str:
 
 
 def run_figures(runs: dict[str, Trajectory], out_dir, *,
-                zoom_windows: Sequence[tuple[float, float]] | None = None) -> list[Path]:
+                zoom_windows: Sequence[tuple[float, float]] | None = None,
+                only: Sequence[str] | None = None) -> list[Path]:
     """Write the figures of ``hinfnn run`` for one or several named runs; return the paths.
 
     ``u1.png`` (u1 and u1d), ``lambda.png`` (λ, λd, with zooms), ``tau.png`` (τ1, τ2, with
     zooms), ``J.png`` (eq. (34), log scale), ``contact.png`` (normal force in N, penetration
     in mm, with zooms) and ``weights.png`` (‖Θ̂p‖, ‖Θ̂f‖) when some run has nonzero
     weights. Run names other than the controller kind are shown beside its description.
+    ``only``: draw just these (names without ``.png``, e.g. ``["u1", "tau"]``).
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    warn_sparse(runs)
     group = _prepare(list(runs.items()), _run_label)
     if not group:
         return []
@@ -689,6 +737,8 @@ def run_figures(runs: dict[str, Trajectory], out_dir, *,
     written = []
 
     def emit(name, title, panels, size=SIZE, extra=""):
+        if only is not None and name[:-len(".png")] not in only:
+            return
         if not any(p.series for p in panels):
             return
         panels = [p for p in panels if p.series]

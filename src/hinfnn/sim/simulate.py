@@ -545,3 +545,21 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     if B == 1:
         out = jax.tree.map(lambda a: np.expand_dims(np.asarray(a), 0), out)
     return _to_numpy(*out, info=info, dt=dt, save_every=save_every)
+
+
+def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
+                  fields=None, limits: Limits | None = None) -> dict:
+    """``{field: (shape, dtype)}`` of one stored sample of a run, found by tracing one record
+    (``jax.eval_shape``: nothing is compiled or run). What a run stores is this times its number
+    of samples; :mod:`hinfnn.resources` uses it to estimate memory before a run."""
+    fields = select(fields)
+    sampled = control_period is not None or bool(getattr(plant, "discrete", False))
+    y0 = initial_state(plant, controller, q0=q0)
+
+    def one(plant, ctrl, ref, lim, y0):
+        carry = _init_carry(ctrl, y0, plant.n)
+        record_at, _, _ = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled)
+        return _record(record_at, carry, jnp.zeros((), jnp.float64), plant.step_input(0.0, dt), fields)[1]
+
+    out = jax.eval_shape(one, plant, controller, reference, limits or Limits(), y0)
+    return {k: (tuple(v.shape), np.dtype(v.dtype)) for k, v in out.items()}

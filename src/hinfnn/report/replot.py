@@ -1,0 +1,63 @@
+"""Redraw the figures of a saved result (``hinfnn plot``) from its ``trajectory.npz``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+from ..errors import ConfigError
+from .figures import PAPER_FIGURES, RUN_FIGURES, paper_figures, run_figures
+
+
+def is_study(folder: Path) -> bool:
+    """Whether a result folder holds the paper study (``hinfnn reproduce``) rather than runs."""
+    from ..io import read_marker
+
+    marker = read_marker(folder)
+    if marker is not None:
+        return marker.get("kind") == "study"
+    return (Path(folder) / "report.md").exists()
+
+
+def replot(folder, *, only: Sequence[str] | None = None, out=None,
+           zoom_windows: Sequence[tuple[float, float]] | None = None) -> list[Path]:
+    """Draw the figures of the result ``folder`` again from its trajectory.npz: a run's figures
+    (:func:`run_figures`) or, for the paper study, Figs. 3–9 for both contacts
+    (:func:`paper_figures`). ``only``: the figures to draw (names without ``.png``); ``out``:
+    another folder for them (created if needed; files there that hinfnn did not write are never
+    replaced); ``zoom_windows``: the two (start, end) times of the zoom panels. Returns the
+    paths written. The study's own figures were drawn from every step; redrawn ones use the
+    stored samples (``simulation.output_interval``)."""
+    from ..io import add_to_marker, foreign_files, load
+
+    folder = Path(folder)
+    result = load(folder)
+    study = folder.is_dir() and is_study(folder)
+    names = PAPER_FIGURES if study else RUN_FIGURES
+    if only is not None:
+        unknown = [n for n in only if n not in names]
+        if unknown:
+            raise ConfigError(f"unknown figure(s) {', '.join(unknown)}; this {'study' if study else 'result'} "
+                              f"has {', '.join(names)}", key="--figures")
+    dest = Path(out) if out is not None else (folder if folder.is_dir() else folder.parent)
+    same = dest.exists() and dest.resolve() == (folder if folder.is_dir() else folder.parent).resolve()
+    if not same and dest.exists():
+        if not dest.is_dir():
+            raise ConfigError(f"{dest} exists and is not a folder", key="--out")
+        pngs = {f"{n}{s}.png" for n in names for s in (("", "_damped") if study else ("",))}
+        clash = sorted(set(foreign_files(dest)) & pngs)
+        if clash:
+            raise ConfigError(f"{dest} holds {', '.join(clash)} that hinfnn did not write; choose another --out",
+                              key="--out")
+    try:
+        dest.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ConfigError(f"cannot create folder {dest}: {err.strerror or err}", key="--out") from None
+    if study:
+        paper = {n: t for n, t in result.trajectories.items() if not n.startswith("hinf_exact")}
+        written = (paper_figures(paper, dest, only=only, zoom_windows=zoom_windows)
+                   + paper_figures(paper, dest, suffix="_damped", only=only, zoom_windows=zoom_windows))
+    else:
+        written = run_figures(result.trajectories, dest, only=only, zoom_windows=zoom_windows)
+    add_to_marker(dest, [p.name for p in written])
+    return written

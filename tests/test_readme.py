@@ -1,0 +1,127 @@
+"""The README's examples run as shown, on short horizons.
+
+Every ```python block runs, in order, in one fresh Python process (as a user pasting them into one
+session), with the horizons shortened (``t_final: 5.0`` / ``t_final=10.0`` -> 0.05 s). The robot
+readings the robot-loop example leaves to the reader (``t, q, qd, F``) are given the paper
+scenario's start values when no earlier block defines them.
+
+Every command line of the ```sh blocks runs, in order, in one fresh folder, with
+``--set simulation.t_final=0.05`` appended to ``hinfnn run`` / ``hinfnn reproduce``; a scenario
+file a command names that does not exist is created as ``base = "paper"``. Skipped: ``make``
+(the demo and the test suite itself) and usage synopses (lines with placeholders such as
+``SCENARIO``, ``DIR``, ``KEY=VALUE`` or ``[--option]``). Each must exit 0.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import hinfnn as H
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+SRC = Path(H.__file__).resolve().parents[1]
+HINFNN = Path(sys.executable).parent / "hinfnn"
+SHORT = 0.05
+
+
+def blocks(lang: str, text: str | None = None) -> list[str]:
+    text = README.read_text(encoding="utf-8") if text is None else text
+    return re.findall(rf"^```{lang}[ \t]*\n(.*?)^```", text, flags=re.M | re.S)
+
+
+def shorten_python(code: str) -> str:
+    """``t_final: 5.0``, ``"simulation.t_final": 5.0``, ``t_final=10.0`` -> the short horizon."""
+    return re.sub(r"(t_final[\"']?\s*[:=]\s*)[0-9][0-9_.eE+-]*", rf"\g<1>{SHORT}", code)
+
+
+def commands(block: str) -> list[str]:
+    """The command lines of a shell block: continuations joined, comments dropped."""
+    out, current = [], ""
+    for line in block.splitlines():
+        current += line.rstrip()
+        if current.endswith("\\"):
+            current = current[:-1] + " "
+            continue
+        words = shlex.split(current, comments=True) if current.strip() else []
+        if words:
+            out.append(words)
+        current = ""
+    return out
+
+
+_PLACEHOLDER = re.compile(r"^\[|^[A-Z][A-Z_]{2,}(=[A-Z_]+)?$|\b(SCENARIO|DIR|KEY=VALUE|NAME|FILE)\b|\[--")
+
+
+def runnable(words: list[str]) -> bool:
+    if words[0] == "make":
+        return False
+    return not any(_PLACEHOLDER.search(w) for w in words[1:])
+
+
+def adapt(words: list[str], cwd: Path) -> list[str]:
+    if words[0] == "hinfnn" and len(words) > 1 and words[1] in ("run", "reproduce"):
+        if words[1] == "run" and words[2].endswith(".toml") and not (cwd / words[2]).exists():
+            (cwd / words[2]).write_text('base = "paper"\n')
+        words = words + ["--set", f"simulation.t_final={SHORT}"]
+    if words[0] == "hinfnn":
+        words = [str(HINFNN)] + words[1:]
+    return words
+
+
+def _env(cache: Path) -> dict:
+    return {**os.environ, "PYTHONPATH": str(SRC), "HINFNN_CACHE_DIR": str(cache), "JAX_PLATFORMS": "cpu"}
+
+
+def test_the_extraction_finds_the_examples():
+    """The parser itself, on a made-up README."""
+    text = "x\n```python\na = 1\nsimulate(t_final=10.0)\n```\n```sh\nmake demo  # no\nhinfnn run paper \\\n" \
+           "  --set a=1   # yes\nhinfnn show DIR\nhinfnn run 'x y' --set 'k=[\"a\", \"b\"]'\n```\n"
+    (py,) = blocks("python", text)
+    assert shorten_python(py).endswith("simulate(t_final=0.05)\n")
+    (sh,) = blocks("sh", text)
+    cmds = commands(sh)
+    assert [runnable(c) for c in cmds] == [False, True, False, True]
+    assert cmds[1] == ["hinfnn", "run", "paper", "--set", "a=1"] and cmds[3][-1] == 'k=["a", "b"]'
+    assert blocks("python") and blocks("sh"), "README.md has no examples?"
+
+
+def test_readme_python_examples_run(tmp_path):
+    code = "\n\n".join(shorten_python(b) for b in blocks("python"))
+    preamble = (
+        "import numpy as _np\n"
+        "import hinfnn as _h\n"
+        "_sc = _h.load_scenario('paper', check=False)\n"
+        "t, q, qd, F = 0.0, _np.asarray(_sc.initial_q()), _np.zeros(2), _np.zeros(2)  # the robot's readings\n")
+    script = tmp_path / "readme_examples.py"
+    script.write_text(preamble + "\n" + code + "\n", encoding="utf-8")
+    p = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=900,
+                       env=_env(tmp_path / "cache"))
+    assert p.returncode == 0, f"README's Python examples fail:\n{p.stderr[-3000:]}"
+
+
+def _sh_commands():
+    out = []
+    for block in blocks("sh"):
+        out += [c for c in commands(block) if runnable(c)]
+    return out
+
+
+def test_readme_shell_examples_run(tmp_path):
+    cmds = _sh_commands()
+    assert any(c[:2] == ["hinfnn", "run"] for c in cmds)
+    failures = []
+    for words in cmds:
+        argv = adapt(words, tmp_path)
+        p = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=900,
+                           env=_env(tmp_path / ".cache"))
+        if p.returncode != 0:
+            failures.append(f"{shlex.join(words)}  ->  exit {p.returncode}: {p.stderr.strip()[-500:]}")
+    assert not failures, "README commands that fail:\n" + "\n".join(failures)
