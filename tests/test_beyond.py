@@ -16,7 +16,7 @@ import pytest
 import hinfnn as H
 from hinfnn import cli
 from hinfnn.analysis import contact_modes, force_loop_polynomial, loop_constants
-from hinfnn.controllers import ForceRate, SampledController
+from hinfnn.controllers import SampledController
 from hinfnn.protocols import Measurement
 
 #: one xdist worker runs this module: its tests share compiled programs and expensive fixtures
@@ -180,3 +180,36 @@ def test_stabilised_laws_meet_the_targets_on_the_undamped_paper_plant(stable):
         assert m["rms_e_lam"] <= lam_max and m["rms_e_u1"] <= 0.02
         assert np.max(tr.tau_abs_max[tr.t > 0.1, 0]) <= 250.0
         assert m["dissipation_holds_for_all_t"] is True
+
+
+def test_reproduce_writes_the_beyond_part(tmp_path, monkeypatch):
+    """`hinfnn reproduce` (short horizon, one stiffness to keep it quick): metrics.json's "beyond"
+    part names every case with its run, beyond.npz holds their fields, the figures and the
+    report's section exist, and the override the comparison cannot honour is refused."""
+    import json
+
+    from hinfnn import study
+
+    monkeypatch.setattr(study, "BEYOND_STIFFNESS", (1e5,))
+    with pytest.raises(H.ConfigError) as err:
+        study.reproduce(tmp_path / "refused", base=H.load_scenario("paper", [("plant.contact.stiffness", 2e5)]))
+    assert err.value.key == "plant.contact.stiffness" and "--paper-only" in str(err.value)
+    assert not (tmp_path / "refused").exists()
+    out = tmp_path / "paper"
+    assert cli.main(["reproduce", "--set", "simulation.t_final=0.05", "--out", str(out), "--quiet"]) == 0
+    doc = json.loads((out / "metrics.json").read_text())
+    beyond = doc["beyond"]
+    names = {c["name"] for c in beyond["cases"]}
+    expected = {f"{kind}_{variant}_{mode}_k1e5" for kind in ("hinf", "hinf_nn") for variant in ("paper", "stable")
+                for mode in ("cont", "1kHz", "10kHz", "mujoco")}
+    assert names == expected and {r["name"] for r in beyond["runs"]} == expected
+    assert "mujoco_skipped" not in beyond
+    assert beyond["design"]["kappa"] == pytest.approx(0.028, abs=5e-4)
+    assert len(beyond["contact_modes"]) == 4
+    assert all(m["polynomial_match"] is None or m["polynomial_match"] < 1e-6 for m in beyond["contact_modes"])
+    with np.load(out / "beyond.npz") as z:
+        assert {f"{n}/e_lam" for n in expected} <= set(z.files)
+    report = (out / "report.md").read_text()
+    assert "Beyond the paper" in report
+    pngs = sorted(p.name for p in out.glob("beyond_*.png"))
+    assert pngs and all(f"({p})" in report or p in report for p in pngs)

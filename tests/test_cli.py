@@ -64,7 +64,7 @@ def test_run_writes_every_file(tmp_path, capsys):
 
 def test_reproduce_short_horizon_writes_every_file(tmp_path, capsys):
     out = tmp_path / "paper"
-    assert cli.main(["reproduce", "--set", "simulation.t_final=0.3", "--out", str(out)]) == 0
+    assert cli.main(["reproduce", "--paper-only", "--set", "simulation.t_final=0.3", "--out", str(out)]) == 0
     names = ["fl", "hinf", "hinf_nn", "hinf_nn_printed", "hinf_exact"]
     _check_metrics_json(out / "metrics.json", names + [n + "_damped" for n in names])
     for stem in PAPER_FIGURES:
@@ -72,14 +72,15 @@ def test_reproduce_short_horizon_writes_every_file(tmp_path, capsys):
         _check_png(out / f"{stem}_damped.png")
     report = (out / "report.md").read_text()
     for needle in ("## Claims", "held", "paper-conventions.md", "fig5_u1.png", "### Summary", "10 runs, each 0.3 s",
-                   f"Command: `hinfnn reproduce --set simulation.t_final=0.3 --out {out}`"):
+                   f"Command: `hinfnn reproduce --paper-only --set simulation.t_final=0.3 --out {out}`"):
         assert needle in report
     doc = json.loads((out / "metrics.json").read_text())
-    assert doc["command"] == f"hinfnn reproduce --set simulation.t_final=0.3 --out {out}"
+    assert doc["command"] == f"hinfnn reproduce --paper-only --set simulation.t_final=0.3 --out {out}"
+    assert "beyond" not in doc and not (out / "beyond.npz").exists()
     assert (out / ".hinfnn-result").exists()
     assert (out / "scenario.toml").exists() and (out / "trajectory.npz").exists()
     # writing again without --force picks a new numbered folder and says so
-    assert cli.main(["reproduce", "--set", "simulation.t_final=0.02", "--out", str(out), "--quiet"]) == 0
+    assert cli.main(["reproduce", "--paper-only", "--set", "simulation.t_final=0.02", "--out", str(out), "--quiet"]) == 0
     assert (tmp_path / "paper-2" / "report.md").exists()
 
 

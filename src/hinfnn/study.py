@@ -9,8 +9,11 @@ runs them (batched under ``vmap`` by controller structure) and writes the result
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
+
+import numpy as np
 
 from .scenario import Scenario
 

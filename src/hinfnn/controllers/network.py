@@ -139,7 +139,6 @@ class TanhNetwork:
 
     def update_blocks(self, xi_blocks, s, theta_blocks, gamma) -> tuple:
         """Eqs. (30)–(31) (with Remark 2's projection) on blocks; returns Θ̇ as blocks."""
-        nb = len(xi_blocks)
         raw = tuple(gamma * s[o] * x for o in range(self.n_out) for x in xi_blocks)
         if self.project:
             growth = la.mm(s, self.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ
