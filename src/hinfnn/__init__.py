@@ -24,6 +24,16 @@ from .io import LoadError, load
 
 __version__ = "0.2.0"
 
+
+def __getattr__(name):
+    # the sweep table reader imports pandas and pyarrow when called; `import hinfnn` imports neither
+    if name == "load_sweep":
+        from .sweep.store import load_sweep
+
+        return load_sweep
+    raise AttributeError(f"module 'hinfnn' has no attribute {name!r}")
+
+
 __all__ = [
     "configure", "cache_dir", "enable_cache", "clear_cache",
     "FeedbackLinearization", "HinfController", "HinfNNController", "SampledController", "SampledLoop", "Gains",
@@ -31,5 +41,5 @@ __all__ = [
     "Measurement", "TwoLinkArm", "PlanarPointMassArm", "InclinedLine", "ImplicitSurface", "reduced_model",
     "RigidBodyPlant", "PenaltyContact", "SquareWave", "CosineReference",
     "simulate", "simulate_batch", "simulate_many", "Limits", "Trajectory", "compute_metrics", "Scenario",
-    "load_scenario", "load", "LoadError", "__version__",
+    "load_scenario", "load", "LoadError", "load_sweep", "__version__",
 ]
