@@ -377,6 +377,8 @@ def cmd_sweep(args) -> int:
             bar = bars[phase]
             bar.update(done - bar.n)
         elif phase == "run" and total and (time.perf_counter() - state["last"] > 30 or done >= total):
+            if state.get("phase") != phase:
+                state.update(phase=phase, t0=time.perf_counter())
             state["last"] = time.perf_counter()
             el = time.perf_counter() - state["t0"]
             rate = done / el if el > 0 else 0.0

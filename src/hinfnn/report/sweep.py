@@ -106,7 +106,7 @@ def _use_log(values) -> bool:
 def outcomes_figure(df, meta, path: Path) -> Path:
     kinds = meta["controllers"]
     outcome = outcome_of(df)
-    fig = Figure(figsize=(10, 1.2 + 0.8 * len(kinds)))
+    fig = Figure(figsize=(10, max(3.2, 1.4 + 0.8 * len(kinds))))
     ax = fig.add_subplot()
     for i, kind in enumerate(kinds):
         sel = outcome[df["controller"] == kind]
@@ -130,6 +130,10 @@ def outcomes_figure(df, meta, path: Path) -> Path:
               bbox_to_anchor=(0.5, -0.35 if len(kinds) < 3 else -0.22), ncol=3, fontsize=8, frameon=False)
     fig.subplots_adjust(left=0.16, right=0.97, top=0.86, bottom=0.42 if len(kinds) < 3 else 0.3)
     return _save(fig, path)
+
+
+def _tick(v) -> str:
+    return f"{v:g}" if isinstance(v, (int, float)) else str(v)
 
 
 def _grid_axes(meta):
@@ -187,10 +191,8 @@ def _edges(values, log):
 def map_figures(df, meta, folder: Path) -> list[Path]:
     """The robustness maps of a two-key grid (the first two grid keys; others pooled)."""
     gx, gy = _grid_axes(meta)[:2]
-    if any(isinstance(v, str) for v in gx["values"] + gy["values"]):
-        xs_num = False
-    else:
-        xs_num = True
+    # linspace/logspace grids on a real (log) axis; a list of values as equal cells labelled by value
+    xs_num = gx.get("kind") in ("linspace", "logspace") and gy.get("kind") in ("linspace", "logspace")
     metric = metric_columns(df, [meta["map_metric"]])
     metric = metric[0] if metric else meta["map_metric"]
     xs, ys, cells = _cell_table(df, meta, metric)
@@ -198,7 +200,7 @@ def map_figures(df, meta, folder: Path) -> list[Path]:
     unit = meta.get("units", {}).get(metric, "")
     paths = []
     for what in ("metric", "held"):
-        fig = Figure(figsize=(4.6 * len(kinds) + 1.4, 4.6))
+        fig = Figure(figsize=(max(7.5, 4.6 * len(kinds) + 1.4), 4.6))
         axes = fig.subplots(1, len(kinds), squeeze=False)[0]
         if what == "metric":
             allv = np.concatenate([c[0].ravel() for c in cells.values()])
@@ -206,7 +208,11 @@ def map_figures(df, meta, folder: Path) -> list[Path]:
             if finite.size and _use_log(finite):
                 norm = LogNorm(vmin=finite.min(), vmax=finite.max())
             elif finite.size:
-                norm = Normalize(vmin=finite.min(), vmax=max(finite.max(), finite.min() + 1e-12))
+                lo, hi = float(finite.min()), float(finite.max())
+                if hi - lo <= 1e-9 * max(abs(hi), 1e-300):  # one value: a band around it
+                    pad = 0.05 * abs(hi) if hi != 0 else 1.0
+                    lo, hi = lo - pad, hi + pad
+                norm = Normalize(vmin=lo, vmax=hi)
             else:
                 norm = Normalize(0, 1)
             cmap = "viridis"
@@ -244,8 +250,8 @@ def map_figures(df, meta, folder: Path) -> list[Path]:
             if xs_num and gy["log"]:
                 ax.set_yscale("log")
             if not xs_num:
-                ax.set_xticks(cx, [str(v) for v in xs], rotation=30)
-                ax.set_yticks(cy, [str(v) for v in ys])
+                ax.set_xticks(cx, [_tick(v) for v in xs], rotation=30 if len(xs) > 6 else 0)
+                ax.set_yticks(cy, [_tick(v) for v in ys])
             ax.set_xlim(ex[0], ex[-1])
             ax.set_ylim(ey[0], ey[-1])
             ax.set_xlabel(gx["key"])

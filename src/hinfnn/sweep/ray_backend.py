@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import os
+import warnings
 
 from ..errors import ConfigError
 
@@ -46,9 +47,26 @@ def _check_task(chunk):
     return check_runs(*chunk)
 
 
+#: Fault injection for the tests: with this variable naming a file that does not exist, the
+#: first task to start creates it and kills its own worker process (Ray then retries the task).
+FAULT_ONCE_ENV = "HINFNN_SWEEP_FAULT_ONCE"
+
+
+def _fault_once():
+    path = os.environ.get(FAULT_ONCE_ENV)
+    if path:
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            return
+        os.close(fd)
+        os._exit(1)
+
+
 def _run_task(job, reporter=None):
     from .run import execute_batch
 
+    _fault_once()
     _configure_worker()
     last = [-1.0]
 
@@ -94,8 +112,13 @@ class RayBackend:
 
                 runtime_env["py_modules"] = [os.path.dirname(hinfnn.__file__)]
             try:
-                ray.init(address=address, include_dashboard=False, logging_level=logging.WARNING,
-                         runtime_env=runtime_env or None)
+                with warnings.catch_warnings():
+                    # Ray starts its processes with fork + exec, which JAX's fork hook warns about
+                    # (the child runs no JAX code: it execs at once)
+                    warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
+                    ray.init(address=address, include_dashboard=False,
+                             logging_level=logging.ERROR if address == "local" else logging.WARNING,
+                             runtime_env=runtime_env or None)
             except ConnectionError as err:
                 raise ConfigError(f"cannot reach a Ray cluster at {address!r}: {err}", key="--address") from None
             self.started = True

@@ -65,10 +65,8 @@ class _Designs:
 
     @staticmethod
     def key(sc, kind: str) -> str:
-        from ..scenario import schema
-
-        return json.dumps([kind, schema.to_dict(sc.nominal), schema.to_dict(sc.controller)], sort_keys=True,
-                          default=str)
+        # the sections are frozen dataclasses: their repr lists every value (floats exactly)
+        return repr((kind, sc.nominal, sc.controller))
 
     def get(self, sc, kind: str):
         k = self.key(sc, kind)
@@ -83,6 +81,21 @@ class _Designs:
 
 
 _DESIGNS = _Designs()
+
+
+class _CachedDesigns:
+    """A scenario whose ``build_controller`` answers from the design cache, for
+    :func:`hinfnn.scenario.checks.check` (what :meth:`Scenario.check` runs): the same checks,
+    without designing the same controller again for every draw."""
+
+    def __init__(self, sc):
+        self._sc = sc
+
+    def __getattr__(self, name):
+        return getattr(self._sc, name)
+
+    def build_controller(self, kind: str | None = None):
+        return _DESIGNS.get(self._sc, kind or self._sc.kinds[0])[0]
 
 
 def scenario_of(base: dict, source: str, values: dict, kinds):
@@ -105,6 +118,13 @@ def compile_key(run) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def shared_key(sc, design_key: str) -> str:
+    """Runs with equal keys share their controller, reference and limits (a batch of them passes
+    each once instead of stacking B copies)."""
+    text = repr((design_key, sc.reference, sc.simulation.torque_limit, sc.simulation.penetration_limit))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
 def stored_samples(run) -> int:
     """Samples a run stores (t = 0 ... t_final every save_every steps)."""
     from ..sim.simulate import steps
@@ -114,9 +134,30 @@ def stored_samples(run) -> int:
     return n_steps // save_every + 1
 
 
+def _plain(x):
+    """A pytree leaf as plain Python/NumPy, keeping what decides the compiled program: a weakly
+    typed scalar stays a Python number (a NumPy scalar would be strongly typed: another trace)."""
+    if isinstance(x, (bool, int, float, complex)):
+        return x
+    if getattr(x, "weak_type", False):
+        return x.item() if np.ndim(x) == 0 else x
+    return np.asarray(x)
+
+
+def _ready(run) -> tuple:
+    """What a batch needs of a checked run besides what its members share: the plant's leaves
+    and the start pose, as plain Python/NumPy values (small, picklable)."""
+    import jax
+
+    return tuple(_plain(x) for x in jax.tree.leaves(run.plant)), _plain(run.q0)
+
+
 def check_runs(base: dict, source: str, runs: list[RunSpec]) -> list[dict]:
-    """Check runs (those of one draw share one scenario build). For each: ``{"run", "ok",
-    "group", "samples", "n_joints"}`` or ``{"run", "ok": False, "reason", "error_key"}``."""
+    """Check runs (those of one draw share one scenario build). For each: ``{"run", "ok": True,
+    "group", "shared", "samples", "n_joints", "ready"}`` or ``{"run", "ok": False, "reason",
+    "error_key"}``."""
+    from ..scenario.checks import check
+
     out = []
     by_draw: dict = collections.OrderedDict()
     for r in runs:
@@ -131,11 +172,11 @@ def check_runs(base: dict, source: str, runs: list[RunSpec]) -> list[dict]:
         for r in items:
             try:
                 one = sc.single(r.controller)
-                one.check()
-                ctrl, _ = _DESIGNS.get(one, r.controller)
+                check(_CachedDesigns(one))
+                ctrl, design_key = _DESIGNS.get(one, r.controller)
                 run = one.run(r.controller, controller=ctrl)
-                out.append({"run": r.run, "ok": True, "group": compile_key(run), "samples": stored_samples(run),
-                            "n_joints": int(run.plant.n)})
+                out.append({"run": r.run, "ok": True, "group": compile_key(run), "shared": shared_key(one, design_key),
+                            "samples": stored_samples(run), "n_joints": int(run.plant.n), "ready": _ready(run)})
             except INVALID_ERRORS as err:
                 out.append(_invalid(r, err))
     return out
@@ -159,6 +200,7 @@ class Batch:
     group: str
     size: int
     runs: tuple
+    shared: bool = False  # every member has the same controller, reference and limits
 
 
 def available_memory() -> int:
@@ -206,11 +248,12 @@ def batch_cap(samples: int, n_joints: int, max_batch: int = DEFAULT_MAX_BATCH, m
 def plan_batches(checked: list[dict], max_batch: int, memory: int | None = None) -> list[Batch]:
     """Batches of equal size per compiled group, in run order (see the module docstring)."""
     groups: dict = collections.OrderedDict()
-    info = {}
+    info, shared = {}, {}
     for c in sorted(checked, key=lambda c: c["run"]):
         if c["ok"]:
             groups.setdefault(c["group"], []).append(c["run"])
             info[c["group"]] = (c["samples"], c["n_joints"])
+            shared[c["run"]] = c.get("shared")
     batches = []
     for group, ids in groups.items():
         cap = batch_cap(*info[group], max_batch=max_batch, memory=memory)
@@ -218,7 +261,8 @@ def plan_batches(checked: list[dict], max_batch: int, memory: int | None = None)
         size = -(-len(ids) // k)
         for i in range(k):
             chunk = tuple(ids[i * size:(i + 1) * size])
-            batches.append(Batch(id=len(batches), group=group, size=size, runs=chunk))
+            same = len({shared[r] for r in chunk}) == 1 and shared[chunk[0]] is not None
+            batches.append(Batch(id=len(batches), group=group, size=size, runs=chunk, shared=same))
     return batches
 
 
@@ -227,50 +271,61 @@ def plan_batches(checked: list[dict], max_batch: int, memory: int | None = None)
 
 @dataclasses.dataclass(frozen=True)
 class BatchJob:
-    """Everything a worker needs to run one batch: the base scenario (plain dict), the members
-    and the size to pad to."""
+    """Everything a worker needs to run one batch: the base scenario (plain dict), the members,
+    and, when the draws were checked in this session, each member's plant leaves and start pose
+    (``ready``: then only the first member's scenario is built again)."""
 
     batch: Batch
     base: dict
     source: str
     members: tuple  # RunSpec, in the batch's order
     max_out_of_contact: float
+    ready: tuple | None = None  # per member: (plant leaves, q0), see _ready
 
 
-def _same(items) -> bool:
-    return all(x == items[0] for x in items[1:])
+def _members(job: BatchJob) -> list:
+    """(plant, q0) of every member and the controller, reference and limits: each shared one
+    once (``batch.shared``) or a list."""
+    import jax
+
+    first = scenario_of(job.base, job.source, job.members[0].values, job.members[0].controller)
+    ctrl, _ = _DESIGNS.get(first, job.members[0].controller)
+    run0 = first.run(job.members[0].controller, controller=ctrl)
+    if job.batch.shared and job.ready is not None:
+        treedef = jax.tree.structure(run0.plant)
+        plants = [jax.tree.unflatten(treedef, leaves) for leaves, _ in job.ready]
+        q0s = [q0 for _, q0 in job.ready]
+        return plants, q0s, run0.controller, run0.reference, run0.limits, run0
+    runs = [run0]
+    for r in job.members[1:]:
+        sc = scenario_of(job.base, job.source, r.values, r.controller)
+        runs.append(sc.run(r.controller, controller=_DESIGNS.get(sc, r.controller)[0]))
+    plants, q0s = [r.plant for r in runs], [r.q0 for r in runs]
+    if job.batch.shared:
+        return plants, q0s, run0.controller, run0.reference, run0.limits, run0
+    return plants, q0s, [r.controller for r in runs], [r.reference for r in runs], [r.limits for r in runs], run0
 
 
 def execute_batch(job: BatchJob, progress: Callable[[float], None] | None = None) -> dict:
     """Run one batch as one :func:`hinfnn.simulate_batch` call and return ``{"batch", "rows",
-    "wall_s", "host", "pid"}``; ``rows`` has one dict per member (padding dropped).
-    ``progress(fraction)`` is called after each compiled chunk."""
+    "wall_s", "host", "pid", "members", "size"}``; ``rows`` has one dict per member (padding
+    dropped). ``progress(fraction)`` is called after each compiled chunk."""
     from ..sim import simulate_batch
 
     t0 = time.perf_counter()
-    built = []
-    for r in job.members:
-        sc = scenario_of(job.base, job.source, r.values, r.controller)
-        ctrl, design_key = _DESIGNS.get(sc, r.controller)
-        ref_key = json.dumps(dataclasses.asdict(sc.reference), sort_keys=True)
-        built.append((sc.run(r.controller, controller=ctrl), design_key, ref_key))
-    n_real = len(built)
-    built += [built[-1]] * (job.batch.size - n_real)
-    runs = [b[0] for b in built]
-    first = runs[0]
-    # a controller (reference, limits) shared by every member is passed once: not stacked
-    controllers = runs[0].controller if _same([b[1] for b in built]) else [r.controller for r in runs]
-    references = runs[0].reference if _same([b[2] for b in built]) else [r.reference for r in runs]
-    limit_values = [(float(r.limits.torque), float(r.limits.penetration)) for r in runs]
-    limits = runs[0].limits if _same(limit_values) else [r.limits for r in runs]
+    plants, q0s, controllers, references, limits, first = _members(job)
+    n_real, pad = len(plants), job.batch.size - len(plants)
+    plants, q0s = plants + [plants[-1]] * pad, q0s + [q0s[-1]] * pad  # a copy of the last member
+    if isinstance(controllers, list):
+        controllers, references, limits = (x + [x[-1]] * pad for x in (controllers, references, limits))
 
     def report(done, total):
         if progress is not None:
             progress(done / total)
 
-    traj = simulate_batch([r.plant for r in runs], controllers, references, q0=[r.q0 for r in runs],
-                          t_final=first.t_final, dt=first.dt, save_interval=first.save_interval, fields="metrics",
-                          control_period=first.control_period, limits=limits, progress=report)
+    traj = simulate_batch(plants, controllers, references, q0=q0s, t_final=first.t_final, dt=first.dt,
+                          save_interval=first.save_interval, fields="metrics", control_period=first.control_period,
+                          limits=limits, progress=report)
     rows = [member_row(r, traj.member(j), job.max_out_of_contact) for j, r in enumerate(job.members)]
     return {"batch": job.batch.id, "rows": rows, "wall_s": time.perf_counter() - t0, "host": socket.gethostname(),
             "pid": os.getpid(), "members": n_real, "size": job.batch.size}
@@ -412,15 +467,16 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
         atomic_write_text(folder / "scenario.toml", spec.base.to_toml())
 
     be = make_backend(backend, address)
+    ready: dict = {}
     try:
         if manifest is None:
-            manifest = _plan(spec, runs, by_id, folder, be, n_joints, fingerprint, max_batch or DEFAULT_MAX_BATCH,
-                             progress, log, command, __version__)
+            manifest, ready = _plan(spec, runs, by_id, folder, be, n_joints, fingerprint,
+                                    max_batch or DEFAULT_MAX_BATCH, progress, log, command, __version__)
         elif max_batch is not None and max_batch != manifest.get("max_batch"):
             log(f"resuming with the stored plan (batches of at most {manifest.get('max_batch')} runs); "
                 "--batch-size is ignored")
-        result = _execute(spec, manifest, by_id, folder, be, n_joints, progress, log, command, on_part, resume,
-                          t_start)
+        result = _execute(spec, manifest, by_id, ready, folder, be, n_joints, progress, log, command, on_part,
+                          resume, t_start)
     finally:
         be.close()
     if report:
@@ -470,6 +526,7 @@ def _plan(spec, runs, by_id, folder, be, n_joints, fingerprint, max_batch, progr
     progress("check", 0, n_draws)
     be.check(chunks, done)
     checked.sort(key=lambda c: c["run"])
+    ready = {c["run"]: c.pop("ready") for c in checked if c["ok"]}
     invalid = [invalid_row(by_id[c["run"]], c) for c in checked if not c["ok"]]
     store.write_table(folder / store.PARTS / store.INVALID_PART, store.rows_table(invalid, spec, n_joints))
     batches = plan_batches(checked, max_batch)
@@ -484,16 +541,16 @@ def _plan(spec, runs, by_id, folder, be, n_joints, fingerprint, max_batch, progr
         "n_groups": len({b.group for b in batches}), "done": {}, "sessions": [],
     }
     store.write_plan(folder, {"fingerprint": fingerprint, "max_batch": max_batch,
-                              "batches": [[b.id, b.group, b.size, list(b.runs)] for b in batches]})
+                              "batches": [[b.id, b.group, b.size, list(b.runs), b.shared] for b in batches]})
     store.write_manifest(folder, manifest)
-    return manifest
+    return manifest, ready
 
 
-def _execute(spec, manifest, by_id, folder, be, n_joints, progress, log, command, on_part, resume, t_start):
+def _execute(spec, manifest, by_id, ready, folder, be, n_joints, progress, log, command, on_part, resume, t_start):
     plan = store.read_plan(folder)
     if plan.get("fingerprint") != manifest.get("fingerprint"):
         raise store.LoadError(f"{folder / store.PLAN} does not belong to {folder / store.MANIFEST}")
-    batches = [Batch(id=i, group=g, size=n, runs=tuple(r)) for i, g, n, r in plan["batches"]]
+    batches = [Batch(id=i, group=g, size=n, runs=tuple(r), shared=bool(sh)) for i, g, n, r, sh in plan["batches"]]
     done = store.done_batches(folder)
     pending = [b for b in batches if b.id not in done]
     total = sum(len(b.runs) for b in batches)
@@ -502,7 +559,10 @@ def _execute(spec, manifest, by_id, folder, be, n_joints, progress, log, command
         log(f"resuming: {len(done)} of {len(batches)} batches ({finished} runs) already done")
     base = spec.base.to_dict()
     jobs = [BatchJob(batch=b, base=base, source=spec.base.source, members=tuple(by_id[i] for i in b.runs),
-                     max_out_of_contact=spec.max_out_of_contact) for b in pending]
+                     max_out_of_contact=spec.max_out_of_contact,
+                     ready=tuple(ready[i] for i in b.runs) if all(i in ready for i in b.runs) else None)
+            for b in pending]
+    ready.clear()
     in_flight: dict[int, float] = {}
     state = {"finished": finished}
     session = {"backend": be.describe(), "started": store.now(), "command": command, "batches": 0, "runs": 0,
@@ -585,7 +645,7 @@ def report_meta(spec: SweepSpec, manifest: dict) -> dict:
     sessions = manifest.get("sessions", [])
     varied = []
     for v in spec.varied:
-        entry = {"key": v.key, "how": v.how.describe(), "grid": v.how.is_grid,
+        entry = {"key": v.key, "how": v.how.describe(), "grid": v.how.is_grid, "kind": v.how.kind,
                  "log": v.how.kind in ("logspace", "log-uniform")}
         if v.how.is_grid:
             entry["values"] = v.how.grid()
