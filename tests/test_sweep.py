@@ -409,3 +409,11 @@ def test_ray_backend_gives_the_same_table_and_retries_a_lost_worker(small, tmp_p
     manifest = json.loads((tmp_path / "ray" / "manifest.json").read_text())
     assert "ray" in manifest["sessions"][0]["backend"]
     assert {d["pid"] for d in manifest["done"].values()} != {os.getpid()}
+
+
+def test_docs_spec_tables_are_current():
+    """docs/sweeps.md lists exactly the spec's keys (regenerate with hinfnn.sweep.spec.spec_table)."""
+    from hinfnn.sweep.spec import spec_table
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "sweeps.md").read_text()
+    assert spec_table() in doc

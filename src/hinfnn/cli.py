@@ -341,10 +341,10 @@ def cmd_sweep(args) -> int:
     spec = load_spec(args.spec, samples=args.samples, overrides=args.overrides)
     out = args.out or Path("results") / spec.name
     target = out
-    if not args.resume and out.exists() and (not out.is_dir() or any(out.iterdir())):
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"output path {out} exists and is not a folder", key="--out")
+    if not args.resume and out.exists() and any(out.iterdir()):
         if args.force:
-            if not out.is_dir():
-                raise ConfigError(f"output path {out} exists and is not a folder", key="--out")
             shutil.rmtree(out)
         else:
             i = 2
@@ -369,7 +369,7 @@ def cmd_sweep(args) -> int:
                     b.close()
                 unit = "draw" if phase == "check" else "run"
                 desc = "checking draws" if phase == "check" else "simulating"
-                bars[phase] = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False,
+                bars[phase] = tqdm(total=total, initial=done, desc=desc, unit=unit, file=sys.stderr, leave=False,
                                    dynamic_ncols=True, mininterval=0.5, smoothing=0.1,
                                    bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total} {unit}s "
                                               "[{elapsed}<{remaining}, {rate_fmt}]")
@@ -377,11 +377,11 @@ def cmd_sweep(args) -> int:
             bar = bars[phase]
             bar.update(done - bar.n)
         elif phase == "run" and total and (time.perf_counter() - state["last"] > 30 or done >= total):
-            if state.get("phase") != phase:
-                state.update(phase=phase, t0=time.perf_counter())
+            if state.get("phase") != phase:  # a resumed sweep starts with the runs done before
+                state.update(phase=phase, t0=time.perf_counter(), base=done)
             state["last"] = time.perf_counter()
             el = time.perf_counter() - state["t0"]
-            rate = done / el if el > 0 else 0.0
+            rate = (done - state["base"]) / el if el > 0 else 0.0
             eta = f", ETA {(total - done) / rate / 60:.1f} min" if rate > 0 and done < total else ""
             print(f"hinfnn sweep: {done:.0f}/{total} runs, {el:.0f} s, {rate:.2f} runs/s{eta}", file=sys.stderr,
                   flush=True)

@@ -27,6 +27,7 @@ from matplotlib.colors import LogNorm, Normalize
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
+from matplotlib.ticker import LogLocator, MaxNLocator, NullFormatter
 
 from ..io import atomic_write, atomic_write_text
 
@@ -92,6 +93,18 @@ def metric_columns(df, names) -> list[str]:
             cols += sorted((c for c in df.columns if c.startswith(n + "_") and c[len(n) + 1:].isdigit()),
                            key=lambda c: int(c.rsplit("_", 1)[1]))
     return cols
+
+
+def _log_x(ax):
+    ax.set_xscale("log")
+    ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 3.0), numticks=12))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+
+
+def _few_ticks(ax):
+    if ax.get_xscale() == "linear":
+        ax.xaxis.set_major_locator(MaxNLocator(5))
+        ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4), useOffset=False)
 
 
 def _use_log(values) -> bool:
@@ -240,11 +253,12 @@ def map_figures(df, meta, folder: Path) -> list[Path]:
                         ax.fill([x0, x1, x1, x0], [y0, y0, y1, y1], facecolor="#bdbdbd", edgecolor="none")
                         ax.plot([cx[ix]], [cy[iy]], marker="x", color="#d7191c", markersize=9, mew=2)
                     elif stopped[iy, ix] > 0:
+                        mark = "#d7191c" if what == "metric" else "black"  # the held map is red where it fails
                         if meta["samples"] > 1:
                             ax.text(cx[ix], cy[iy], f"{100 * stopped[iy, ix]:.0f}%", ha="center", va="center",
-                                    fontsize=7, color="#d7191c", fontweight="bold")
+                                    fontsize=7, color=mark, fontweight="bold")
                         else:
-                            ax.plot([cx[ix]], [cy[iy]], marker="x", color="#d7191c", markersize=9, mew=2)
+                            ax.plot([cx[ix]], [cy[iy]], marker="x", color=mark, markersize=9, mew=2)
             if xs_num and gx["log"]:
                 ax.set_xscale("log")
             if xs_num and gy["log"]:
@@ -264,7 +278,8 @@ def map_figures(df, meta, folder: Path) -> list[Path]:
                     if meta["samples"] == 1 else "red %: share of draws that stopped; ×: all stopped")
         else:
             title = f"{meta['name']}: share of draws that held contact"
-            note = f"held contact: bounded and out of contact ≤ {100 * meta['max_out_of_contact']:g} % of the steps"
+            note = (f"held contact: bounded and out of contact ≤ {100 * meta['max_out_of_contact']:g} % of the steps; "
+                    + ("×: stopped" if meta["samples"] == 1 else "%: share of draws that stopped"))
         note += "; hatched: invalid (start out of reach or design infeasible)"
         fig.suptitle(title, fontsize=12)
         fig.text(0.5, 0.015, note, ha="center", fontsize=8, color="#444444")
@@ -339,7 +354,9 @@ def distributions_figure(df, meta, path: Path) -> Path:
             ax.plot([np.median(v)], [0.5], "o", color=_color(meta, kind), markersize=4)
         vals = df.loc[df["status"] == "ok", col].astype(float)
         if _use_log(vals):
-            ax.set_xscale("log")
+            _log_x(ax)
+        else:
+            _few_ticks(ax)
         unit = units.get(col, "")
         ax.set_xlabel(col + (f" ({unit})" if unit and unit != "-" else ""))
         ax.set_ylabel("share of bounded runs ≤ x")
@@ -354,6 +371,22 @@ def distributions_figure(df, meta, path: Path) -> Path:
     return _save(fig, path)
 
 
+def _binned(sim, v, n: int = 10):
+    """(values, bin edges, bin centres, bin of each row, log) of a drawn key over ``n`` equal bins
+    of its range (geometric for log-uniform draws); a list-valued key by its first entry."""
+    x = sim[v["key"]]
+    if x.dtype == object:
+        x = x.map(lambda a: float(a[0]))
+    x = x.astype(float).to_numpy()
+    if x.size == 0:
+        return x, None, None, None, False
+    log = bool(v["log"] and np.all(x > 0))
+    edges = np.geomspace(x.min(), x.max(), n + 1) if log else np.linspace(x.min(), x.max(), n + 1)
+    centres = np.sqrt(edges[1:] * edges[:-1]) if log else (edges[1:] + edges[:-1]) / 2
+    bins = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, n - 1)
+    return x, edges, centres, bins, log
+
+
 def failures_figure(df, meta, path: Path) -> Path:
     drawn = [v for v in meta["varied"] if not v["grid"]]
     n = len(drawn)
@@ -365,19 +398,11 @@ def failures_figure(df, meta, path: Path) -> Path:
     outcome = outcome_of(df)
     for ax, v in zip(axes, drawn):
         key = v["key"]
-        x = sim[key]
-        if x.dtype == object:  # list-valued key: its first entry
-            x = x.map(lambda a: float(a[0]))
-        x = x.astype(float).to_numpy()
+        x, edges, centres, bins, log = _binned(sim, v)
         if x.size == 0:
             continue
-        if v["log"] and np.all(x > 0):
-            edges = np.geomspace(x.min(), x.max(), 11)
-            ax.set_xscale("log")
-        else:
-            edges = np.linspace(x.min(), x.max(), 11)
-        centres = np.sqrt(edges[1:] * edges[:-1]) if v["log"] and np.all(x > 0) else (edges[1:] + edges[:-1]) / 2
-        bins = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, 9)
+        if log:
+            _log_x(ax)
         for kind in meta["controllers"]:
             is_kind = (sim["controller"] == kind).to_numpy()
             ok = (sim["status"] == "ok").to_numpy()
@@ -392,6 +417,7 @@ def failures_figure(df, meta, path: Path) -> Path:
             ax.plot(centres, b_held, "s--", color=c, markersize=3, alpha=0.7)
         ax.set_ylim(-0.02, 1.02)
         ax.set_xlabel(key)
+        _few_ticks(ax)
         ax.grid(alpha=0.3)
     for ax in axes[::ncol]:
         ax.set_ylabel("share of runs")
@@ -415,6 +441,10 @@ def _pct(k, n) -> str:
         return "–"
     lo, hi = wilson(k, n)
     return f"{100 * k / n:.1f} % ({100 * lo:.1f}–{100 * hi:.1f})"
+
+
+def _share(q) -> str:
+    return f"{100 * q:.0f} %" if q is not None and np.isfinite(q) else "–"
 
 
 def _num(x) -> str:
@@ -448,7 +478,9 @@ def sweep_markdown(df, meta, figures: list[str]) -> str:
         L.append(meta["description"])
         L.append("")
     n_draws = meta["points"] * meta["samples"]
-    L.append(f"Base scenario `{meta['scenario']}` ({meta['scenario_source']}), horizon {meta['t_final']:g} s, "
+    src = meta["scenario_source"]
+    where = f" ({src})" if src and src != meta["scenario"] else ""
+    L.append(f"Base scenario `{meta['scenario']}`{where}, horizon {meta['t_final']:g} s, "
              f"RK4 step {meta['dt']:g} s. Controllers: " + ", ".join(f"{_label(meta, k)} (`{k}`)" for k in kinds)
              + f". {n_draws} draw{'s' if n_draws != 1 else ''} × {len(kinds)} controllers = {len(df)} runs"
              + (f" ({meta['points']} grid points × {meta['samples']} random draws)" if meta["points"] > 1
@@ -520,6 +552,31 @@ def sweep_markdown(df, meta, figures: list[str]) -> str:
                 A, B = ha.reindex(common).to_numpy(bool), hb.reindex(common).to_numpy(bool)
                 L.append(f"| {_label(meta, a)} | {_label(meta, b)} | {int((A & B).sum())} | {int((A & ~B).sum())} | "
                          f"{int((~A & B).sum())} | {int((~A & ~B).sum())} |")
+        L.append("")
+
+    drawn = [v for v in meta["varied"] if not v["grid"]]
+    sim = df[df["status"] != "invalid"]
+    if drawn and len(sim) and (sim["status"] != "ok").any() and meta["samples"] >= 20:
+        rows = []
+        ok = (sim["status"] == "ok").to_numpy()
+        for v in drawn:
+            x, edges, _, bins, _ = _binned(sim, v)
+            shares = [ok[bins == b].mean() if (bins == b).any() else np.nan for b in range(10)]
+            finite = [q for q in shares if np.isfinite(q)]
+            if finite:
+                rows.append((max(finite) - min(finite), v["key"], edges, shares))
+        rows.sort(key=lambda r: -r[0])
+        L.append("### Where runs stop")
+        L.append("")
+        L.append("The share of simulated runs (all controllers) that stayed bounded in the lowest and the "
+                 "highest tenth of each drawn key's range (every other key drawn too; "
+                 "`failures_by_parameter.png` shows all ten bins per controller), largest spread first:")
+        L.append("")
+        L.append("| drawn key | its range | bounded, lowest tenth | bounded, highest tenth | min – max over the 10 bins |")
+        L.append("|---|---|---|---|---|")
+        for spread, key, edges, shares in rows:
+            L.append(f"| `{key}` | {_num(edges[0])} … {_num(edges[-1])} | {_share(shares[0])} | "
+                     f"{_share(shares[-1])} | {_share(np.nanmin(shares))} – {_share(np.nanmax(shares))} |")
         L.append("")
 
     cols = metric_columns(df, meta["metrics"])

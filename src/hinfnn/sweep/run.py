@@ -308,11 +308,12 @@ def _members(job: BatchJob) -> list:
 
 def execute_batch(job: BatchJob, progress: Callable[[float], None] | None = None) -> dict:
     """Run one batch as one :func:`hinfnn.simulate_batch` call and return ``{"batch", "rows",
-    "wall_s", "host", "pid", "members", "size"}``; ``rows`` has one dict per member (padding
-    dropped). ``progress(fraction)`` is called after each compiled chunk."""
+    "wall_s", "cpu_s", "host", "pid", "members", "size"}``; ``rows`` has one dict per member
+    (padding dropped); ``cpu_s`` is the CPU time of the whole process meanwhile (all its threads).
+    ``progress(fraction)`` is called after each compiled chunk."""
     from ..sim import simulate_batch
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     plants, q0s, controllers, references, limits, first = _members(job)
     n_real, pad = len(plants), job.batch.size - len(plants)
     plants, q0s = plants + [plants[-1]] * pad, q0s + [q0s[-1]] * pad  # a copy of the last member
@@ -327,8 +328,9 @@ def execute_batch(job: BatchJob, progress: Callable[[float], None] | None = None
                           save_interval=first.save_interval, fields="metrics", control_period=first.control_period,
                           limits=limits, progress=report)
     rows = [member_row(r, traj.member(j), job.max_out_of_contact) for j, r in enumerate(job.members)]
-    return {"batch": job.batch.id, "rows": rows, "wall_s": time.perf_counter() - t0, "host": socket.gethostname(),
-            "pid": os.getpid(), "members": n_real, "size": job.batch.size}
+    return {"batch": job.batch.id, "rows": rows, "wall_s": time.perf_counter() - t0,
+            "cpu_s": time.process_time() - c0, "host": socket.gethostname(), "pid": os.getpid(), "members": n_real,
+            "size": job.batch.size}
 
 
 def member_row(r: RunSpec, traj, max_out_of_contact: float) -> dict:
@@ -447,6 +449,8 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
     n_joints = int(spec.base.build_plant().n)
     fingerprint = spec.fingerprint()
     manifest = None
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(f"output path {folder} exists and is not a folder", key="--out")
     if store.is_sweep_folder(folder):
         if not resume:
             raise ConfigError(f"{folder} already holds a sweep; resume it with --resume or choose another --out",
@@ -459,16 +463,17 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
         if not (resume and (folder / "scenario.toml").exists() and _same_base(folder, spec)):
             raise ConfigError(f"{folder} exists and is not empty; choose another --out (or --force to replace it)",
                               key="--out")
-    store.prepare_folder(folder)
-    from ..io import atomic_write_text
-
-    if manifest is None:
-        atomic_write_text(folder / "sweep.toml", spec.to_toml(resolved=True))
-        atomic_write_text(folder / "scenario.toml", spec.base.to_toml())
-
-    be = make_backend(backend, address)
+    elif resume:
+        log(f"nothing to resume in {folder}: starting the sweep")
+    be = make_backend(backend, address)  # before writing anything: a missing Ray leaves no folder behind
     ready: dict = {}
     try:
+        store.prepare_folder(folder)
+        if manifest is None:
+            from ..io import atomic_write_text
+
+            atomic_write_text(folder / "sweep.toml", spec.to_toml(resolved=True))
+            atomic_write_text(folder / "scenario.toml", spec.base.to_toml())
         if manifest is None:
             manifest, ready = _plan(spec, runs, by_id, folder, be, n_joints, fingerprint,
                                     max_batch or DEFAULT_MAX_BATCH, progress, log, command, __version__)
@@ -583,8 +588,8 @@ def _execute(spec, manifest, by_id, ready, folder, be, n_joints, progress, log, 
         store.write_table(folder / store.PARTS / store.part_name(b), table)
         in_flight.pop(b, None)
         state["finished"] += res["members"]
-        manifest["done"][str(b)] = {"wall_s": round(res["wall_s"], 3), "host": res["host"], "pid": res["pid"],
-                                    "finished": store.now()}
+        manifest["done"][str(b)] = {"wall_s": round(res["wall_s"], 3), "cpu_s": round(res.get("cpu_s", 0.0), 3),
+                                    "host": res["host"], "pid": res["pid"], "finished": store.now()}
         session["batches"] += 1
         session["runs"] += res["members"]
         session["wall_s"] = round(time.perf_counter() - t_run, 3)

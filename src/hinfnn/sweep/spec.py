@@ -212,7 +212,7 @@ class SweepSpec:
     samples: int = param(1, doc="random draws (taken at every grid point); 1 when nothing is drawn", ge=1,
                          le=10_000_000)
     seed: int = param(0, doc="seed of the random draws (draw i depends only on seed, key and i)", ge=0,
-                      lt=2**63)
+                      lt=2**63, allowed="a whole number >= 0 (below 2^63)")
     metrics: tuple[str, ...] = param(DEFAULT_METRICS, doc="metrics the report shows (the table holds every "
                                                                 "metric)", allowed=_metrics_allowed)
     map_metric: str = param("rms_e_lam_last2s", doc="metric of the robustness maps (two-key grids)",
@@ -287,6 +287,18 @@ def _plain(v):
     if isinstance(v, tuple):
         return [_plain(x) for x in v]
     return v
+
+
+def spec_table() -> str:
+    """Markdown tables of a spec's keys and of a ``[vary]`` entry's keys (``docs/sweeps.md``)."""
+
+    def table(rows, prefix=""):
+        out = ["| key | meaning | allowed | default |", "|---|---|---|---|"]
+        out += [f"| `{prefix}{k}` | {doc} | {allowed} | {default} |" for k, doc, allowed, default in rows]
+        return "\n".join(out)
+
+    return (table(schema.describe(SweepSpec)) + "\n\nEach entry of `[vary]`, keyed by a scenario key:\n\n"
+            + table(schema.describe(VarySpec)))
 
 
 # --- loading ---------------------------------------------------------------------------------------
@@ -503,5 +515,5 @@ def _check_varied(key: str, how: VarySpec, tp, base_value, base) -> Varied:
     return Varied(key=key, how=how, base=base_value, list_valued=list_valued)
 
 
-__all__ = ["SweepSpec", "VarySpec", "Varied", "load_spec", "spec_from_dict", "spec_names", "DEFAULT_METRICS",
+__all__ = ["SweepSpec", "VarySpec", "Varied", "load_spec", "spec_from_dict", "spec_names", "spec_table", "DEFAULT_METRICS",
            "PER_JOINT_METRICS", "BOOL_METRICS", "GRIDS", "DISTRIBUTIONS"]
