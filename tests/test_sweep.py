@@ -225,6 +225,14 @@ def test_cli_options_are_checked(tmp_path, capsys):
     assert "did you mean 'paper-uncertainty'" in capsys.readouterr().err
     assert cli.main(["sweep", "--list"]) == 0
     assert "paper-map" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as ex:
+        cli.main(["sweep", "--help"])
+    assert ex.value.code == 0
+    text = capsys.readouterr().out
+    assert "examples:" in text and "--resume" in text and "--address" in text and "docs/sweeps.md" in text
+    (tmp_path / "afile").write_text("x")
+    assert cli.main(["sweep", str(path), "--out", str(tmp_path / "afile")]) == 2
+    assert "not a folder" in capsys.readouterr().err
 
 
 def test_batches_have_equal_sizes_per_group_and_fit_memory():
