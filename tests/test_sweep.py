@@ -425,3 +425,20 @@ def test_docs_spec_tables_are_current():
 
     doc = (Path(__file__).resolve().parents[1] / "docs" / "sweeps.md").read_text()
     assert spec_table() in doc
+
+
+def test_a_folder_in_use_by_another_sweep_is_refused(small, tmp_path):
+    from hinfnn.sweep.store import FolderLock
+
+    spec, _, _ = small
+    folder = tmp_path / "busy"
+    folder.mkdir()
+    other = FolderLock(folder)
+    other.acquire()  # another sweep holds the folder (the lock is per open file: same process works too)
+    try:
+        with pytest.raises(ConfigError, match="in use by another hinfnn sweep"):
+            run_sweep(spec, folder, resume=True)
+    finally:
+        other.release()
+    res = run_sweep(spec, folder, max_batch=2, report=False)  # an empty folder with only the lock file is fine
+    assert res.simulated_now == 4

@@ -343,7 +343,7 @@ def cmd_sweep(args) -> int:
     target = out
     if out.exists() and not out.is_dir():
         raise ConfigError(f"output path {out} exists and is not a folder", key="--out")
-    if not args.resume and out.exists() and any(out.iterdir()):
+    if not args.resume and out.exists() and any(p.name != ".lock" for p in out.iterdir()):
         if args.force:
             shutil.rmtree(out)
         else:

@@ -436,7 +436,6 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
     :func:`hinfnn.load_sweep` of the folder. ``max_batch``: cap on the batch size (default
     :data:`DEFAULT_MAX_BATCH`; ignored when resuming: the stored plan decides).
     """
-    from .. import __version__
     from .._config import require_x64
 
     require_x64()
@@ -444,13 +443,27 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
     folder = Path(folder)
     log = log or (lambda m: None)
     progress = progress or (lambda phase, done, total: None)
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(f"output path {folder} exists and is not a folder", key="--out")
+    lock = store.FolderLock(folder)
+    try:
+        if folder.is_dir():
+            lock.acquire()  # a sweep still running in this folder: stop here
+        return _run(spec, folder, lock, backend=backend, address=address, resume=resume, max_batch=max_batch,
+                    progress=progress, log=log, command=command, report=report, on_part=on_part, t_start=t_start)
+    finally:
+        lock.release()
+
+
+def _run(spec, folder, lock, *, backend, address, resume, max_batch, progress, log, command, report, on_part,
+         t_start) -> SweepResult:
+    from .. import __version__
+
     runs = all_runs(spec)
     by_id = {r.run: r for r in runs}
     n_joints = int(spec.base.build_plant().n)
     fingerprint = spec.fingerprint()
     manifest = None
-    if folder.exists() and not folder.is_dir():
-        raise ConfigError(f"output path {folder} exists and is not a folder", key="--out")
     if store.is_sweep_folder(folder):
         if not resume:
             raise ConfigError(f"{folder} already holds a sweep; resume it with --resume or choose another --out",
@@ -458,7 +471,7 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
         manifest = store.read_manifest(folder)
         _check_same_sweep(manifest, spec, fingerprint, folder)
         store.clean_temporaries(folder)
-    elif folder.exists() and any(folder.iterdir()):
+    elif folder.exists() and any(p.name != store.FolderLock.NAME for p in folder.iterdir()):
         # killed while checking the draws (sweep.toml written, no manifest yet): start again
         if not (resume and (folder / "scenario.toml").exists() and _same_base(folder, spec)):
             raise ConfigError(f"{folder} exists and is not empty; choose another --out (or --force to replace it)",
@@ -469,6 +482,7 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
     ready: dict = {}
     try:
         store.prepare_folder(folder)
+        lock.acquire()
         if manifest is None:
             from ..io import atomic_write_text
 
