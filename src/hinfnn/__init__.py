@@ -36,6 +36,8 @@ _LAZY = {
     "Scenario": ".scenario", "load_scenario": ".scenario",
     "Limits": ".sim", "Trajectory": ".sim", "simulate": ".sim", "simulate_batch": ".sim", "simulate_many": ".sim",
     "LoadError": ".io", "load": ".io",
+    # the sweep table reader imports pandas and pyarrow when called; `import hinfnn` imports neither
+    "load_sweep": ".sweep.store",
 }
 
 __all__ = [
@@ -45,7 +47,7 @@ __all__ = [
     "Measurement", "TwoLinkArm", "PlanarPointMassArm", "InclinedLine", "ImplicitSurface", "reduced_model",
     "RigidBodyPlant", "PenaltyContact", "SquareWave", "CosineReference",
     "simulate", "simulate_batch", "simulate_many", "Limits", "Trajectory", "compute_metrics", "Scenario",
-    "load_scenario", "load", "LoadError", "__version__",
+    "load_scenario", "load", "LoadError", "load_sweep", "__version__",
 ]
 
 

@@ -54,12 +54,24 @@ EXAMPLES_EXPORT = """examples:
 Columns: run, t [s], then one per component with its unit: tau_1 [N·m], tau_2 [N·m], lam [λ units] ...
 In Python: hinfnn.load("results/three").to_pandas() (the same table).
 """
+EXAMPLES_SWEEP = """examples:
+  hinfnn sweep paper-uncertainty                       # 1,000 draws x 3 controllers into results/paper-uncertainty/
+  hinfnn sweep paper-uncertainty --samples 8 --set simulation.t_final=0.5   # a quick trial
+  hinfnn sweep paper-map --backend ray                 # batches as Ray tasks on a local Ray instance
+  hinfnn sweep my_sweep.toml --backend ray --address auto   # on the Ray cluster this machine belongs to
+  hinfnn sweep paper-uncertainty --out results/pu --resume  # continue an interrupted sweep
+  hinfnn sweep --list                                  # the shipped specs
+
+The table is OUT/results.parquet (hinfnn.load_sweep(OUT) gives a pandas DataFrame); OUT/report.md
+states the fractions that stayed bounded and held contact; see docs/sweeps.md for the spec format.
+"""
 EXAMPLES_MAIN = """examples:
   hinfnn reproduce                 the paper's Sec. VI study into results/paper/
   hinfnn run paper --set controller.kind=hinf --set plant.contact.damping=200
   hinfnn keys                      every scenario key, its meaning and allowed values
   hinfnn show results/paper        the metrics and designed controllers of a saved result
   hinfnn plot DIR / export DIR     redraw the figures / write the trajectories as CSV or Parquet
+  hinfnn sweep paper-uncertainty   a robustness sweep: 1,000 seeded draws of the true plant, 3 controllers
   hinfnn cache                     the compilation cache that makes later starts fast
 
 exit codes:
@@ -197,6 +209,31 @@ def _parser() -> argparse.ArgumentParser:
     ex.add_argument("--out", default=None, metavar="FILE",
                     help="write here instead (a file, an existing folder, or - for standard output with --csv)")
     ex.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    sw = sub.add_parser(
+        "sweep", formatter_class=fmt, epilog=EXAMPLES_SWEEP,
+        help="robustness sweep: vary scenario keys (grids, seeded draws), run every controller, map where it holds",
+        description="Run the sweep SPEC (a shipped name such as 'paper-uncertainty', or a .toml file): the base "
+                    "scenario with the varied keys drawn or gridded, every listed controller on every draw, in "
+                    "vmap batches grouped by compiled program. Writes OUT/results.parquet (one row per run: "
+                    "varied values, controller, status, every metric), written in parts as batches finish, and "
+                    "OUT/report.md with the robustness maps and distributions. A killed sweep loses at most the "
+                    "batches in flight: --resume continues it.")
+    sw.add_argument("spec", nargs="?", help="shipped sweep spec name (see --list) or path to a .toml file")
+    sw.add_argument("--out", type=Path, default=None, help="output folder (default: results/<spec name>)")
+    sw.add_argument("--backend", choices=("local", "ray"), default="local",
+                    help="local: batches one after the other in this process (default); ray: batches as Ray "
+                         "tasks, one per CPU (pip install 'hinfnn[ray]')")
+    sw.add_argument("--address", default=None, metavar="ADDR",
+                    help="with --backend ray: the cluster to join, 'auto' (the cluster this machine belongs to) or "
+                         "'ray://HEAD:10001' (default: start a local Ray instance)")
+    sw.add_argument("--resume", action="store_true",
+                    help="continue the sweep in OUT (same spec and options): finished batches are kept")
+    sw.add_argument("--samples", type=int, default=None, metavar="N",
+                    help="number of random draws instead of the spec's (quick trials)")
+    sw.add_argument("--batch-size", type=int, default=None, metavar="B",
+                    help="largest vmap batch (default 256, fewer if memory is short)")
+    sw.add_argument("--list", action="store_true", help="list the shipped sweep specs and exit")
+    common(sw)
     ca = sub.add_parser(
         "cache", formatter_class=fmt, epilog=EXAMPLES_CACHE,
         help="show or clear the compilation cache (compiled simulator programs reused across runs)",
@@ -560,6 +597,131 @@ def cmd_cache(args) -> int:
 COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "design": cmd_design, "compare": cmd_compare,
             "keys": cmd_keys, "scenarios": cmd_scenarios, "show": cmd_show, "plot": cmd_plot,
             "export": cmd_export, "cache": cmd_cache}
+
+
+def cmd_sweep(args) -> int:
+    """Run or resume a sweep; print the outcome per controller."""
+    import shutil
+
+    from .errors import ConfigError
+    from .sweep import load_spec, spec_names
+
+    if args.list:
+        from .scenario.core import parse_toml
+        from .sweep.spec import read_spec_source
+
+        for name in spec_names():
+            text, _, _ = read_spec_source(name)
+            print(f"{name:<20} {parse_toml(text, name).get('description', '')}")
+        return 0
+    if args.spec is None:
+        raise ConfigError("give a sweep spec: a shipped name (hinfnn sweep --list) or a .toml file", key="SPEC")
+    if args.batch_size is not None and args.batch_size < 1:
+        raise ConfigError(f"must be a whole number >= 1, got {args.batch_size}", key="--batch-size")
+    if args.resume and args.force:
+        raise ConfigError("--resume continues the sweep in OUT, --force replaces it: give one", key="--force")
+    if args.address is not None and args.backend != "ray":
+        raise ConfigError("--address is for --backend ray", key="--address")
+    from .sweep import run_sweep
+    from .sweep.store import is_sweep_folder
+
+    spec = load_spec(args.spec, samples=args.samples, overrides=args.overrides)
+    out = args.out or Path("results") / spec.name
+    target = out
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"output path {out} exists and is not a folder", key="--out")
+    if not args.resume and out.exists() and any(p.name != ".lock" for p in out.iterdir()):
+        if args.force:
+            shutil.rmtree(out)
+        else:
+            i = 2
+            while Path(f"{out}-{i}").exists():
+                i += 1
+            target = Path(f"{out}-{i}")
+            hint = " or --resume to continue the sweep in it" if is_sweep_folder(out) else ""
+            print(f"{out} is not empty; writing to {target} instead (use --force to replace it{hint})",
+                  file=sys.stderr)
+    bars: dict = {}
+    tty = sys.stderr.isatty()
+    state = {"t0": time.perf_counter(), "last": 0.0}
+
+    def progress(phase, done, total):
+        if args.quiet:
+            return
+        if tty:
+            if phase not in bars:
+                from tqdm import tqdm
+
+                for b in bars.values():
+                    b.close()
+                unit = "draw" if phase == "check" else "run"
+                desc = "checking draws" if phase == "check" else "simulating"
+                bars[phase] = tqdm(total=total, initial=done, desc=desc, unit=unit, file=sys.stderr, leave=False,
+                                   dynamic_ncols=True, mininterval=0.5, smoothing=0.1,
+                                   bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total} {unit}s "
+                                              "[{elapsed}<{remaining}, {rate_fmt}]")
+                state["t0"] = time.perf_counter()
+            bar = bars[phase]
+            bar.update(done - bar.n)
+        elif phase == "run" and total and (time.perf_counter() - state["last"] > 30 or done >= total):
+            if state.get("phase") != phase:  # a resumed sweep starts with the runs done before
+                state.update(phase=phase, t0=time.perf_counter(), base=done)
+            state["last"] = time.perf_counter()
+            el = time.perf_counter() - state["t0"]
+            rate = (done - state["base"]) / el if el > 0 else 0.0
+            eta = f", ETA {(total - done) / rate / 60:.1f} min" if rate > 0 and done < total else ""
+            print(f"hinfnn sweep: {done:.0f}/{total} runs, {el:.0f} s, {rate:.2f} runs/s{eta}", file=sys.stderr,
+                  flush=True)
+
+    def log(message):
+        if not args.quiet:
+            print(f"hinfnn sweep: {message}", file=sys.stderr, flush=True)
+
+    try:
+        res = run_sweep(spec, target, backend=args.backend, address=args.address, resume=args.resume,
+                        max_batch=args.batch_size, progress=progress, log=log, command=command_line(args))
+    except BaseException as err:
+        for b in bars.values():
+            b.close()
+        if isinstance(err, KeyboardInterrupt) or type(err).__name__ == "_Interrupted":
+            import json
+
+            try:
+                done = len(json.loads((target / "manifest.json").read_text())["done"])
+                saved = f"{done} finished batch(es) are saved in {target}/parts"
+            except (OSError, ValueError, KeyError):
+                saved = f"finished batches are saved in {target}/parts"
+            import shlex
+
+            again = ["sweep", args.spec, "--out", str(target), "--resume", *[a for o in args.overrides for a in ("--set", o)]]
+            again += ["--samples", str(args.samples)] if args.samples else []
+            again += ["--backend", args.backend] if args.backend != "local" else []
+            print(f"hinfnn: interrupted; {saved}; continue with: hinfnn {' '.join(shlex.quote(a) for a in again)}",
+                  file=sys.stderr)
+            return 130
+        raise
+    for b in bars.values():
+        b.close()
+    if not args.quiet:
+        from .controllers import KINDS
+
+        print(f"{'controller':<16} {'runs':>6} {'invalid':>8} {'simulated':>10} {'bounded':>9} {'held contact':>13}")
+        for kind, c in res.counts.items():
+            n = c["simulated"]
+            pct = (lambda k: f"{100 * k / n:.1f} %") if n else (lambda k: "-")
+            print(f"{KINDS[kind].label if kind in KINDS else kind:<16} {c['runs']:>6} {c['invalid']:>8} {n:>10} "
+                  f"{pct(c['bounded']):>9} {pct(c['held_contact']):>13}")
+        if res.simulated_now:
+            print(f"{res.simulated_now} runs simulated in {res.run_wall_s:.1f} s ({res.runs_per_s:.2f} runs/s, "
+                  f"{res.backend} backend, compilation included)"
+                  + (f"; {res.already_done} were done before" if res.already_done else ""))
+        print(f"results: {target}/ (results.parquet, report.md, *.png)")
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "keys": cmd_keys, "scenarios": cmd_scenarios,
+            "show": cmd_show, "cache": cmd_cache}
+COMMANDS["sweep"] = cmd_sweep
 
 
 def _interrupted_exit(code: int, argv) -> int:
