@@ -442,3 +442,21 @@ def test_a_folder_in_use_by_another_sweep_is_refused(small, tmp_path):
         other.release()
     res = run_sweep(spec, folder, max_batch=2, report=False)  # an empty folder with only the lock file is fine
     assert res.simulated_now == 4
+
+
+def test_cli_interrupt_names_the_saved_batches_and_the_resume_command(tmp_path, monkeypatch, capsys):
+    """Ctrl-C (or SIGTERM) during a sweep: exit 130 (143), and the one line says what is saved and
+    the exact command that continues, not "no output was written"."""
+    import hinfnn.sweep as sweep_pkg
+    from hinfnn import _signals, cli
+
+    for exc, code in ((KeyboardInterrupt(), 130), (_signals.Terminated(), 143)):
+        def stop(*a, exc=exc, **k):
+            raise exc
+
+        monkeypatch.setattr(sweep_pkg, "run_sweep", stop)
+        out = tmp_path / "sw"
+        assert cli.main(["sweep", "paper-uncertainty", "--out", str(out), "--samples", "4", "--quiet"]) == code
+        err = capsys.readouterr().err
+        assert "no output was written" not in err
+        assert f"continue with: hinfnn sweep paper-uncertainty --out {out} --resume --samples 4" in err

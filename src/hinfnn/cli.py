@@ -683,22 +683,20 @@ def cmd_sweep(args) -> int:
     except BaseException as err:
         for b in bars.values():
             b.close()
-        if isinstance(err, KeyboardInterrupt) or type(err).__name__ == "_Interrupted":
+        if isinstance(err, (KeyboardInterrupt, _signals.Terminated)):
             import json
+            import shlex
 
             try:
                 done = len(json.loads((target / "manifest.json").read_text())["done"])
                 saved = f"{done} finished batch(es) are saved in {target}/parts"
             except (OSError, ValueError, KeyError):
                 saved = f"finished batches are saved in {target}/parts"
-            import shlex
-
             again = ["sweep", args.spec, "--out", str(target), "--resume", *[a for o in args.overrides for a in ("--set", o)]]
             again += ["--samples", str(args.samples)] if args.samples else []
             again += ["--backend", args.backend] if args.backend != "local" else []
-            print(f"hinfnn: interrupted; {saved}; continue with: hinfnn {' '.join(shlex.quote(a) for a in again)}",
-                  file=sys.stderr)
-            return 130
+            # main() prints it and leaves as for every interrupt (exit 130 / 143)
+            err.hinfnn_note = f"{saved}; continue with: hinfnn {' '.join(shlex.quote(a) for a in again)}"
         raise
     for b in bars.values():
         b.close()
@@ -719,8 +717,6 @@ def cmd_sweep(args) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "keys": cmd_keys, "scenarios": cmd_scenarios,
-            "show": cmd_show, "cache": cmd_cache}
 COMMANDS["sweep"] = cmd_sweep
 
 
@@ -767,13 +763,13 @@ def main(argv=None) -> int:
     box: dict = {}
     try:
         return _main(argv, box)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as err:
         _signals.ignore()  # a second Ctrl-C while leaving changes nothing
-        print("hinfnn: interrupted; no output was written", file=sys.stderr)
+        print(f"hinfnn: interrupted; {getattr(err, 'hinfnn_note', 'no output was written')}", file=sys.stderr)
         return _interrupted_exit(_signals.EXIT_INTERRUPTED, argv)
-    except _signals.Terminated:
+    except _signals.Terminated as err:
         _signals.ignore()
-        print("hinfnn: terminated; no output was written", file=sys.stderr)
+        print(f"hinfnn: terminated; {getattr(err, 'hinfnn_note', 'no output was written')}", file=sys.stderr)
         return _interrupted_exit(_signals.EXIT_TERMINATED, argv)
     finally:
         trace = getattr(box.get("args"), "startup_trace", None)

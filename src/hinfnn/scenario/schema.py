@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import difflib
+import functools
 import math
 import types
 import typing
@@ -104,7 +105,9 @@ def registry_of(tp) -> Registry | None:
 # --- introspection ---------------------------------------------------------------------------------
 
 
+@functools.cache
 def _hints(cls) -> dict:
+    """The resolved annotations of a section class (cached: resolving them is most of a load)."""
     return typing.get_type_hints(cls)
 
 

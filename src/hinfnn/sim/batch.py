@@ -6,6 +6,7 @@ import dataclasses
 from typing import Any
 
 import jax
+import numpy as np
 
 from .simulate import Limits, simulate, simulate_batch
 from .trajectory import RunInfo, Trajectory
@@ -32,9 +33,12 @@ class Run:
         return round(self.t_final / self.dt)
 
     def group_key(self):
-        """Runs with equal keys share one compiled program (and run as one batch)."""
-        structure = jax.tree.structure((self.plant, self.controller, self.reference, self.limits))
-        return (str(structure), self.t_final, self.dt, self.control_period, self.save_interval)
+        """Runs with equal keys share one compiled program (and run as one batch): the pytree
+        structure AND every leaf's shape and dtype (two networks of different sizes have the same
+        structure but cannot be stacked), and the simulation settings."""
+        leaves, treedef = jax.tree.flatten((self.plant, self.controller, self.reference, self.limits))
+        shapes = tuple((tuple(np.shape(x)), str(getattr(x, "dtype", type(x).__name__))) for x in leaves)
+        return (str(treedef), shapes, self.t_final, self.dt, self.control_period, self.save_interval)
 
 
 def simulate_many(runs: list[Run], *, progress=None, save_every: int | None = None,
