@@ -193,10 +193,32 @@ def test_missing_file_and_bad_toml_exit_2(tmp_path, capsys):
     assert "not valid TOML" in capsys.readouterr().err
 
 
+def test_compare_writes_one_run_per_value(tmp_path, capsys):
+    """`hinfnn compare`: one run per value of the one varied key, compare.md with a row each and the
+    ratios against the first value; refused (exit 2, before anything runs) with two varied keys or
+    a value out of range."""
+    out = tmp_path / "cmp"
+    assert cli.main(["compare", "paper", "--set", "plant.contact.damping=0,200", "--set", "controller.kind=hinf",
+                     "--set", "simulation.t_final=0.05", "--out", str(out), "--quiet"]) == 0
+    doc = json.loads((out / "metrics.json").read_text())
+    assert doc["compare"]["key"] == "plant.contact.damping" and doc["compare"]["values"] == [0, 200]
+    assert len(doc["runs"]) == 2 and doc["runs"][0]["metrics"] != doc["runs"][1]["metrics"]
+    table = (out / "compare.md").read_text()
+    assert table.count("\n| ") >= 3 and "×" in table
+    assert (out / ".hinfnn-result").exists() and (out / "trajectory.npz").exists()
+    capsys.readouterr()
+    for argv, key in ((["--set", "plant.contact.damping=0,200", "--set", "plant.arm.m2=1,2"], "--set"),
+                      (["--set", "plant.contact.damping=0,-5"], "plant.contact.damping")):
+        assert cli.main(["compare", "paper", *argv, "--out", str(tmp_path / "no")]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and key in err
+    assert not (tmp_path / "no").exists()
+
+
 def test_help_texts_are_complete(capsys):
     for argv in (["--help"], ["run", "--help"], ["reproduce", "--help"], ["keys", "--help"],
                  ["scenarios", "--help"], ["show", "--help"], ["plot", "--help"], ["export", "--help"],
-                 ["cache", "--help"]):
+                 ["cache", "--help"], ["design", "--help"], ["compare", "--help"], ["sweep", "--help"]):
         with pytest.raises(SystemExit) as ex:
             cli.main(argv)
         assert ex.value.code == 0

@@ -161,7 +161,7 @@ def _parser() -> argparse.ArgumentParser:
         epilog="examples:\n  hinfnn compare paper --set plant.engine=hinfnn,mujoco --set plant.contact.damping=200 "
                "--set controller.kind=hinf\n  hinfnn compare paper --set plant.contact.stiffness=1e4,1e5,1e6\n")
     cp.add_argument("scenario", help="shipped scenario name or path to a .toml file")
-    cp.add_argument("--out", type=Path, default=None, help="output folder (default: results/compare-<name>)")
+    cp.add_argument("--out", type=Path, default=None, help="output folder (default: results/compares/<name>-<UTC time>)")
     common(cp)
 
     k = sub.add_parser("keys", formatter_class=fmt, help="list every scenario key with its meaning and range",
@@ -302,6 +302,13 @@ class Progress:
         if self.bar is not None:
             self.bar.close()
             self.bar = None
+
+    def stage(self, label: str):
+        """A new part of the work with its own steps (its own bar, rate and time left)."""
+        self.done()
+        self.label = label
+        self.t0 = time.perf_counter()
+        self.last = 0.0
 
 
 def _duration(seconds: float) -> str:
@@ -474,7 +481,7 @@ def cmd_compare(args) -> int:
     for v in values:  # every value is checked before anything runs
         sc.with_overrides([(key, v)])
     progress = Progress(args.quiet, f"comparing {key}")
-    target, doc = compare(sc, key, values, args.out or Path("results") / f"compare-{sc.name}", force=args.force,
+    target, doc = compare(sc, key, values, args.out, force=args.force,
                           progress=progress, log=lambda m: print(m, file=sys.stderr), command=command_line(args))
     progress.done()
     if not args.quiet:

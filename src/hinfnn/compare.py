@@ -74,20 +74,22 @@ def comparison_table(doc: dict, key: str, values: list) -> str:
     return "\n".join(lines) + "\n"
 
 
-def compare(sc: Scenario, key: str, values: list, out: Path, *, force: bool = False, progress=None, log=print,
-            command: str = "hinfnn compare") -> tuple[Path, dict]:
+def compare(sc: Scenario, key: str, values: list, out: Path | None = None, *, force: bool = False, progress=None,
+            log=print, command: str = "hinfnn compare") -> tuple[Path, dict]:
     """Run the comparison and write ``out`` atomically (metrics.json, trajectory.npz,
-    scenario.toml, compare.md, figures). Returns the folder and the metrics document."""
+    scenario.toml, compare.md, figures; default ``results/compares/<name>-<UTC time>``, reserved
+    as for every command: :func:`hinfnn.io.reserve_output`). Returns the folder and the metrics
+    document."""
     from .controllers import design_summary
-    from .io import OutputFolder, atomic_write_bytes, atomic_write_text, choose_output, dumps_json, trajectory_npz_bytes
+    from .io import OutputFolder, atomic_write_bytes, atomic_write_text, dumps_json, reserve_output, trajectory_npz_bytes
     from .results import metrics_document, run_entry
     from .sim import simulate_many
 
     runs = comparison_runs(sc, key, values)
-    target, note = choose_output(Path(out), force)
-    if note:
-        log(note)
-    with OutputFolder(target) as folder:
+    reservation = reserve_output(out, command="compare", name=sc.name, force=force)
+    with reservation, OutputFolder(reservation, kind="run", command=command) as folder:
+        if reservation.note:
+            log(f"hinfnn: {reservation.note}")
         specs = [s.run(kind, name) for name, s, kind, _ in runs]
         t0 = time.perf_counter()
         trajs = simulate_many(specs, progress=progress)
@@ -102,4 +104,4 @@ def compare(sc: Scenario, key: str, values: list, out: Path, *, force: bool = Fa
         from .report import run_figures
 
         run_figures(trajs, folder.path)
-    return target, doc
+    return Path(folder.moved_to or reservation.target), doc

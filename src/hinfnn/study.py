@@ -219,6 +219,8 @@ def _write_study(root: Path, base: Scenario, specs, save_every, progress, comman
     if beyond:
         from .report.figures import beyond_figures
 
+        if hasattr(progress, "stage"):  # the command's progress display: the comparison has its own bar
+            progress.stage("Beyond the paper")
         b_runs, b_trajs, b_metrics, b_designs, b_modes, b_seconds = run_beyond(base, progress=progress)
         doc["beyond"] = beyond_document(base, b_runs, b_trajs, b_metrics, b_designs, b_modes)
         t0 = time.perf_counter()
