@@ -460,3 +460,19 @@ def test_cli_interrupt_names_the_saved_batches_and_the_resume_command(tmp_path, 
         err = capsys.readouterr().err
         assert "no output was written" not in err
         assert f"continue with: hinfnn sweep paper-uncertainty --out {out} --resume --samples 4" in err
+
+
+def test_force_replaces_only_a_sweep_folder(tmp_path, capsys):
+    """--force on a folder holding files a sweep did not write is refused (exit 2, before anything
+    runs) and the files are untouched; so is the current folder as --out."""
+    mine = tmp_path / "mywork"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("years of work")
+    assert cli.main(["sweep", "paper-uncertainty", "--out", str(mine), "--force", "--samples", "2", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "thesis.tex" in err and "--out" in err and len(err.strip().splitlines()) == 1
+    assert (mine / "thesis.tex").read_text() == "years of work"
+    (mine / "manifest.json").write_text("{}")  # looks like a sweep folder, still holds thesis.tex
+    assert cli.main(["sweep", "paper-uncertainty", "--out", str(mine), "--force", "--samples", "2", "--quiet"]) == 2
+    assert (mine / "thesis.tex").exists()
+    assert cli.main(["sweep", "paper-uncertainty", "--out", ".", "--samples", "2", "--quiet"]) == 2

@@ -14,6 +14,7 @@ from __future__ import annotations
 from . import _signals  # noqa: I001  (first: nothing else to import before the handlers)
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -634,11 +635,21 @@ def cmd_sweep(args) -> int:
 
     spec = load_spec(args.spec, samples=args.samples, overrides=args.overrides)
     out = args.out or Path("results") / spec.name
+    if str(out).strip() in ("", ".") or Path(os.path.abspath(out)) in (Path.cwd(), *Path.cwd().parents):
+        raise ConfigError(f"{str(out)!r} is the current folder or one that contains it; give a new folder's name",
+                          key="--out")
     target = out
     if out.exists() and not out.is_dir():
         raise ConfigError(f"output path {out} exists and is not a folder", key="--out")
     if not args.resume and out.exists() and any(p.name != ".lock" for p in out.iterdir()):
         if args.force:
+            from .sweep.store import foreign_files
+
+            foreign = foreign_files(out) if is_sweep_folder(out) else sorted(p.name for p in out.iterdir())
+            if foreign:
+                shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+                raise ConfigError(f"{out} holds files a sweep did not write ({shown}); --force replaces only a "
+                                  "sweep's folder: choose another --out, or move those files away", key="--out")
             shutil.rmtree(out)
         else:
             i = 2

@@ -280,6 +280,14 @@ def is_sweep_folder(folder: Path) -> bool:
     return (Path(folder) / MANIFEST).exists()
 
 
+def foreign_files(folder: Path) -> list[str]:
+    """What in ``folder`` a sweep does not write (``--force`` refuses to delete a folder holding
+    any): a sweep writes its manifest, plan, parts, table, report, figures, scenario and spec."""
+    ours = {MANIFEST, PLAN, PARTS, RESULTS, INVALID_PART, "report.md", "scenario.toml", "sweep.toml", FolderLock.NAME}
+    return sorted(p.name for p in Path(folder).iterdir()
+                  if p.name not in ours and not (p.suffix == ".png" and p.is_file()) and not p.name.startswith(".tmp"))
+
+
 class FolderLock:
     """An exclusive lock on a sweep folder (``.lock``, ``fcntl.flock``), held while a sweep runs
     in it, so that a second ``hinfnn sweep ... --resume`` on the same folder stops with a message
