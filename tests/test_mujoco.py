@@ -379,3 +379,19 @@ def test_hinfnn_imports_without_mujoco():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                          env={**__import__("os").environ, "HINFNN_CACHE_DIR": "off", "JAX_PLATFORMS": "cpu"})
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
+
+
+def test_the_controller_is_designed_for_mujocos_step():
+    """MuJoCo holds the torque over each of its steps: the controller it runs is the one designed
+    for sampled control at that period (the force-rate term's κ and filter), the same as its
+    built-in twin under a dt-period zero-order hold."""
+    from hinfnn.controllers import design_summary
+
+    over = {"controller.kind": "hinf"}
+    on_mujoco = H.load_scenario("paper-stable", {**over, "plant.engine": "mujoco"})
+    twin = H.load_scenario("paper-stable", {**over, "simulation.control": "sampled",
+                                             "simulation.control_period": on_mujoco.simulation.dt})
+    assert on_mujoco.control_period == twin.control_period == on_mujoco.simulation.dt
+    a, b = design_summary(on_mujoco.build_controller()), design_summary(twin.build_controller())
+    assert a == b and a["force_rate"]["tau_f"] == on_mujoco.simulation.dt
+    assert H.load_scenario("paper-stable", over).control_period is None

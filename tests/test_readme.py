@@ -6,7 +6,8 @@ readings the robot-loop example leaves to the reader (``t, q, qd, F``) are given
 scenario's start values when no earlier block defines them.
 
 Every command line of the ```sh blocks runs, in order, in one fresh folder, with
-``--set simulation.t_final=0.05`` appended to ``hinfnn run`` / ``hinfnn reproduce``; a scenario
+``--set simulation.t_final=0.05`` appended to ``hinfnn run`` / ``hinfnn reproduce`` (and
+``--samples 2`` too to ``hinfnn sweep``); a scenario
 file a command names that does not exist is created as ``base = "paper"``. Skipped: ``make``
 (the demo and the test suite itself) and usage synopses (lines with placeholders such as
 ``SCENARIO``, ``DIR``, ``KEY=VALUE`` or ``[--option]``). Each must exit 0.
@@ -71,6 +72,8 @@ def adapt(words: list[str], cwd: Path) -> list[str]:
         if words[1] == "run" and words[2].endswith(".toml") and not (cwd / words[2]).exists():
             (cwd / words[2]).write_text('base = "paper"\n')
         words = words + ["--set", f"simulation.t_final={SHORT}"]
+    if words[0] == "hinfnn" and len(words) > 2 and words[1] == "sweep":
+        words = words + ["--samples", "2", "--set", f"simulation.t_final={SHORT}"]
     if words[0] == "hinfnn":
         words = [str(HINFNN)] + words[1:]
     return words

@@ -807,12 +807,13 @@ def beyond_figures(runs: dict[str, Trajectory], metrics: dict[str, dict], cases:
 
 def _beyond_bars(metrics: dict, cases: list[dict], path: Path, horizon: float) -> Path:
     keys = []  # (kind, mode, k) in order
+    names = {c["kind"]: c["label"].split(",")[0] for c in cases}  # the law's label ("H∞-only, paper law, ...")
     for c in cases:
         key = (c["kind"], c["mode"], c["k"])
         if key not in keys:
             keys.append(key)
     fig = Figure(figsize=(SIZE_TALL[0] / DPI, SIZE_TALL[1] / DPI), dpi=DPI, facecolor="white")
-    gs = fig.add_gridspec(3, 1, left=0.09, right=0.985, top=0.88, bottom=0.13, hspace=0.3)
+    gs = fig.add_gridspec(3, 1, left=0.09, right=0.985, top=0.88, bottom=0.15, hspace=0.3)
     panels = [("rms_e_lam", r"RMS $e_\lambda$ (log)", True, 1.0), ("rms_e_u1", r"RMS $e_{u1}$ (m)", False, 1.0),
               ("fraction_out_of_contact", "out of contact (%)", False, 100.0)]
     x = np.arange(len(keys))
@@ -841,9 +842,16 @@ def _beyond_bars(metrics: dict, cases: list[dict], path: Path, horizon: float) -
         _style_axes(ax, ylabel, xlabel=None)
         ax.set_xticks(x)
         how = {"cont": "cont.", "1kHz": "1 kHz", "10kHz": "10 kHz", "mujoco": "MuJoCo"}
-        ax.set_xticklabels([f"{'H∞-only' if kind == 'hinf' else 'adaptive'}\n{how.get(mode, mode)}"
-                            f"\n{k:.0e}" for kind, mode, k in keys] if row == 2 else [""] * len(keys),
-                           fontsize=_FONT["tick"])
+        ax.set_xticklabels([f"{how.get(mode, mode)}\n{k:.0e}" for kind, mode, k in keys] if row == 2
+                           else [""] * len(keys), fontsize=_FONT["tick"])
+        kinds = list(dict.fromkeys(kind for kind, _, _ in keys))
+        for i, kind in enumerate(kinds):  # the laws side by side, a line between them, named below
+            at = [n for n, key in enumerate(keys) if key[0] == kind]
+            if i:
+                ax.axvline(at[0] - 0.5, color="0.35", linewidth=1.0, zorder=1)
+            if row == 2:
+                ax.text((at[0] + at[-1]) / 2, -0.3, names[kind], transform=ax.get_xaxis_transform(),
+                        ha="center", va="top", fontsize=_FONT["legend"], fontweight="bold")
         if row == 0:
             handles, labels = ax.get_legend_handles_labels()
     fig.suptitle("Beyond the paper: the paper's laws and the stabilised ones on an undamped contact",

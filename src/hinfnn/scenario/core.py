@@ -122,6 +122,17 @@ class Scenario:
     def build_reference(self):
         return self.reference.build()
 
+    @property
+    def control_period(self) -> float | None:
+        """The period the controller runs at: ``simulation.control_period`` under sampled
+        control, the simulation step for a plant that steps itself (MuJoCo: the torque is held
+        over each of its steps), None for continuous control. The controller is designed for it
+        (the force-rate term's κ and filter)."""
+        s = self.simulation
+        if s.control == "sampled":
+            return s.control_period
+        return s.dt if type(self.plant).discrete else None
+
     def build_controller(self, kind: str | None = None):
         """Design the controller ``kind`` (default: the scenario's only kind) from the NOMINAL
         model. Raises :class:`DesignError` with the dotted key of the failing gain."""
@@ -130,7 +141,7 @@ class Scenario:
         q_start = self.initial_q() if self.controller.force_rate.kappa != 0.0 else None
         return self.controller.build(kind, self.nominal.arm.build(), self.nominal.surface.build(),
                                      u1_range=self.reference.u1_range(), q_start=q_start,
-                                     period=s.control_period if s.control == "sampled" else None)
+                                     period=self.control_period)
 
     def initial_q(self, plant=None):
         """The start pose (the truth: inverse kinematics of the true arm onto the true surface)."""
@@ -141,7 +152,7 @@ class Scenario:
         """Keyword arguments of :func:`hinfnn.simulate` for this scenario."""
         s = self.simulation
         return dict(t_final=s.t_final, dt=s.dt, save_interval=s.output_interval,
-                    control_period=s.control_period if s.control == "sampled" else None, limits=s.limits())
+                    control_period=self.control_period, limits=s.limits())
 
     def run(self, kind: str | None = None, name: str | None = None, *, controller=None):
         """The :class:`hinfnn.sim.Run` of one controller kind (default: the only one)."""

@@ -16,7 +16,7 @@ from ..errors import ConfigError, DesignError
 from .registry import ARMS, PLANTS, SURFACES
 from .schema import Matrix, param, section
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 
 # --- arms ------------------------------------------------------------------------------------------
@@ -120,6 +120,9 @@ class PlantConfig:
     """The truth: what the simulated arm and surface really are (``engine`` chooses the physics)."""
 
     __registry__ = PLANTS
+    #: An engine that steps itself (MuJoCo) runs the controller at its own step at least: the
+    #: controller is then designed for sampled control (``Scenario.control_period``).
+    discrete: ClassVar[bool] = False
     engine: str = param(doc="physics engine of the true plant")
     arm: ArmConfig = param(doc="the true arm")
     surface: SurfaceConfig = param(doc="the true surface", exclude=("scaling",))
@@ -151,6 +154,7 @@ class MujocoPlantConfig(PlantConfig):
     and surface as MJCF, the contact converted from N/m and N·s/m, stepped every simulation dt
     (MuJoCo's timestep) with the torque held over the control period (sampled-data control)."""
 
+    discrete: ClassVar[bool] = True
     integrator: Literal["RK4", "implicit", "implicitfast", "Euler"] = param(
         "RK4", doc="MuJoCo's integrator (RK4 or implicit are accurate at the contact's frequency)")
     callback: Literal["host", "pure_callback"] = param(
@@ -241,7 +245,8 @@ class ForceRateConfig:
                                                      "0: off (the paper's law); \"rule\": from the stiffness range",
                                            ge=0.0, le=10.0)
     tau_f: Literal["auto"] | float = param("auto", doc="time constant of the filter s of e_lam, s; \"auto\": 1 ms, "
-                                                       "or the control period under sampled control", gt=0.0, le=1.0)
+                                                       "or the control period under sampled control (MuJoCo: its step)", gt=0.0,
+                                         le=1.0)
     zeta: float = param(0.7, doc="damping ratio the rule gives the contact mode at the softest contact",
                         gt=0.0, le=10.0)
     stiffness_min: float = param(1e4, doc="softest contact the design expects, N/m (the rule's)", gt=0.0, le=1e10)
