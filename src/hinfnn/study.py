@@ -344,10 +344,14 @@ def beyond_document(base: Scenario, runs, trajs, metrics, designs, modes) -> dic
         out["mujoco_skipped"] = "MuJoCo is not installed (pip install 'hinfnn[mujoco]')"
     cont = next((designs[c["name"]].get("force_rate") for c in cases
                  if c["variant"] == "stable" and c["mode"] == "cont" and c["kind"] == "hinf"), None)
-    samp = next((designs[c["name"]].get("force_rate") for c in cases
-                 if c["variant"] == "stable" and c["mode"] != "cont" and c["kind"] == "hinf"), None)
+    def stable_design(mode):
+        return next((designs[c["name"]].get("force_rate") for c in cases
+                     if c["variant"] == "stable" and c["mode"] == mode and c["kind"] == "hinf"), None) or {}
+
     out["design"] = cont or {}
-    out["kappa_sampled"] = samp.get("kappa") if samp else None
+    out["kappa_sampled"] = stable_design("1kHz").get("kappa")
+    out["design_1kHz"] = stable_design("1kHz")
+    out["design_10kHz"] = stable_design("10kHz")
     stable = Scenario.load("paper-stable", [(k, v) for k, v in base.overrides if k != "controller.kind"])
     try:
         stable.with_overrides({"controller.kind": "hinf", **BEYOND_MODES["1kHz"],

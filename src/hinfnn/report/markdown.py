@@ -438,6 +438,25 @@ def _target_row(case, m) -> tuple[str, bool | None]:
     return text, all(ok for ok, _ in checks)
 
 
+def _qp_words(beyond: dict) -> str:
+    """"weight the position error in Q_p = diag(…) (v_p's gains grow from … to …), " from the
+    designs of the H∞-only runs, paper law and stabilised (empty when they are missing)."""
+    def design(variant):
+        return next((r.get("design") or {} for r in beyond["runs"] for c in beyond["cases"]
+                     if c["name"] == r["name"] and c["kind"] == "hinf" and c["variant"] == variant
+                     and c["mode"] == "cont"), {})
+
+    paper, stable = design("paper"), design("stable")
+    try:
+        q = stable["gains"]["Q_p"]
+        before, after = paper["v_p_gains"][0], stable["v_p_gains"][0]
+    except (KeyError, IndexError, TypeError):
+        return ""
+    diag = ", ".join(f"{q[i][i]:g}" for i in range(len(q)))
+    return (f"weight the position error in Q_p = diag({diag}) (v_p's gains grow from "
+            f"{' and '.join(_f(g) for g in before)} to {' and '.join(_f(g) for g in after)}), ")
+
+
 def beyond_section(beyond: dict, figures: list[str]) -> list[str]:
     """The "Beyond the paper" section of report.md from ``metrics.json``'s "beyond" part: what
     was run, the stabilised laws against the targets, the linearised contact modes before and
@@ -451,19 +470,25 @@ def beyond_section(beyond: dict, figures: list[str]) -> list[str]:
              "The stabilised laws (scenario `paper-stable`) add a force-rate term −κṡ to v_λ (ṡ a filtered "
              "derivative of e_λ, its filter state in the controller; the storage function gains "
              "α_λα_zκ/(2(1+β_λ))‖s‖², so the dissipation inequality keeps its form and is checked along every run), "
-             "weight the position error heavily in Q_p = diag(1e4, 1) (v_p's gains grow from 0.056 and 0.118 to "
-             "153 and 12.1), and stop at the nominal Jacobian's singularity guard.", ""]
+             f"{_qp_words(beyond)}and stop at the nominal Jacobian's singularity guard.", ""]
     if design:
-        lines += [f"Design (the controller's own step, from its nominal model): κ = 2ζ√(K' m_n,max/k_min) = "
-                  f"{_f(design.get('kappa_continuous'))} s with ζ = {_f(design.get('zeta'))}, K' = "
-                  f"{_f(design.get('K_prime'))}, m_n,max = {_f(design.get('m_n_max'))} kg (the heaviest pose of the "
-                  f"path along the normal), k_min = {_f(design.get('stiffness_min'))} N/m; filter τ_f = 1 ms. Under "
-                  f"1 kHz zero-order hold: κ = {_f(beyond.get('kappa_sampled'))} s (0.8 of the stable window's upper "
-                  f"end at {beyond.get('sampled_stiffness_max', 1e5):.0e} N/m)."]
-    if beyond.get("sampled_1e6_error"):
-        lines += [f" A design for 1e6 N/m at 1 kHz is refused by the design step: “{beyond['sampled_1e6_error']}”. "
-                  "The 1 kHz stabilised runs therefore use the 1e5 N/m design at every stiffness, and the 1e6 N/m "
-                  "case shows what that costs."]
+        text = (f"Design (the controller's own step, from its nominal model): κ = 2ζ√(K' m_n,max/k_min) = "
+                f"{_f(design.get('kappa_continuous'))} s with ζ = {_f(design.get('zeta'))}, K' = "
+                f"{_f(design.get('K_prime'))}, m_n,max = {_f(design.get('m_n_max'))} kg (the heaviest pose of the "
+                f"path along the normal), k_min = {_f(design.get('stiffness_min'))} N/m; filter τ_f = "
+                f"{_f(1e3 * design.get('tau_f', math.nan))} ms. Under 1 kHz zero-order hold: κ = "
+                f"{_f(beyond.get('kappa_sampled'))} s (0.8 of the stable window's upper end at "
+                f"{beyond.get('sampled_stiffness_max', 1e5):.0e} N/m), τ_f = "
+                f"{_f(1e3 * (beyond.get('design_1kHz') or {}).get('tau_f', math.nan))} ms.")
+        fast = beyond.get("design_10kHz") or {}
+        if fast.get("kappa") is not None:
+            text += (f" Under a 10 kHz hold (and on MuJoCo, which holds the torque over its 0.1-ms step): κ = "
+                     f"{_f(fast['kappa'])} s, τ_f = {_f(1e3 * fast['tau_f'])} ms.")
+        if beyond.get("sampled_1e6_error"):
+            text += (f" A design for 1e6 N/m at 1 kHz is refused by the design step: “{beyond['sampled_1e6_error']}”. "
+                     "The 1 kHz stabilised runs therefore use the 1e5 N/m design at every stiffness, and the 1e6 N/m "
+                     "case shows what that costs.")
+        lines += [text]
     mj = [c for c in cases if c["mode"] == "mujoco"]
     horizon = max((m.get("t_end", 0.0) for m in metrics.values() if m.get("status") == "ok"), default=0.0)
     lines += ["", "### The stabilised laws against the targets", "",
