@@ -187,10 +187,18 @@ class ReducedOrderController:
             values.append(value)
             dparts.update(d)
             signals.update(sig)
-        lam_p = mm(rm.M11, a) + mm(rm.C11, u1_dot) + rm.G1  # eq. (25)
-        C_f, G_f = rm.force_terms()
-        lam_f = mm(rm.Pi.T, b) + mm(C_f, u1_dot) + G_f  # eq. (26)
-        tau = la.solve(rm.decoupling_matrix(), jnp.concatenate([lam_p, lam_f]))  # eq. (24)
+        if rm.C_bar is not None:  # closed-form arms (the Sec. VI arm): C̄ formed
+            lam_p = mm(rm.M11, a) + mm(rm.C11, u1_dot) + rm.G1  # eq. (25)
+            C_f, G_f = rm.force_terms()
+            lam_f = mm(rm.Pi.T, b) + mm(C_f, u1_dot) + G_f  # eq. (26)
+            tau = la.solve(rm.decoupling_matrix(), jnp.concatenate([lam_p, lam_f]))  # eq. (24)
+        else:  # only C̄ (u̇1, 0) formed (reduced_model's "product" path): the same law
+            c = rm.C_u1dot
+            L = la.mm(rm.M21, la.inv(rm.M11))  # M̄21 M̄11⁻¹
+            lam_p = mm(rm.M11, a) + c[:m] + rm.G1  # eq. (25)
+            lam_f = mm(rm.Pi.T, b) + (c[m:] - mm(L, c[:m])) + (rm.G2 - mm(L, rm.G1))  # eq. (26)
+            T_dec = jnp.concatenate([rm.B1, rm.B2 - mm(L, rm.B1)], axis=0)
+            tau = la.solve(T_dec, jnp.concatenate([lam_p, lam_f]))  # eq. (24)
         dz = -g.mu_z * state.z - g.alpha_z * e_lam  # eq. (27)
         signals = {"u1": u1, "u1_dot": u1_dot, "lam": lam, "u1_d": r.u1_d, "u1_d_dot": r.u1_d_dot,
                    "lam_d": r.lam_d, "e_u1": e_u1, "e_u1_dot": e_u1_dot, "e_lam": e_lam, "z": state.z,

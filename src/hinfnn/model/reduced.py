@@ -28,7 +28,8 @@ class ReducedModel:
     """M̄, C̄, Ḡ, B̄ of eq. (9) at one (q, q̇), with the quantities they were built from."""
 
     M_bar: jax.Array  # (n, n)
-    C_bar: jax.Array  # (n, n)
+    C_bar: jax.Array | None  # (n, n); None when only the product below is formed
+    C_u1dot: jax.Array | None  # C̄ (u̇1, 0) (n,): all of C̄ the law uses (None with C_bar)
     G_bar: jax.Array  # (n,)
     B_bar: jax.Array  # (n, n)
     S: jax.Array
@@ -78,6 +79,13 @@ class ReducedModel:
         """Π = ∂θ̂/∂x2 at the nominal end-effector position."""
         return self.A_hat[:, self.m :]
 
+    def coriolis_u1dot(self):
+        """C̄ (u̇1, 0) = (C̄11 u̇1, C̄21 u̇1), from C̄ or from the product formed without it."""
+        if self.C_u1dot is not None:
+            return self.C_u1dot
+        u1_dot = self.x_dot[: self.m]
+        return jnp.concatenate([la.mm(self.C11, u1_dot), la.mm(self.C21, u1_dot)])
+
     # --- eqs. (13)-(14) ---------------------------------------------------------------------
     def force_terms(self):
         """The (k × m) and (k,) coefficients of eq. (14):
@@ -91,12 +99,22 @@ class ReducedModel:
         return jnp.concatenate([self.B1, self.B2 - la.mm(L, self.B1)], axis=0)
 
 
-def reduced_model(arm, surface, q, qd) -> ReducedModel:
+def reduced_model(arm, surface, q, qd, *, coriolis: str | None = None) -> ReducedModel:
     """Build M̄, C̄, Ḡ, B̄ of eq. (9) (corrected per docs/paper-conventions.md) from a nominal arm and surface.
 
     Implements Eq. (9). ``arm`` and ``surface`` are the controller's nominal models.
+
+    ``coriolis``: ``"matrix"`` forms C and C̄ (the arm's :meth:`~hinfnn.model.arm.Arm.terms`);
+    ``"product"`` forms only C̄ (u̇1, 0) = Sᵀ Ĵ⁻ᵀ {M̂ Ĵ⁻¹ Ṡ v + [Ĉ − M̂ Ĵ⁻¹ J̇̂] Ĵ⁻¹ S v},
+    v = (u̇1, 0), with one product Ĉ(q, q̇) w (:meth:`~hinfnn.model.arm.Arm.C_product`): all of
+    C̄ the law (25)–(26) uses (``C_bar`` is then None). Default: ``"matrix"`` for arms whose
+    Coriolis matrix is a cheap closed form (``arm.coriolis_matrix_in_law``), else ``"product"``.
     """
-    at = arm.terms(q, qd)
+    if coriolis is None:
+        coriolis = "matrix" if getattr(arm, "coriolis_matrix_in_law", False) else "product"
+    if coriolis not in ("matrix", "product"):
+        raise ValueError(f"coriolis must be 'matrix' or 'product', got {coriolis!r}")
+    at = arm.terms(q, qd) if coriolis == "matrix" else arm.law_terms(q, qd)
     x, J, J_dot, M = at.x, at.J, at.J_dot, at.M
     x_dot = la.mm(J, qd)
     m = surface.m
@@ -108,11 +126,19 @@ def reduced_model(arm, surface, q, qd) -> ReducedModel:
     MJi = mm(M, J_inv)
     JiS = mm(J_inv, S)
     M_bar = mm(B_bar, mm(M, JiS))
-    C_bar = mm(B_bar, mm(MJi, S_dot) + mm(at.C - mm(MJi, J_dot), JiS))
+    if coriolis == "matrix":
+        C_bar = mm(B_bar, mm(MJi, S_dot) + mm(at.C - mm(MJi, J_dot), JiS))
+        C_u = None
+    else:
+        C_bar = None
+        v = jnp.concatenate([x_dot[:m], jnp.zeros(surface.k, dtype=x_dot.dtype)])
+        w = mm(JiS, v)  # Ĵ⁻¹ S v
+        C_u = mm(B_bar, mm(MJi, mm(S_dot, v)) + arm.C_product(at, q, qd, w) - mm(MJi, mm(J_dot, w)))
     G_bar = mm(B_bar, at.G)
     return ReducedModel(
         M_bar=M_bar,
         C_bar=C_bar,
+        C_u1dot=C_u,
         G_bar=G_bar,
         B_bar=B_bar,
         S=S,

@@ -248,6 +248,35 @@ def _did_you_mean(name, names):
     return f"; links in the file: {', '.join(sorted(names)[:20])}"
 
 
+def _lock(parsed: _Parser, locked: dict):
+    """Turn the joints named in ``locked`` into fixed joints at the given position (rad or m):
+    the joint's origin composed with its motion there."""
+    src = parsed.source
+    by_name = {j.name: j for j in parsed.joints}
+    movable = [j.name for j in parsed.joints if j.type in MOVING_TYPES]
+    for name, value in locked.items():
+        if name not in by_name:
+            raise UrdfError(f"cannot lock joint {name!r}: no joint of that name in the file"
+                            + _did_you_mean(name, movable).replace("links in the file", "moving joints"), src,
+                            "locked_joints")
+        j = by_name[name]
+        if j.type not in MOVING_TYPES:
+            raise UrdfError(f"cannot lock joint {name!r}: it is {j.type} (allowed: {', '.join(MOVING_TYPES)})", src,
+                            "locked_joints")
+        value = float(value)
+        if not math.isfinite(value):
+            raise UrdfError(f"cannot lock joint {name!r} at {value} (allowed: a finite position)", src,
+                            "locked_joints")
+        a = j.axis
+        if j.type == "prismatic":
+            motion = (np.eye(3), a * value)
+        else:
+            K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+            motion = (np.eye(3) + math.sin(value) * K + (1 - math.cos(value)) * K @ K, np.zeros(3))
+        locked_joint = dataclasses.replace(j, type="fixed", origin=_compose(j.origin, motion))
+        parsed.joints[parsed.joints.index(j)] = locked_joint
+
+
 def _extract_chain(parsed: _Parser, base_link, ee_link, tool_T):
     """Serial chain base → ee: placements, axes, lumped inertias, tool placement (NumPy)."""
     src, links = parsed.source, parsed.links
@@ -607,9 +636,11 @@ class UrdfChain:
 
 def load_urdf_string(text: str, base_link: str, ee_link: str, *, tool_xyz=(0.0, 0.0, 0.0),
                      tool_rpy=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.81),
-                     source: str = "<string>") -> UrdfChain:
+                     source: str = "<string>", locked: dict | None = None) -> UrdfChain:
     """:func:`load_urdf` of URDF text (``source`` names it in error messages)."""
     parsed = _Parser(text, source)
+    if locked:
+        _lock(parsed, dict(locked))
     tool_T = (rpy_matrix(np.asarray(tool_rpy, float)), np.asarray(tool_xyz, float))
     moving, placements, bodies, tool = _extract_chain(parsed, base_link, ee_link, tool_T)
     f = lambda x: jnp.asarray(np.asarray(x, dtype=float))  # noqa: E731
@@ -625,10 +656,12 @@ def load_urdf_string(text: str, base_link: str, ee_link: str, *, tool_xyz=(0.0, 
 
 
 def load_urdf(path, base_link: str, ee_link: str, *, tool_xyz=(0.0, 0.0, 0.0),
-              tool_rpy=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.81)) -> UrdfChain:
+              tool_rpy=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.81), locked: dict | None = None) -> UrdfChain:
     """Serial chain from ``base_link`` to ``ee_link`` of a URDF file, with a fixed tool offset
-    (xyz, rpy in the end-effector link's frame) and gravity (base frame). Raises
-    :class:`UrdfError` naming the file, the element and the problem."""
+    (xyz, rpy in the end-effector link's frame) and gravity (base frame). ``locked`` maps joint
+    names to positions (rad or m) at which they are held fixed (e.g. one joint of a 7-DOF arm, so
+    that n equals the task dimension). Raises :class:`UrdfError` naming the file, the element and
+    the problem."""
     path = os.fspath(path)
     try:
         with open(path, encoding="utf-8") as fh:
@@ -636,7 +669,7 @@ def load_urdf(path, base_link: str, ee_link: str, *, tool_xyz=(0.0, 0.0, 0.0),
     except OSError as e:
         raise UrdfError(f"cannot read the file ({e.strerror})", path) from None
     return load_urdf_string(text, base_link, ee_link, tool_xyz=tool_xyz, tool_rpy=tool_rpy,
-                            gravity=gravity, source=path)
+                            gravity=gravity, source=path, locked=locked)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -662,6 +695,15 @@ def _task_derivatives(task, p, R, Jf, Jf_dot, qd):
 
     J, Jd = jax.vmap(both, in_axes=1, out_axes=1)(Jf[:3], Jf[3:], Jf_dot[:3], Jf_dot[3:])
     return J, Jd
+
+
+def _task_jacobian(task, p, R, Jf):
+    """J = ∂x/∂q alone (the plant needs no J̇): one directional derivative of the task map per
+    joint."""
+    def column(v, w):
+        return jax.jvp(task, (p, R), (v, skew(w) @ R))[1]
+
+    return jax.vmap(column, in_axes=1, out_axes=1)(Jf[:3], Jf[3:])
 
 
 @pytree_dataclass
@@ -728,8 +770,50 @@ class UrdfArm(Arm):
         return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=J, J_dot=J_dot, M=self.chain._crba(k),
                         C=self.chain._coriolis(k, qd), G=self.chain._gravity(k))
 
+    def law_terms(self, q, qd) -> ArmTerms:
+        """x, J, J̇, M, G sharing one forward pass, C not formed; ``aux`` keeps the kinematics for
+        :meth:`C_product`."""
+        k = self.chain._kinematics(q)
+        J, J_dot = self._J_Jdot(k, qd)
+        return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=J, J_dot=J_dot, M=self.chain._crba(k), C=None,
+                        G=self.chain._gravity(k), aux=k)
+
+    def C_product(self, terms: ArmTerms, q, qd, v):
+        """C(q, q̇) v by one bilinear Newton–Euler pass on the kinematics of :meth:`law_terms`."""
+        if terms.C is not None:
+            return la.mm(terms.C, v)
+        if terms.aux is None:
+            return self.chain.C_times(q, qd, v)
+        return self.chain._christoffel(terms.aux, qd, v)
+
+    def point(self, q):
+        """The tool point in the task map's space (3-D, or the plane's coordinates)."""
+        return self.task.space(self.chain.fk(q)[0])
+
+    def point_jacobian(self, q):
+        return self.chain.frame_jacobian(q)[list(self.task.space_rows)]
+
+    @property
+    def space_dim(self) -> int:
+        return int(self.task.space_dim)
+
+    def plant_terms(self, q, qd) -> ArmTerms:
+        """x, J, M, bias = C q̇ + G (RNEA), tool point and its Jacobian, from one forward pass."""
+        k = self.chain._kinematics(q)
+        Jf = self.chain._jacobian(k)
+        return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=_task_jacobian(self.task, k.p_tool, k.R_tool, Jf),
+                        J_dot=None, M=self.chain._crba(k), C=None, G=None,
+                        bias=self.chain._rnea(k, qd, jnp.zeros_like(qd), self.chain._a0()),
+                        p=self.task.space(k.p_tool), J_p=Jf[list(self.task.space_rows)])
+
+    def task_margin(self, q):
+        """The task map's distance from its singularities at q (:meth:`~hinfnn.model.taskmap.PoseTaskMap.margin`)."""
+        return self.task.margin(*self.chain.fk(q))
+
     def forward_dynamics(self, q, qd, tau_total, terms: ArmTerms | None = None):
         """q̈ = M⁻¹ (τ_total − C q̇ − G); without ``terms`` by CRBA + RNEA (C is not formed)."""
         if terms is None:
             return self.chain.forward_dynamics(q, qd, tau_total)
+        if terms.bias is not None:
+            return la.solve(terms.M, tau_total - terms.bias)
         return la.solve(terms.M, tau_total - la.mm(terms.C, qd) - terms.G)

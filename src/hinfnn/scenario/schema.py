@@ -269,6 +269,21 @@ def load(cls, data, path: str = "", exclude=()):
         cls = reg.lookup(chosen, f"{path}{reg.key}")
     fields = fields_of(cls, exclude)
     names = [f.name for f, _ in fields]
+    if chosen is not None:  # keys of another kind: the kind is what is wrong (or the keys are)
+        foreign = [k for k in data if k not in names and isinstance(k, str)]
+        owners = {}
+        for other in reg.names():
+            if other == chosen:
+                continue
+            theirs = {f.name for f, _ in fields_of(reg[other], exclude)}
+            for k in foreign:
+                if k in theirs:
+                    owners.setdefault(k, other)
+        if owners:
+            listed = ", ".join(f"{k!r} ({reg.key} = {o!r})" for k, o in owners.items())
+            raise ConfigError(f"{reg.key} = {chosen!r} does not take the key{'s' if len(owners) > 1 else ''} "
+                              f"{listed}; remove {'them' if len(owners) > 1 else 'it'} or choose that "
+                              f"{reg.what}", key=f"{path}{reg.key}")
     for key in data:
         if key not in names:
             if isinstance(key, str) and any(c in key for c in "\n\r"):
