@@ -23,7 +23,7 @@ import jax.numpy as jnp
 from ..errors import DesignError
 from . import terms as T
 from .gains import Gains
-from .law import ReducedOrderController
+from .law import ReducedOrderController, split_blocks
 from .network import TanhNetwork, paper_network_f, paper_network_p
 from .riccati import design_riccati
 
@@ -93,7 +93,8 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
     for term in terms:
         term.check(surface.m, surface.k)
     return ReducedOrderController(arm=arm, surface=surface, gains=g, P_p=P, terms=terms, kind=kind,
-                                  augmented=augmented)
+                                  augmented=augmented, P_blocks=split_blocks(P, surface.m),
+                                  Q_blocks=split_blocks(g.Q_p, surface.m))
 
 
 class FeedbackLinearization:

@@ -198,7 +198,7 @@ class CoordinateNetwork:
     network terms of :mod:`hinfnn.controllers.terms` use it unchanged.
     """
 
-    centre_blocks: tuple  # of (n_out, b) arrays
+    centre_blocks: tuple  # output o's blocks, then o + 1's (each at most dev.BLOCK values)
     slope: jax.Array  # (n_out,)
     w_a: jax.Array  # (n_out,)
     w_b: jax.Array  # (n_out,)
@@ -239,20 +239,25 @@ class CoordinateNetwork:
             if not (np.isfinite(radius) and radius > 0):
                 raise DesignError(f"projection radius must be finite and > 0, got {radius:g}",
                                   key=f"{name}.radius", value=radius, bound=0.0)
-        blocks = tuple(jnp.asarray(c[:, a:b]) for a, b in dev.block_bounds(c.shape[1]))
+        blocks = tuple(jnp.asarray(c[o, a:b]) for o in range(n_out) for a, b in dev.block_bounds(c.shape[1]))
         return cls(centre_blocks=blocks, slope=slope_a, w_a=w_a_a, w_b=w_b_a,
                    radius=jnp.asarray(np.inf if radius is None else radius), n_out=n_out,
                    project=radius is not None)
 
     @property
+    def _nb(self) -> int:
+        return len(self.centre_blocks) // self.n_out
+
+    @property
     def centres(self) -> jax.Array:
         """(n_out, j) centres."""
-        return jnp.concatenate(self.centre_blocks, axis=-1)
+        nb = self._nb
+        return jnp.stack([jnp.concatenate(self.centre_blocks[o * nb:(o + 1) * nb]) for o in range(self.n_out)])
 
     @property
     def n_units(self) -> int:
         """Hidden units per output, j."""
-        return sum(int(b.shape[-1]) for b in self.centre_blocks)
+        return sum(int(b.shape[-1]) for b in self.centre_blocks[: self._nb])
 
     @property
     def size(self) -> int:
@@ -275,19 +280,20 @@ class CoordinateNetwork:
     # blocks (inside the compiled loop) ---------------------------------------------------------
     def _xi_out(self, a, b, o):
         phi = self.w_a[o] * a[o] + self.w_b[o] * b[o]
-        return tuple(jnp.tanh(self.slope[o] * (phi - c[o])) for c in self.centre_blocks)
+        nb = self._nb
+        return tuple(jnp.tanh(self.slope[o] * (phi - c)) for c in self.centre_blocks[o * nb:(o + 1) * nb])
 
     def features_blocks(self, a, b) -> tuple:
         """ξ_o of eq. (17), output by output, block by block (the layout of Θ's blocks)."""
         return tuple(x for o in range(self.n_out) for x in self._xi_out(a, b, o))
 
     def output_blocks(self, xi_blocks, theta_blocks):
-        nb = len(self.centre_blocks)
+        nb = self._nb
         return jnp.stack([sum(jnp.sum(theta_blocks[o * nb + i] * xi_blocks[o * nb + i]) for i in range(nb))
                           for o in range(self.n_out)])
 
     def update_blocks(self, xi_blocks, s, theta_blocks, gamma) -> tuple:
-        nb = len(self.centre_blocks)
+        nb = self._nb
         raw = tuple(gamma * s[o] * xi_blocks[o * nb + i] for o in range(self.n_out) for i in range(nb))
         if self.project:
             growth = la.mm(s, self.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ

@@ -110,6 +110,12 @@ class Arm:
             return la.mm(terms.C, v)
         return self.C_times(q, qd, v)
 
+    def J_dot_times(self, terms: ArmTerms, q, qd, v):
+        """J̇(q, q̇) v (from ``terms.J_dot`` when formed, else by forward-mode autodiff of J v)."""
+        if terms.J_dot is not None:
+            return la.mm(terms.J_dot, v)
+        return jax.jvp(lambda qq: la.mm(self.J(qq), v), (q,), (qd,))[1]
+
     # --- contact point --------------------------------------------------------------------------
     def point(self, q):
         """The tool point in the arm's Cartesian space (where surfaces live): h(q) by default
@@ -138,7 +144,7 @@ class Arm:
         :attr:`coriolis_matrix_in_law` (then :meth:`terms`)."""
         if self.coriolis_matrix_in_law:
             return self.terms(q, qd)
-        return ArmTerms(x=self.h(q), J=self.J(q), J_dot=self.J_dot(q, qd), M=self.M(q), C=None, G=self.G(q))
+        return ArmTerms(x=self.h(q), J=self.J(q), J_dot=None, M=self.M(q), C=None, G=self.G(q))
 
     def plant_terms(self, q, qd) -> ArmTerms:
         """x, J, M, bias = C q̇ + G, tool point and its Jacobian, for the true plant."""
@@ -158,7 +164,7 @@ class Arm:
         """q̈ = M⁻¹ (τ_total − C q̇ − G); τ_total already includes −JᵀF and disturbances."""
         t = terms if terms is not None else self.terms(q, qd)
         if t.bias is not None:
-            return la.solve(t.M, tau_total - t.bias)
+            return la.spd_solve(t.M, tau_total - t.bias)
         return la.solve(t.M, tau_total - la.mm(t.C, qd) - t.G)
 
     def inverse_kinematics(self, x, q_guess, iterations: int = 50):

@@ -33,7 +33,12 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 
+from .. import _linalg as la
 from .._pytree import pytree_dataclass, static_field
+
+
+def _dot(a, b):
+    return jnp.sum(a * b)
 
 
 def _unit(v):
@@ -116,7 +121,7 @@ class Plane(Geometry):
         n = jnp.asarray(normal, float)
         n = n / jnp.linalg.norm(n)
         t = jnp.asarray(tangent, float)
-        t = t - jnp.dot(t, n) * n
+        t = t - _dot(t, n) * n
         return cls(point_=jnp.asarray(point, float), normal_out=n, tangent=t / jnp.linalg.norm(t))
 
     def _frame(self):
@@ -131,11 +136,11 @@ class Plane(Geometry):
         return -self.normal_out + 0.0 * p
 
     def coordinates(self, p):
-        local = self._frame().T @ (p - self.point_)
+        local = la.mm(self._frame().T, p - self.point_)
         return local[:2], local[2]
 
     def point(self, s, d):
-        return self.point_ + self._frame() @ jnp.concatenate([s, jnp.atleast_1d(d)])
+        return self.point_ + la.mm(self._frame(), jnp.concatenate([s, jnp.atleast_1d(d)]))
 
     def frame(self, s):
         return self._frame() + 0.0 * s[0]
@@ -147,7 +152,7 @@ class Plane(Geometry):
 def _basis(pole, meridian):
     """Orthonormal (b1, b2, b3): b3 along ``pole``, b1 along ``meridian`` made orthogonal to it."""
     b3 = _unit(pole)
-    b1 = _unit(meridian - jnp.dot(meridian, b3) * b3)
+    b1 = _unit(meridian - _dot(meridian, b3) * b3)
     return b1, jnp.cross(b3, b1), b3
 
 
@@ -185,7 +190,7 @@ class Sphere(Geometry):
     def _angles(self, p):
         b1, b2, b3 = _basis(self.pole, self.meridian)
         v = p - self.centre
-        x, y, z = jnp.dot(v, b1), jnp.dot(v, b2), jnp.dot(v, b3)
+        x, y, z = _dot(v, b1), _dot(v, b2), _dot(v, b3)
         alpha = jnp.arctan2(y, x)
         beta = jnp.arctan2(z, jnp.sqrt(x * x + y * y))
         return alpha, beta
@@ -244,7 +249,7 @@ class Cylinder(Geometry):
     def _radial(self, p):
         a = _unit(self.axis)
         v = p - self.point_
-        return a, v - jnp.dot(v, a) * a
+        return a, v - _dot(v, a) * a
 
     def theta(self, p):
         _, r = self._radial(p)
@@ -253,8 +258,8 @@ class Cylinder(Geometry):
     def coordinates(self, p):
         b1, b2, a = _basis(self.axis, self.reference)
         v = p - self.point_
-        psi = jnp.arctan2(jnp.dot(v, b2), jnp.dot(v, b1))
-        return jnp.stack([jnp.dot(v, a), self.radius * psi]), self.theta(p)
+        psi = jnp.arctan2(_dot(v, b2), _dot(v, b1))
+        return jnp.stack([_dot(v, a), self.radius * psi]), self.theta(p)
 
     def _u(self, s):
         b1, b2, a = _basis(self.axis, self.reference)
@@ -273,7 +278,7 @@ class Cylinder(Geometry):
     def singularity_margin(self, p):
         b1, b2, _ = _basis(self.axis, self.reference)
         v = p - self.point_
-        psi = jnp.arctan2(jnp.dot(v, b2), jnp.dot(v, b1))
+        psi = jnp.arctan2(_dot(v, b2), _dot(v, b1))
         return jnp.pi - jnp.abs(psi)
 
     def coordinate_names(self):
@@ -358,11 +363,11 @@ class Line(Geometry):
         return -self.normal_out + 0.0 * p
 
     def coordinates(self, p):
-        local = _frame2(-self.normal_out).T @ (p - self.point_)
+        local = la.mm(_frame2(-self.normal_out).T, p - self.point_)
         return local[:1], local[1]
 
     def point(self, s, d):
-        return self.point_ + _frame2(-self.normal_out) @ jnp.stack([s[0], d])
+        return self.point_ + la.mm(_frame2(-self.normal_out), jnp.stack([s[0], d]))
 
     def frame(self, s):
         return _frame2(-self.normal_out) + 0.0 * s[0]

@@ -38,8 +38,9 @@ class ReducedModel:
     x: jax.Array  # nominal task-space position ĥ(q)
     x_dot: jax.Array  # Ĵ q̇
     J: jax.Array  # Ĵ(q)
-    J_dot: jax.Array  # J̇̂(q, q̇)
+    J_dot: jax.Array | None  # J̇̂(q, q̇) (None on the "product" path)
     m: int = static_field()
+    Jd_qd: jax.Array | None = None  # J̇̂ q̇ (the "product" path)
 
     # --- partitions used by eqs. (11)-(14) ------------------------------------------------
     @property
@@ -114,7 +115,9 @@ def reduced_model(arm, surface, q, qd, *, coriolis: str | None = None) -> Reduce
         coriolis = "matrix" if getattr(arm, "coriolis_matrix_in_law", False) else "product"
     if coriolis not in ("matrix", "product"):
         raise ValueError(f"coriolis must be 'matrix' or 'product', got {coriolis!r}")
-    at = arm.terms(q, qd) if coriolis == "matrix" else arm.law_terms(q, qd)
+    if coriolis == "product":
+        return _reduced_products(arm, surface, q, qd)
+    at = arm.terms(q, qd)
     x, J, J_dot, M = at.x, at.J, at.J_dot, at.M
     x_dot = la.mm(J, qd)
     m = surface.m
@@ -126,19 +129,12 @@ def reduced_model(arm, surface, q, qd, *, coriolis: str | None = None) -> Reduce
     MJi = mm(M, J_inv)
     JiS = mm(J_inv, S)
     M_bar = mm(B_bar, mm(M, JiS))
-    if coriolis == "matrix":
-        C_bar = mm(B_bar, mm(MJi, S_dot) + mm(at.C - mm(MJi, J_dot), JiS))
-        C_u = None
-    else:
-        C_bar = None
-        v = jnp.concatenate([x_dot[:m], jnp.zeros(surface.k, dtype=x_dot.dtype)])
-        w = mm(JiS, v)  # Ĵ⁻¹ S v
-        C_u = mm(B_bar, mm(MJi, mm(S_dot, v)) + arm.C_product(at, q, qd, w) - mm(MJi, mm(J_dot, w)))
+    C_bar = mm(B_bar, mm(MJi, S_dot) + mm(at.C - mm(MJi, J_dot), JiS))
     G_bar = mm(B_bar, at.G)
     return ReducedModel(
         M_bar=M_bar,
         C_bar=C_bar,
-        C_u1dot=C_u,
+        C_u1dot=None,
         G_bar=G_bar,
         B_bar=B_bar,
         S=S,
@@ -149,4 +145,49 @@ def reduced_model(arm, surface, q, qd, *, coriolis: str | None = None) -> Reduce
         J=J,
         J_dot=J_dot,
         m=m,
+    )
+
+
+def _reduced_products(arm, surface, q, qd) -> ReducedModel:
+    """Eq. (9) without forming C or J̇ (n ≥ 3 arms), and with Ĵ⁻¹ = Ĵᵀ(Ĵ Ĵᵀ)⁻¹ from one
+    Cholesky factorisation (no pivoting loop, plain arithmetic in the compiled step):
+
+        M̄ = B̄ M̂ Ĵ⁻¹ S,   B̄ = Sᵀ Ĵ⁻ᵀ,   Ḡ = B̄ Ĝ,
+        C̄ v = B̄ [M̂ Ĵ⁻¹ Ṡ v + Ĉ(q, q̇) w − M̂ Ĵ⁻¹ J̇̂ w],   w = Ĵ⁻¹ S v,   v = (u̇1, 0),
+
+    which need only the products Ĉ(q, q̇) w and J̇̂ w (:meth:`~hinfnn.model.arm.Arm.C_product`,
+    :meth:`~hinfnn.model.arm.Arm.J_dot_times`): all of C̄ the law (25)–(26) uses. The same
+    quantities as the matrix path (tested)."""
+    mm = la.mm
+    at = arm.law_terms(q, qd)
+    x, J, M = at.x, at.J, at.M
+    x_dot = mm(J, qd)
+    m = surface.m
+    S = surface.S(x[:m])
+    S_dot = surface.S_dot(x[:m], x_dot[:m])
+    J_inv = mm(J.T, la.chol_solve(la.chol(mm(J, J.T)), jnp.eye(J.shape[0], dtype=J.dtype)))
+    B_bar = mm(S.T, J_inv.T)  # Sᵀ Ĵ⁻ᵀ
+    MJi = mm(M, J_inv)
+    JiS = mm(J_inv, S)
+    M_bar = mm(B_bar, mm(M, JiS))
+    v = jnp.concatenate([x_dot[:m], jnp.zeros(surface.k, dtype=x_dot.dtype)])
+    w = mm(JiS, v)  # Ĵ⁻¹ S v
+    Jd = arm.J_dot_times(at, q, qd, jnp.stack([w, qd], axis=1))  # (J̇̂ w, J̇̂ q̇) in one pass
+    C_u = mm(B_bar, mm(MJi, mm(S_dot, v) - Jd[:, 0]) + arm.C_product(at, q, qd, w))
+    G_bar = mm(B_bar, at.G)
+    return ReducedModel(
+        M_bar=M_bar,
+        C_bar=None,
+        C_u1dot=C_u,
+        G_bar=G_bar,
+        B_bar=B_bar,
+        S=S,
+        S_dot=S_dot,
+        A_hat=surface.A_hat(x),
+        x=x,
+        x_dot=x_dot,
+        J=J,
+        J_dot=None,
+        m=m,
+        Jd_qd=Jd[:, 1],
     )

@@ -483,7 +483,8 @@ class UrdfChain:
         prism = np.array([k == "prismatic" for k in self.joint_types])[:, None]
         S = jnp.concatenate([jnp.where(prism, aw, _cross(p, aw)), jnp.where(prism, 0.0, aw)], axis=-1)
         cw = p + jnp.sum(R * self.com[:, None, :], axis=-1)
-        Ic = jnp.einsum("nij,njk,nlk->nil", R, self.inertia, R)
+        RI = jnp.sum(R[:, :, :, None] * self.inertia[:, None, :, :], axis=2)  # R_i I_i (batched 3 × 3)
+        Ic = jnp.sum(RI[:, :, None, :] * R[:, None, :, :], axis=3)  # (R_i I_i) R_iᵀ
         Ib = Ic + self.mass[:, None, None] * (jnp.sum(cw * cw, axis=-1)[:, None, None] * eye[None]
                                               - cw[:, :, None] * cw[:, None, :])
         R_tool = la.mm(R[-1], self.tool_rot)
@@ -526,7 +527,7 @@ class UrdfChain:
     def _crba(k: _Kinematics):
         """M_ij = S_iᵀ I^c_{max(i,j)} S_j with composite inertias I^c_j = Σ_{k≥j} I_k."""
         F = _inertia_apply(_rcumsum(k.m), _rcumsum(k.h), _rcumsum(k.Ib), k.S)  # F_j = I^c_j S_j
-        A = k.S @ F.T  # A_ij = S_i · F_j, equal to M_ij for i ≤ j
+        A = la.mm(k.S, F.T)  # A_ij = S_i · F_j, equal to M_ij for i ≤ j
         upper = np.triu(np.ones(A.shape, dtype=bool))
         return jnp.where(upper, A, A.T)
 
@@ -634,6 +635,31 @@ class UrdfChain:
         return replace(self, gravity=jnp.asarray(gravity, float))
 
 
+def planar_chain(masses, lengths, g: float = 9.81) -> UrdfChain:
+    """The n-link planar arm with a point mass at the tip of each link (the arm of Sec. VI for
+    n = 2) as a chain: joints about z in the x–y plane, joint 1 at the origin turning from x
+    towards y, link i of length l_i along its body's x axis, gravity along −y, the tool at the last
+    tip with its x axis along the last link. With :class:`~hinfnn.model.taskmap.PlanarTaskMap`
+    ``("xy", with_angle=True)`` the task coordinates are (x, y, φ = Σ q); it equals
+    :class:`~hinfnn.model.arm.PlanarPointMassArm` (the autodiff oracle, tested) and runs on
+    CRBA/RNEA."""
+    m = np.asarray(masses, dtype=float)
+    L = np.asarray(lengths, dtype=float)
+    n = m.size
+    f = lambda x: jnp.asarray(np.asarray(x, dtype=float))  # noqa: E731
+    pos = np.zeros((n, 3))
+    pos[1:, 0] = L[:-1]
+    com = np.zeros((n, 3))
+    com[:, 0] = L
+    return UrdfChain(
+        placement_rot=f(np.broadcast_to(np.eye(3), (n, 3, 3))), placement_pos=f(pos),
+        axes=f(np.broadcast_to([0.0, 0.0, 1.0], (n, 3))), mass=f(m), com=f(com), inertia=f(np.zeros((n, 3, 3))),
+        tool_rot=f(np.eye(3)), tool_pos=f([L[-1], 0.0, 0.0]), gravity=f([0.0, -float(g), 0.0]),
+        lower=f(np.full(n, -np.inf)), upper=f(np.full(n, np.inf)), effort_limit=f(np.full(n, np.inf)),
+        velocity_limit=f(np.full(n, np.inf)), n=n, joint_types=("revolute",) * n,
+        joint_names=tuple(f"joint{i + 1}" for i in range(n)), body_links=tuple((f"link{i + 1}",) for i in range(n)))
+
+
 def load_urdf_string(text: str, base_link: str, ee_link: str, *, tool_xyz=(0.0, 0.0, 0.0),
                      tool_rpy=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.81),
                      source: str = "<string>", locked: dict | None = None) -> UrdfChain:
@@ -685,23 +711,45 @@ def _task_derivatives(task, p, R, Jf, Jf_dot, qd):
     def column(p, R, v, W):
         return jax.jvp(task, (p, R), (v, W))[1]
 
-    vt, wt = Jf[:3] @ qd, Jf[3:] @ qd
-    Rd = skew(wt) @ R
+    vt, wt = la.mm(Jf[:3], qd), la.mm(Jf[3:], qd)
+    Rd = la.mm(skew(wt), R)
 
     def both(v, w, vd, wd):
-        W = skew(w) @ R
-        Wd = skew(wd) @ R + skew(w) @ Rd
+        W = la.mm(skew(w), R)
+        Wd = la.mm(skew(wd), R) + la.mm(skew(w), Rd)
         return jax.jvp(column, (p, R, v, W), (vt, Rd, vd, Wd))
 
     J, Jd = jax.vmap(both, in_axes=1, out_axes=1)(Jf[:3], Jf[3:], Jf_dot[:3], Jf_dot[3:])
     return J, Jd
 
 
+def _task_derivatives_times(task, p, R, Jf, Jf_dot, qd, V):
+    """J̇ V for a few joint-space directions (columns of V, or a vector): the columns of
+    :func:`_task_derivatives` for those directions only."""
+    mm = la.mm
+
+    def column(p, R, vl, W):
+        return jax.jvp(task, (p, R), (vl, W))[1]
+
+    vt, wt = mm(Jf[:3], qd), mm(Jf[3:], qd)
+    Rd = mm(skew(wt), R)
+
+    def one(v):
+        w, wd = mm(Jf[3:], v), mm(Jf_dot[3:], v)
+        W = mm(skew(w), R)
+        Wd = mm(skew(wd), R) + mm(skew(w), Rd)
+        return jax.jvp(column, (p, R, mm(Jf[:3], v), W), (vt, Rd, mm(Jf_dot[:3], v), Wd))[1]
+
+    if V.ndim == 1:
+        return one(V)
+    return jax.vmap(one, in_axes=1, out_axes=1)(V)
+
+
 def _task_jacobian(task, p, R, Jf):
     """J = ∂x/∂q alone (the plant needs no J̇): one directional derivative of the task map per
     joint."""
     def column(v, w):
-        return jax.jvp(task, (p, R), (v, skew(w) @ R))[1]
+        return jax.jvp(task, (p, R), (v, la.mm(skew(w), R)))[1]
 
     return jax.vmap(column, in_axes=1, out_axes=1)(Jf[:3], Jf[3:])
 
@@ -771,12 +819,15 @@ class UrdfArm(Arm):
                         C=self.chain._coriolis(k, qd), G=self.chain._gravity(k))
 
     def law_terms(self, q, qd) -> ArmTerms:
-        """x, J, J̇, M, G sharing one forward pass, C not formed; ``aux`` keeps the kinematics for
-        :meth:`C_product`."""
+        """x, J, M, G sharing one forward pass; neither C nor J̇ formed (J_dot None): ``aux`` keeps
+        the kinematics, the frame Jacobian and its derivative for :meth:`C_product` and
+        :meth:`J_dot_times`."""
         k = self.chain._kinematics(q)
-        J, J_dot = self._J_Jdot(k, qd)
-        return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=J, J_dot=J_dot, M=self.chain._crba(k), C=None,
-                        G=self.chain._gravity(k), aux=k)
+        Jf = self.chain._jacobian(k)
+        Jf_dot = self.chain._jacobian_dot(k, qd)
+        J = _task_jacobian(self.task, k.p_tool, k.R_tool, Jf)
+        return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=J, J_dot=None, M=self.chain._crba(k), C=None,
+                        G=self.chain._gravity(k), aux=(k, Jf, Jf_dot))
 
     def C_product(self, terms: ArmTerms, q, qd, v):
         """C(q, q̇) v by one bilinear Newton–Euler pass on the kinematics of :meth:`law_terms`."""
@@ -784,14 +835,25 @@ class UrdfArm(Arm):
             return la.mm(terms.C, v)
         if terms.aux is None:
             return self.chain.C_times(q, qd, v)
-        return self.chain._christoffel(terms.aux, qd, v)
+        return self.chain._christoffel(terms.aux[0], qd, v)
+
+    def J_dot_times(self, terms: ArmTerms, q, qd, v):
+        """J̇(q, q̇) v: one column of :func:`_task_derivatives` (the task map's second directional
+        derivative along the frame motion), not the whole J̇."""
+        if terms.J_dot is not None:
+            return la.mm(terms.J_dot, v)
+        if terms.aux is None:
+            return la.mm(self.J_dot(q, qd), v)
+        k, Jf, Jf_dot = terms.aux
+        return _task_derivatives_times(self.task, k.p_tool, k.R_tool, Jf, Jf_dot, qd, v)
 
     def point(self, q):
         """The tool point in the task map's space (3-D, or the plane's coordinates)."""
         return self.task.space(self.chain.fk(q)[0])
 
     def point_jacobian(self, q):
-        return self.chain.frame_jacobian(q)[list(self.task.space_rows)]
+        Jf = self.chain.frame_jacobian(q)
+        return jnp.stack([Jf[i] for i in self.task.space_rows])
 
     @property
     def space_dim(self) -> int:
@@ -804,7 +866,7 @@ class UrdfArm(Arm):
         return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=_task_jacobian(self.task, k.p_tool, k.R_tool, Jf),
                         J_dot=None, M=self.chain._crba(k), C=None, G=None,
                         bias=self.chain._rnea(k, qd, jnp.zeros_like(qd), self.chain._a0()),
-                        p=self.task.space(k.p_tool), J_p=Jf[list(self.task.space_rows)])
+                        p=self.task.space(k.p_tool), J_p=jnp.stack([Jf[i] for i in self.task.space_rows]))
 
     def task_margin(self, q):
         """The task map's distance from its singularities at q (:meth:`~hinfnn.model.taskmap.PoseTaskMap.margin`)."""
@@ -815,5 +877,5 @@ class UrdfArm(Arm):
         if terms is None:
             return self.chain.forward_dynamics(q, qd, tau_total)
         if terms.bias is not None:
-            return la.solve(terms.M, tau_total - terms.bias)
+            return la.spd_solve(terms.M, tau_total - terms.bias)
         return la.solve(terms.M, tau_total - la.mm(terms.C, qd) - terms.G)

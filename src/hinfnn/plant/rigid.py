@@ -55,6 +55,7 @@ class ContactCache:
     tau_c: jax.Array | None = None  # joint torque of the contact (Cartesian surfaces)
     F_contact: jax.Array | None = None  # the contact force at the tool point, Cartesian
     friction: jax.Array | None = None  # its tangential part F_t
+    L_M: jax.Array | None = None  # Cholesky factor of the true M (Cartesian surfaces)
 
 
 @pytree_dataclass
@@ -111,16 +112,21 @@ class RigidBodyPlant:
             F_t = self.friction.force(f_n, v_t)
             F_c = F_c + F_t
         tau_c = la.mm(at.J_p.T, F_c)
-        F = la.solve(at.J.T, tau_c)  # in task coordinates: Jᵀ F = τ_c
+        # in task coordinates, Jᵀ F = τ_c: F = (J Jᵀ)⁻¹ J τ_c (one Cholesky factorisation, no
+        # pivoting loop in the compiled step)
+        F = la.spd_solve(la.mm(at.J, at.J.T), la.mm(at.J, tau_c))
+        L_M = la.chol(at.M)
         return (Measurement(q=state.q, qd=state.qd, F=F),
                 ContactCache(terms=at, F=F, normal_force=f_n, penetration=d, tau_c=tau_c, F_contact=F_c,
-                             friction=F_t))
+                             friction=F_t, L_M=L_M))
 
     def derivative(self, t, state: JointState, tau, w, cache: ContactCache):
         """(q̇, q̈) and q̈ from eq. (1) with the TRUE parameters."""
         t_ = cache.terms
-        tau_c = la.mm(t_.J.T, cache.F) if cache.tau_c is None else cache.tau_c
-        qdd = self.arm.forward_dynamics(state.q, state.qd, tau + w - tau_c, terms=t_)
+        if cache.tau_c is None:  # the paper's path, unchanged
+            qdd = self.arm.forward_dynamics(state.q, state.qd, tau + w - la.mm(t_.J.T, cache.F), terms=t_)
+        else:
+            qdd = la.chol_solve(cache.L_M, tau + w - cache.tau_c - t_.bias)
         return JointState(q=state.qd, qd=qdd), qdd
 
     def diagnostics(self, state: JointState, w, cache: ContactCache) -> dict:
