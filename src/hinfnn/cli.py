@@ -24,6 +24,11 @@ EXAMPLES_REPRODUCE = """examples:
   hinfnn reproduce --out /tmp/study --force
   hinfnn reproduce --set simulation.t_final=2   # a quick look (claims are judged on whatever ran)
 """
+EXAMPLES_GALLERY = """examples:
+  hinfnn gallery                         # results/gallery/report.md: planar3-drum, ur5-table, ur5-sphere
+  hinfnn gallery --only ur5-table --out /tmp/table
+  hinfnn gallery --set simulation.t_final=2   # a quick look (the checks are judged on what ran)
+"""
 EXAMPLES_CACHE = """examples:
   hinfnn cache                     where the compilation cache is, its number of files and size
   hinfnn cache --clear             empty it (the next run compiles again, 4-7 s)
@@ -34,6 +39,7 @@ HINFNN_CACHE_DIR=off disables the cache. Deleting the folder at any time is safe
 """
 EXAMPLES_MAIN = """examples:
   hinfnn reproduce                 the paper's Sec. VI study into results/paper/
+  hinfnn gallery                   the shipped arms-and-surfaces scenarios into results/gallery/
   hinfnn run paper --set controller.kind=hinf --set plant.contact.damping=200
   hinfnn keys                      every scenario key, its meaning and allowed values
   hinfnn show results/paper        the metrics of a saved result
@@ -84,6 +90,18 @@ def _parser() -> argparse.ArgumentParser:
     rp.add_argument("--out", type=Path, default=Path("results/paper"), help="output folder (default: results/paper)")
     rp.add_argument("--scenario", default="paper", help="base scenario (default: paper)")
     common(rp)
+
+    ga = sub.add_parser(
+        "gallery", formatter_class=fmt, epilog=EXAMPLES_GALLERY,
+        help="run the shipped arms-and-surfaces scenarios into one report",
+        description="Run planar3-drum, ur5-table and ur5-sphere (each with the controllers it lists) and write "
+                    "OUT/report.md with their setups, designs, metrics, the issue's checks and figures, and one "
+                    "folder per scenario as `hinfnn run` writes it. `hinfnn reproduce` is the paper's study.")
+    ga.add_argument("--out", type=Path, default=Path("results/gallery"),
+                    help="output folder (default: results/gallery)")
+    ga.add_argument("--only", action="append", default=[], metavar="NAME",
+                    help="run only this gallery scenario (repeatable)")
+    common(ga)
 
     k = sub.add_parser("keys", formatter_class=fmt, help="list every scenario key with its meaning and range",
                        description="Every key a scenario file or --set accepts.",
@@ -213,6 +231,28 @@ def cmd_reproduce(args) -> int:
     return 0
 
 
+def cmd_gallery(args) -> int:
+    from .gallery import gallery_scenarios, run_gallery
+
+    gallery_scenarios(args.overrides, args.only)  # every check before anything runs
+    progress = Progress(args.quiet, "gallery")
+    t0 = time.perf_counter()
+    target = run_gallery(args.out, overrides=args.overrides, only=args.only, force=args.force, progress=progress,
+                         log=(lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr)),
+                         command=command_line(args))
+    progress.done()
+    if not args.quiet:
+        import json
+
+        from .report.markdown import metrics_table
+
+        for sub in sorted(p for p in target.iterdir() if p.is_dir()):
+            print(f"{sub.name}:")
+            print(metrics_table(json.loads((sub / "metrics.json").read_text()), markdown=False))
+        print(f"report: {target}/report.md  ({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
 def cmd_keys(args) -> int:
     from .scenario import keys
 
@@ -277,7 +317,7 @@ def cmd_cache(args) -> int:
 
 
 COMMANDS = {"run": cmd_run, "reproduce": cmd_reproduce, "keys": cmd_keys, "scenarios": cmd_scenarios,
-            "show": cmd_show, "cache": cmd_cache}
+            "show": cmd_show, "cache": cmd_cache, "gallery": cmd_gallery}
 
 
 def _interrupted_exit(code: int, argv) -> int:

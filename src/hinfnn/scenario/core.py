@@ -115,6 +115,9 @@ class Scenario:
     def task_map(self):
         """The task map (:mod:`hinfnn.model.taskmap`) the arms are built with; None for the arm's
         native coordinates (the two_link arm of Sec. VI)."""
+        if not self.nominal.arm.task_maps and self.task.map != "native":
+            raise ConfigError(f"the {self.nominal.arm.model!r} arm has only its native task coordinates (the tip "
+                              "position); use arm model \"planar\" or \"urdf\" for other coordinates", key="task.map")
         geometry = None
         if self.task.fitted:
             geometry = self.nominal.surface.build()
@@ -155,6 +158,18 @@ class Scenario:
             raise ConfigError(f"a {self.nominal.surface.kind!r} surface needs task coordinates that contain the tool "
                               "point: set task.map", key="task.map")
         return TaskConstraint(geometry=surface, task=task, m=m, k=1)
+
+    def coordinate_names(self) -> list[tuple[str, str]] | None:
+        """Names and units of the task coordinates (motion coordinates first, the constrained one
+        last), or None for the native coordinates of the two_link arm (x1, x2)."""
+        task = self.task_map()
+        return None if task is None else task.names()
+
+    def joint_names(self) -> list[str]:
+        """The moving joints' names (URDF), or joint1 … jointn."""
+        arm = self.build_arm("nominal")
+        chain = getattr(arm, "chain", None)
+        return list(chain.joint_names) if chain is not None else [f"joint{i + 1}" for i in range(arm.n)]
 
     def build_reference(self):
         ref = self.reference

@@ -28,7 +28,8 @@ from typing import Any, Literal, NewType, Union
 
 from ..errors import ConfigError
 
-#: A number (times the identity) or a square matrix given as a list of equal-length rows.
+#: A number (times the identity), a flat list (the diagonal) or a square matrix given as a list of
+#: equal-length rows.
 Matrix = NewType("Matrix", object)
 
 _MISSING = dataclasses.MISSING
@@ -150,7 +151,7 @@ def allowed(tp, meta) -> str:
     if tp is str:
         return "a string"
     if tp is Matrix:
-        return "a number or a square matrix" + (f" with entries{tail}" if tail else "")
+        return "a number, a list (the diagonal) or a square matrix" + (f" with entries{tail}" if tail else "")
     if typing.get_origin(tp) is tuple:
         inner = _args(tp)[0]
         if inner is str:
@@ -213,6 +214,9 @@ def _value(key: str, value, tp, meta):
             raise ConfigError(f"must be {words}, got {value!r}{hint}", key=key)
         return value
     if tp is Matrix:
+        if isinstance(value, list) and value and not any(isinstance(r, list) for r in value):
+            # a flat list: the diagonal
+            return tuple(_number(f"{key}[{i}]", v, meta, "a number") for i, v in enumerate(value))
         if isinstance(value, list):
             rows = value
             if not rows or not all(isinstance(r, list) and len(r) == len(rows) for r in rows):

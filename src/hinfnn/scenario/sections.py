@@ -55,6 +55,8 @@ class ArmConfig:
 
     #: the plane of a planar arm's Cartesian space in its tool frame (None: a spatial arm)
     plane = None
+    #: task.map may choose its coordinates (False: only the native ones, the two_link arm)
+    task_maps = True
 
     def build(self, task=None, key: str = "arm"):
         raise NotImplementedError
@@ -76,6 +78,7 @@ class TwoLinkArmConfig(ArmConfig):
     g: float = param(doc="gravity, m/s^2", ge=0.0, le=100.0)
 
     n = 2
+    task_maps = False
 
     def build(self, task=None, key: str = "arm"):
         from ..model import TwoLinkArm
@@ -96,7 +99,8 @@ class PlanarArmConfig(ArmConfig):
     """An n-link planar arm with a point mass at the tip of each link (like Sec. VI), in the
     vertical x–y plane of its base (gravity along −y, joint 1 turns from the x axis towards y).
     Native task coordinates: the tip (x, y) for n = 2, (x, y, φ) with the tool angle φ = Σq for
-    n = 3."""
+    n = 3. Built as a chain (:func:`hinfnn.model.urdf.planar_chain`: CRBA and RNEA, tested equal to
+    the autodiff :class:`~hinfnn.model.arm.PlanarPointMassArm`)."""
 
     masses: tuple[float, ...] = param(doc="tip mass of each link, kg", gt=0.0, le=1e4)
     lengths: tuple[float, ...] = param(doc="length of each link, m", gt=0.0, le=100.0)
@@ -118,21 +122,20 @@ class PlanarArmConfig(ArmConfig):
     def native_task(self, key: str = "task.map"):
         from ..model import PlanarTaskMap
 
-        if self.n == 2:
-            return None
-        if self.n == 3:
-            return PlanarTaskMap("xy", with_angle=True)
+        if self.n in (2, 3):
+            return PlanarTaskMap("xy", with_angle=self.n == 3)
         raise ConfigError(f"a planar arm with {self.n} joints has no native task coordinates (3 at most: x, y, φ); "
                           "lock joints or use fewer links", key=key)
 
     def build(self, task=None, key: str = "arm"):
-        import jax.numpy as jnp
-
-        from ..model import PlanarPointMassArm
+        from ..model import UrdfArm
+        from ..model.urdf import planar_chain
 
         task = task if task is not None else self.native_task()
-        return PlanarPointMassArm(masses=jnp.asarray(self.masses, float), lengths=jnp.asarray(self.lengths, float),
-                                  g=self.g, n=self.n, task=task)
+        if task.dim != self.n:
+            raise ConfigError(f"the planar arm has n = {self.n} joints but the task coordinates have {task.dim}: the "
+                              "paper's reduced model needs a square Jacobian", key="task.map")
+        return UrdfArm(planar_chain(self.masses, self.lengths, self.g), task)
 
     def reach(self) -> tuple[float, float]:
         L = sorted(self.lengths)
@@ -517,7 +520,7 @@ class FrictionConfig:
     coulomb: float = param(0.0, doc="Coulomb friction coefficient mu (tangential force mu f_n, smoothed)",
                            ge=0.0, le=10.0)
     viscous: float = param(0.0, doc="viscous friction while in contact, N s/m", ge=0.0, le=1e6)
-    v_smooth: float = param(1e-3, doc="Coulomb smoothing speed v_s: mu f_n tanh(|v_t| / v_s), m/s", gt=0.0, le=10.0)
+    v_smooth: float = param(1e-3, doc="Coulomb smoothing speed v_s: mu f_n tanh(sliding speed / v_s), m/s", gt=0.0, le=10.0)
 
     @property
     def active(self) -> bool:
@@ -727,10 +730,13 @@ class GainsConfig:
         def diag(v):
             return np.diag(np.asarray(v, float)) if isinstance(v, tuple) else v
 
+        def matrix(v):
+            a = np.asarray(v, float)
+            return np.diag(a) if a.ndim == 1 else a
+
         return Gains(K_p=diag(self.K_p), K_v=diag(self.K_v), rho=self.rho, mu_z=self.mu_z, alpha_z=self.alpha_z,
                      alpha_lam=self.alpha_lam, beta_lam=None if self.beta_lam == "min" else self.beta_lam,
-                     gamma_1=self.gamma_1, gamma_2=self.gamma_2, Q_p=np.asarray(self.Q_p, float),
-                     R_p=np.asarray(self.R_p, float))
+                     gamma_1=self.gamma_1, gamma_2=self.gamma_2, Q_p=matrix(self.Q_p), R_p=matrix(self.R_p))
 
 
 @section
