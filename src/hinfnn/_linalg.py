@@ -11,7 +11,29 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ._devices import mm, sincos  # noqa: F401  (re-exported: the model code uses la.mm, la.sincos)
+from . import _devices as _dev
+from ._devices import sincos  # noqa: F401  (re-exported: the model code uses la.sincos)
+
+#: Longest contraction :func:`mm` writes as multiply-and-sum (the ``small_mm`` device of
+#: :mod:`hinfnn._devices`, extended here from 4 to the 6 × 6 matrices of a 6-DOF arm: a ``dot``
+#: is a kernel of its own, multiply-and-sum fuses with its neighbours).
+SMALL_MM = 8
+
+
+def mm(a, b):
+    """``a @ b`` for vectors and matrices (:func:`hinfnn._devices.mm`, with contractions up to
+    :data:`SMALL_MM` written as multiply-and-sum)."""
+    k = a.shape[-1]
+    if (_dev.ENABLED["small_mm"] and _dev.SMALL < k <= SMALL_MM and a.ndim <= 2 and b.ndim <= 2
+            and k == b.shape[0]):
+        if a.ndim == 1 and b.ndim == 1:
+            return jnp.sum(a * b)
+        if a.ndim == 2 and b.ndim == 1:
+            return jnp.sum(a * b[None, :], axis=1)
+        if a.ndim == 1:
+            return jnp.sum(a[:, None] * b, axis=0)
+        return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
+    return _dev.mm(a, b)
 
 
 def inv(A):
@@ -31,3 +53,56 @@ def solve(A, b):
     if A.shape[-1] <= 2:
         return mm(inv(A), b)
     return jnp.linalg.solve(A, b)
+
+
+#: Largest symmetric positive definite matrix factored by the written-out Cholesky below (a 6-DOF
+#: arm's M, task-space inertia and their blocks): plain arithmetic that XLA fuses into a few
+#: kernels (LAPACK's factorisation is a custom call of its own, and an LU solve also runs a small
+#: loop over the pivots, about 50 extra kernels per solve inside the time loop).
+SMALL_SPD = 8
+
+
+def chol(A):
+    """Lower Cholesky factor L (A = L Lᵀ) of a symmetric positive definite A (NaN if it is not),
+    column by column as whole-vector operations."""
+    n = A.shape[-1]
+    if n > SMALL_SPD or A.ndim != 2:
+        return jnp.linalg.cholesky(A)
+    rows = jnp.arange(n)
+    cols = []
+    for j in range(n):
+        v = A[:, j]
+        for k in range(j):
+            v = v - cols[k] * cols[k][j]
+        cols.append(jnp.where(rows >= j, v / jnp.sqrt(v[j]), 0.0))
+    return jnp.stack(cols, axis=1)
+
+
+def chol_solve(L, B):
+    """A⁻¹ B from A's Cholesky factor L (B a vector or a matrix): forward and back substitution
+    written out, row by row."""
+    n = L.shape[-1]
+    if n > SMALL_SPD:
+        import jax.scipy.linalg as jsl
+
+        return jsl.cho_solve((L, True), B)
+    y = []
+    for i in range(n):
+        acc = B[i]
+        for k in range(i):
+            acc = acc - L[i, k] * y[k]
+        y.append(acc / L[i, i])
+    x = [None] * n
+    for i in reversed(range(n)):
+        acc = y[i]
+        for k in range(i + 1, n):
+            acc = acc - L[k, i] * x[k]
+        x[i] = acc / L[i, i]
+    return jnp.stack(x)
+
+
+def spd_solve(A, B):
+    """A⁻¹ B for a symmetric positive definite A (Cholesky)."""
+    if A.shape[-1] <= 2:
+        return solve(A, B)
+    return chol_solve(chol(A), B)

@@ -34,6 +34,11 @@ EXAMPLES_REPRODUCE = """examples:
   hinfnn reproduce --out /tmp/study --force
   hinfnn reproduce --set simulation.t_final=2   # a quick look (claims are judged on whatever ran)
 """
+EXAMPLES_GALLERY = """examples:
+  hinfnn gallery                         # results/gallery/report.md: planar3-drum, ur5-table, ur5-sphere
+  hinfnn gallery --only ur5-table --out /tmp/table
+  hinfnn gallery --set simulation.t_final=2   # a quick look (the checks are judged on what ran)
+"""
 EXAMPLES_CACHE = """examples:
   hinfnn cache                     where the compilation cache is, its number of files and size
   hinfnn cache --clear             empty it (the next run compiles again, 4-7 s)
@@ -68,6 +73,7 @@ states the fractions that stayed bounded and held contact; see docs/sweeps.md fo
 """
 EXAMPLES_MAIN = """examples:
   hinfnn reproduce                 the paper's Sec. VI study into results/paper/
+  hinfnn gallery                   the shipped arms-and-surfaces scenarios into results/gallery/
   hinfnn run paper --set controller.kind=hinf --set plant.contact.damping=200
   hinfnn keys                      every scenario key, its meaning and allowed values
   hinfnn show results/paper        the metrics and designed controllers of a saved result
@@ -164,6 +170,17 @@ def _parser() -> argparse.ArgumentParser:
     cp.add_argument("scenario", help="shipped scenario name or path to a .toml file")
     cp.add_argument("--out", type=Path, default=None, help="output folder (default: results/compares/<name>-<UTC time>)")
     common(cp)
+    ga = sub.add_parser(
+        "gallery", formatter_class=fmt, epilog=EXAMPLES_GALLERY,
+        help="run the shipped arms-and-surfaces scenarios into one report",
+        description="Run planar3-drum, ur5-table and ur5-sphere (each with the controllers it lists) and write "
+                    "OUT/report.md with their setups, designs, metrics, the issue's checks and figures, and one "
+                    "folder per scenario as `hinfnn run` writes it. `hinfnn reproduce` is the paper's study.")
+    ga.add_argument("--out", type=Path, default=None,
+                    help="output folder (default: results/gallery; if it holds a result, results/gallery-2 ...)")
+    ga.add_argument("--only", action="append", default=[], metavar="NAME",
+                    help="run only this gallery scenario (repeatable)")
+    common(ga)
 
     k = sub.add_parser("keys", formatter_class=fmt, help="list every scenario key with its meaning and range",
                        description="Every key a scenario file or --set accepts.",
@@ -491,6 +508,28 @@ def cmd_compare(args) -> int:
     return 1 if any(r["status"] != "ok" for r in doc["runs"]) else 0
 
 
+def cmd_gallery(args) -> int:
+    from .gallery import gallery_scenarios, run_gallery
+
+    gallery_scenarios(args.overrides, args.only)  # every check before anything runs
+    progress = Progress(args.quiet, "gallery")
+    t0 = time.perf_counter()
+    target = run_gallery(args.out, overrides=args.overrides, only=args.only, force=args.force, progress=progress,
+                         log=(lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr)),
+                         command=command_line(args))
+    progress.done()
+    if not args.quiet:
+        import json
+
+        from .report.markdown import metrics_table
+
+        for sub in sorted(p for p in target.iterdir() if p.is_dir()):
+            print(f"{sub.name}:")
+            print(metrics_table(json.loads((sub / "metrics.json").read_text()), markdown=False))
+        print(f"report: {target}/report.md  ({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
 def cmd_keys(args) -> int:
     from .scenario import keys
 
@@ -736,6 +775,7 @@ def cmd_sweep(args) -> int:
 
 
 COMMANDS["sweep"] = cmd_sweep
+COMMANDS["gallery"] = cmd_gallery
 
 
 def _interrupted_exit(code: int, argv) -> int:

@@ -33,6 +33,9 @@ _CORE = [
     ("penetration", "m", "penetration of the true surface (< 0: distance above it)"),
     ("disturbance", "N·m", "joint disturbance torque ω_l"),
     ("x_true", "m", "true task coordinates h(q)"),
+    ("F_contact", "N", "contact force at the tool point, Cartesian (the arm's space; Cartesian surfaces)"),
+    ("friction_force", "N", "magnitude of the friction force along the surface"),
+    ("task_margin", "rad", "distance of the true pose's task coordinates from their singularities (rad or m)"),
     # the controller (what it measures and computes)
     ("u1", "m", "motion coordinate u1 = ĥ1(q) (nominal kinematics)"),
     ("u1_dot", "m/s", "u̇1"),

@@ -117,10 +117,13 @@ def timestamp(now: datetime.datetime | None = None) -> str:
 
 def default_output(command: str, name: str, now: datetime.datetime | None = None) -> Path:
     """Where a command writes when ``--out`` is not given: ``results/paper`` for ``reproduce``,
-    ``results/<command>s/<safe name>-<UTC time>`` for every other command (``results/runs/...``
-    for ``run``), so that no two commands share a default folder."""
+    ``results/gallery`` for ``gallery``, ``results/<command>s/<safe name>-<UTC time>`` for every
+    other command (``results/runs/...`` for ``run``), so that no two commands share a default
+    folder (a second reproduce or gallery goes to ``-2``, ``-3`` ...)."""
     if command == "reproduce":
         return Path("results") / "paper"
+    if command == "gallery":
+        return Path("results") / "gallery"
     return Path("results") / f"{command}s" / f"{safe_name(name)}-{timestamp(now)}"
 
 

@@ -29,6 +29,7 @@ METRIC_KEYS = (
     "J_T", "peak_abs_tau", "peak_abs_tau_last2s", "rms_tau_last2s", "tv_rate_tau_last2s",
     "fraction_out_of_contact", "dissipation_lhs", "dissipation_rhs", "dissipation_holds",
     "dissipation_min_margin", "dissipation_holds_for_all_t",
+    "rms_e_u1_each", "rms_e_u1_each_last2s", "rms_e_lam_each", "rms_e_lam_each_last2s", "min_task_margin",
 )
 #: Units of the metrics (machine-readable output carries them: metrics.json "units").
 UNITS = {
@@ -38,6 +39,8 @@ UNITS = {
     "tv_rate_tau_last2s": "N·m/s", "fraction_out_of_contact": "-", "dissipation_lhs": "-",
     "dissipation_rhs": "-", "dissipation_holds": "bool", "dissipation_min_margin": "-",
     "dissipation_holds_for_all_t": "bool", "t_end": "s", "partial": "bool",
+    "rms_e_u1_each": "m or rad", "rms_e_u1_each_last2s": "m or rad", "rms_e_lam_each": "λ units",
+    "rms_e_lam_each_last2s": "λ units", "min_task_margin": "rad or m",
 }
 #: Trajectory fields that summarise every step between samples (see hinfnn.sim.recorder).
 STEP_FIELDS = tuple(SUMMARY_FIELDS)
@@ -64,6 +67,9 @@ def compute_metrics(traj, last: float = 2.0) -> dict:
 
     ``*_last2s`` are over t ≥ t_end − ``last``. ``tv_rate_tau_last2s`` is the total variation
     of each τ_i per second over that window (how oscillatory the torque is).
+    ``rms_e_u1_each`` and ``rms_e_lam_each`` (and their ``_last2s``) are per coordinate, from the
+    stored samples (the overall RMS values cover every step); ``min_task_margin`` is the closest the
+    true pose's task coordinates came to their singularities (rad or m; None when not recorded).
     ``dissipation_min_margin`` is min over t > 0 of ρ²∫₀ᵗ(‖f_p‖²+‖f_f‖²) − (J(t) + V(t) − V(0)): the
     theorems claim the inequality for every T, not only the final one. ``t_end`` is the time the
     metrics cover; for a run that stopped early (``partial``) it is the last sample before t_fail.
@@ -120,7 +126,17 @@ def compute_metrics(traj, last: float = 2.0) -> dict:
     else:  # a controller without the theorems' bookkeeping
         lhs = rhs = margin = J_T = math.nan
         holds = None
+    def each(name, rows=slice(None)):
+        x = np.asarray(arr[name], dtype=float).reshape(n, -1)[rows]
+        return [float(v) for v in np.sqrt(np.mean(x**2, axis=0))]
+
+    margin_task = float(np.min(arr["task_margin"])) if "task_margin" in arr else None
     return {
+        "rms_e_u1_each": each("e_u1"),
+        "rms_e_u1_each_last2s": each("e_u1", slice(first, None)),
+        "rms_e_lam_each": each("e_lam"),
+        "rms_e_lam_each_last2s": each("e_lam", slice(first, None)),
+        "min_task_margin": margin_task if margin_task is None or math.isfinite(margin_task) else None,
         "rms_e_u1": float(rms_u1),
         "max_abs_e_u1": float(max_u1),
         "rms_e_u1_last2s": float(rms_u1_w),

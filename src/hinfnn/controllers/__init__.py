@@ -11,7 +11,7 @@ from .gains import Gains
 from .kinds import (KINDS, Composition, FeedbackLinearization, HinfController, HinfNNController, design, register,
                     unregister)
 from .law import ControllerState, Output, ReducedOrderController, force_multiplier
-from .network import CENTRE_PRESETS_F, TanhNetwork, centres_from, paper_network_f, paper_network_p
+from .network import CENTRE_PRESETS_F, CoordinateNetwork, TanhNetwork, centres_from, paper_network_f, paper_network_p
 from .riccati import RiccatiSolution, design_riccati, solve_riccati_like
 from .sampled import MeasurementError, SampledController, SampledLoop
 from .summary import design_summary
@@ -22,7 +22,7 @@ __all__ = [
     "FeedbackLinearization", "HinfController", "HinfNNController",
     "ControllerState", "Output", "ReducedOrderController", "force_multiplier",
     "Term", "Context", "RobustPosition", "RobustForce", "PositionNetwork", "ForceNetwork", "ForceRate",
-    "TanhNetwork", "CENTRE_PRESETS_F", "centres_from", "paper_network_p", "paper_network_f",
+    "TanhNetwork", "CoordinateNetwork", "CENTRE_PRESETS_F", "centres_from", "paper_network_p", "paper_network_f",
     "RiccatiSolution", "design_riccati", "solve_riccati_like",
     "SampledController", "SampledLoop", "MeasurementError", "design_summary",
 ]

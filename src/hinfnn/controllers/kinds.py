@@ -23,7 +23,7 @@ import jax.numpy as jnp
 from ..errors import DesignError
 from . import terms as T
 from .gains import Gains
-from .law import ReducedOrderController
+from .law import ReducedOrderController, split_blocks
 from .network import TanhNetwork, paper_network_f, paper_network_p
 from .riccati import design_riccati
 
@@ -109,7 +109,8 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
     for term in terms:
         term.check(surface.m, surface.k)
     return ReducedOrderController(arm=arm, surface=surface, gains=g, P_p=P, terms=terms,
-                                  sigma_stop=jnp.asarray(float(singularity_stop)), kind=kind, augmented=augmented)
+                                  sigma_stop=jnp.asarray(float(singularity_stop)), kind=kind, augmented=augmented,
+                                  P_blocks=split_blocks(P, surface.m), Q_blocks=split_blocks(g.Q_p, surface.m))
 
 
 class FeedbackLinearization:

@@ -27,6 +27,38 @@ from . import terms as T
 from .gains import Gains
 
 
+#: Largest 2m × 2m matrix (P_p, Q_p) used whole inside the compiled loop. XLA's CPU runtime runs a
+#: loop body's kernels inline only when no kernel touches a buffer of more than 512 bytes
+#: (:mod:`hinfnn._devices`, ``blocks``); P_p of a 6-DOF arm (m = 5) has 800. Larger ones are
+#: split into their four m × m blocks at design time (:func:`split_blocks`) and used by blocks.
+WHOLE = 64
+
+
+def split_blocks(A, m: int):
+    """The four m × m blocks (A11, A12, A21, A22) of a 2m × 2m matrix, or None when it is small
+    enough to be used whole in the loop (at most :data:`WHOLE` entries)."""
+    if A is None or (2 * m) ** 2 <= WHOLE:
+        return None
+    A = jnp.asarray(A)
+    return (A[:m, :m], A[:m, m:], A[m:, :m], A[m:, m:])
+
+
+def _times(A, blocks, x, m):
+    """A x for x = (a, b), by blocks when given."""
+    if blocks is None:
+        return la.mm(A, x)
+    a, b = x[:m], x[m:]
+    A11, A12, A21, A22 = blocks
+    return jnp.concatenate([la.mm(A11, a) + la.mm(A12, b), la.mm(A21, a) + la.mm(A22, b)])
+
+
+def _lower_times(A, blocks, x, m):
+    """(A x)[m:] (= B_pᵀ A x for B_p = [0; I]), by blocks when given."""
+    if blocks is None:
+        return la.mm(A[m:], x)
+    return la.mm(blocks[2], x[:m]) + la.mm(blocks[3], x[m:])
+
+
 def force_multiplier(A_hat, F):
     """λ = (Â Âᵀ)⁻¹ Â F: the force sensor's reading on the NOMINAL constraint gradient
     (docs/paper-conventions.md, Measurements)."""
@@ -66,9 +98,10 @@ class Output:
     ref: RefSample
     values: tuple  # each term's value, in the controller's term order
     J: jax.Array
-    J_dot: jax.Array
+    J_dot: jax.Array | None
     ctx: T.Context
     fault: jax.Array  # True when the law cannot be trusted at this sample (singularity guard)
+    Jd_qd: jax.Array | None = None  # J̇̂ q̇ when J̇̂ is not formed
 
 
 @pytree_dataclass
@@ -85,6 +118,8 @@ class ReducedOrderController:
     sigma_stop: jax.Array = 0.0  # singularity guard: fault when σ_min(Ĵ) < sigma_stop (0: off)
     kind: str = static_field(default="")
     augmented: bool = static_field(default=False)
+    P_blocks: tuple | None = None  # P_p by m × m blocks for large m (split_blocks), set by design()
+    Q_blocks: tuple | None = None  # gains.Q_p likewise
 
     # --- sizes -----------------------------------------------------------------------------------
     @property
@@ -171,7 +206,7 @@ class ReducedOrderController:
         e_u1_dot = u1_dot - r.u1_d_dot
         e_lam = lam - r.lam_d
         x_p = jnp.concatenate([e_u1, e_u1_dot])
-        s_p = la.mm(self.P_p[m:], x_p)  # B_pᵀ P_p x_p
+        s_p = _lower_times(self.P_p, self.P_blocks, x_p, m)  # B_pᵀ P_p x_p
         ctx = T.Context(t=jnp.asarray(t, dtype=float), ref=r, u1=u1, u1_dot=u1_dot, lam=lam, e_u1=e_u1,
                         e_u1_dot=e_u1_dot, e_lam=e_lam, z=state.z, x_p=x_p, s_p=s_p, gains=g, P_p=self.P_p,
                         augmented=self.augmented)
@@ -189,17 +224,29 @@ class ReducedOrderController:
             values.append(value)
             dparts.update(d)
             signals.update(sig)
-        lam_p = mm(rm.M11, a) + mm(rm.C11, u1_dot) + rm.G1  # eq. (25)
-        C_f, G_f = rm.force_terms()
-        lam_f = mm(rm.Pi.T, b) + mm(C_f, u1_dot) + G_f  # eq. (26)
-        tau = la.solve(rm.decoupling_matrix(), jnp.concatenate([lam_p, lam_f]))  # eq. (24)
+        if rm.C_bar is not None:  # closed-form arms (the Sec. VI arm): C̄ formed
+            lam_p = mm(rm.M11, a) + mm(rm.C11, u1_dot) + rm.G1  # eq. (25)
+            C_f, G_f = rm.force_terms()
+            lam_f = mm(rm.Pi.T, b) + mm(C_f, u1_dot) + G_f  # eq. (26)
+            tau = la.solve(rm.decoupling_matrix(), jnp.concatenate([lam_p, lam_f]))  # eq. (24)
+        else:  # only C̄ (u̇1, 0) formed (reduced_model's "product" path): the same law
+            c = rm.C_u1dot
+            L = la.spd_solve(rm.M11, rm.M21.T).T  # M̄21 M̄11⁻¹ (M̄11 symmetric positive definite)
+            lam_p = mm(rm.M11, a) + c[:m] + rm.G1  # eq. (25)
+            lam_f = mm(rm.Pi.T, b) + (c[m:] - mm(L, c[:m])) + (rm.G2 - mm(L, rm.G1))  # eq. (26)
+            # eq. (24) without inverting: [B̄1; B̄2 − L B̄1] = P Sᵀ Ĵ⁻ᵀ with P = [[I, 0], [−L, I]],
+            # so τ = Ĵᵀ S⁻ᵀ P⁻¹ [Λp; Λf], P⁻¹ y = (y1, y2 + L y1), S⁻ᵀ z = (z1 − Γᵀ z2, z2)
+            y2 = lam_f + mm(L, lam_p)
+            Gamma = rm.S[m:, :m]
+            tau = mm(rm.J.T, jnp.concatenate([lam_p - mm(Gamma.T, y2), y2]))
         dz = -g.mu_z * state.z - g.alpha_z * e_lam  # eq. (27)
         sigma = sigma_min(rm.J)
         signals = {"u1": u1, "u1_dot": u1_dot, "lam": lam, "u1_d": r.u1_d, "u1_d_dot": r.u1_d_dot,
                    "lam_d": r.lam_d, "e_u1": e_u1, "e_u1_dot": e_u1_dot, "e_lam": e_lam, "z": state.z,
                    "tau": tau, "sigma_min_J": sigma, **signals}
         return Output(tau=tau, dstate=ControllerState(z=dz, parts=dparts), signals=signals, ref=r,
-                      values=tuple(values), J=rm.J, J_dot=rm.J_dot, ctx=ctx, fault=sigma < self.sigma_stop)
+                      values=tuple(values), J=rm.J, J_dot=rm.J_dot, ctx=ctx, fault=sigma < self.sigma_stop,
+                      Jd_qd=rm.Jd_qd)
 
     @property
     def needs_start(self) -> bool:
@@ -248,7 +295,7 @@ class ReducedOrderController:
         g = self.gains
         c = out.ctx
         mm = la.mm
-        j = (mm(c.x_p, mm(g.Q_p, c.x_p)) + 0.5 * g.alpha_lam * g.alpha_z * mm(c.e_lam, c.e_lam)
+        j = (mm(c.x_p, _times(g.Q_p, self.Q_blocks, c.x_p, self.m)) + 0.5 * g.alpha_lam * g.alpha_z * mm(c.e_lam, c.e_lam)
              + g.alpha_lam * g.mu_z / (1.0 + g.beta_lam) * mm(state.z, state.z))
         extra = jnp.zeros_like(j)
         for term, value in zip(self.terms, out.values):
@@ -264,7 +311,7 @@ class ReducedOrderController:
         """Storage function V of eqs. (36)/(55) with Θ* = 0 (so Θ̃ = Θ̂ and ε = f), plus the
         terms' contributions: V = x_pᵀ P_p x_p + α_λ/(2(1+β_λ)) ‖z‖² + Σ V_term."""
         c = out.ctx
-        V = la.mm(c.x_p, la.mm(self.P_p, c.x_p)) + 0.5 * c.c * la.mm(state.z, state.z)
+        V = la.mm(c.x_p, _times(self.P_p, self.P_blocks, c.x_p, self.m)) + 0.5 * c.c * la.mm(state.z, state.z)
         for term in self.terms:
             v = term.storage(c, state.parts)
             if v is not None:
@@ -316,7 +363,8 @@ class ReducedOrderController:
     def u1_ddot(self, out: Output, qd, qdd):
         """d²/dt² of the measured u1 = ĥ1(q) along a motion with joint acceleration q̈:
         (Ĵ q̈ + J̇̂ q̇)_1 (the chain rule on the controller's own observation map)."""
-        return (la.mm(out.J, qdd) + la.mm(out.J_dot, qd))[: self.m]
+        Jd_qd = la.mm(out.J_dot, qd) if out.J_dot is not None else out.Jd_qd
+        return (la.mm(out.J, qdd) + Jd_qd)[: self.m]
 
 
 def sigma_min(J):

@@ -178,3 +178,131 @@ def paper_network_f(preset: str = "paper-likely", **overrides) -> TanhNetwork:
     kwargs = dict(centres=centres_from(*CENTRE_PRESETS_F[preset]), name="network_f")
     kwargs.update(overrides)
     return TanhNetwork.build(**kwargs)
+
+
+@pytree_dataclass
+class CoordinateNetwork:
+    """Networks of eqs. (17)–(19) for m, k > 1: one output per coordinate, each with its OWN
+    hidden layer on its own coordinate's inputs.
+
+    Output o: F_o = ξ_oᵀ θ_o with ξ_o,i = tanh(α_o (φ_o − c_o,i)), φ_o = w_a,o a_o + w_b,o b_o
+    (F_p: a = e_u1, b = ė_u1; F_f: a = e_λ, b = z, coordinate by coordinate). Stacked, F = Ξ Θ
+    with Ξ = diag(ξ_1ᵀ, …, ξ_nᵀ) and Θ = [θ_1; …; θ_n]: still linear in Θ, so the update laws
+    (30)–(31) Θ̇ = γ Ξᵀ s (θ̇_o = γ s_o ξ_o) and Remark 2's projection keep Theorem 1's proof.
+    (:class:`TanhNetwork` shares one hidden layer driven by the sum over coordinates, which for
+    m > 1 mixes unrelated errors.) Every output has the same number of units j; centres
+    (n_out, j), slopes and input weights (n_out,) are per coordinate.
+
+    Same interface as :class:`TanhNetwork` (flat public arrays; blocks inside the loop), so the
+    network terms of :mod:`hinfnn.controllers.terms` use it unchanged.
+    """
+
+    centre_blocks: tuple  # output o's blocks, then o + 1's (each at most dev.BLOCK values)
+    slope: jax.Array  # (n_out,)
+    w_a: jax.Array  # (n_out,)
+    w_b: jax.Array  # (n_out,)
+    radius: jax.Array
+    n_out: int = static_field(default=1)
+    project: bool = static_field(default=False)
+
+    @classmethod
+    def build(cls, centres, *, slope=1.0, w_a=1.0, w_b=1.0, radius: float | None = None,
+              name: str = "network") -> "CoordinateNetwork":
+        """``centres``: (n_out, j) (each row strictly increasing); ``slope``, ``w_a``, ``w_b``:
+        a number or one per output. Raises DesignError naming ``name``'s key."""
+        c = np.asarray(centres, dtype=float)
+        if c.ndim != 2 or c.shape[1] == 0:
+            raise DesignError(f"needs a (outputs, units) array of centres, got shape {c.shape}", key=f"{name}.centres")
+        n_out = c.shape[0]
+        if not np.all(np.isfinite(c)):
+            raise DesignError("centres must be finite", key=f"{name}.centres", value=c.tolist())
+        if c.shape[1] > 1 and not np.all(np.diff(c, axis=1) > 0):
+            raise DesignError("centres must be strictly increasing", key=f"{name}.centres", value=c.tolist())
+
+        def per_output(key, v, positive):
+            a = np.atleast_1d(np.asarray(v, dtype=float))
+            if a.size == 1:
+                a = np.full(n_out, float(a[0]))
+            if a.shape != (n_out,):
+                raise DesignError(f"must be a number or a list of {n_out} (one per coordinate), got {a.tolist()}",
+                                  key=f"{name}.{key}", value=a.tolist())
+            if not np.all(np.isfinite(a)) or (positive and not np.all(a > 0)):
+                raise DesignError(f"must be finite{' and > 0' if positive else ''}, got {a.tolist()}",
+                                  key=f"{name}.{key}", value=a.tolist(), bound=0.0 if positive else None)
+            return jnp.asarray(a)
+
+        slope_a = per_output("slope", slope, True)
+        w_a_a, w_b_a = per_output("w_a", w_a, False), per_output("w_b", w_b, False)
+        if radius is not None:
+            radius = float(radius)
+            if not (np.isfinite(radius) and radius > 0):
+                raise DesignError(f"projection radius must be finite and > 0, got {radius:g}",
+                                  key=f"{name}.radius", value=radius, bound=0.0)
+        blocks = tuple(jnp.asarray(c[o, a:b]) for o in range(n_out) for a, b in dev.block_bounds(c.shape[1]))
+        return cls(centre_blocks=blocks, slope=slope_a, w_a=w_a_a, w_b=w_b_a,
+                   radius=jnp.asarray(np.inf if radius is None else radius), n_out=n_out,
+                   project=radius is not None)
+
+    @property
+    def _nb(self) -> int:
+        return len(self.centre_blocks) // self.n_out
+
+    @property
+    def centres(self) -> jax.Array:
+        """(n_out, j) centres."""
+        nb = self._nb
+        return jnp.stack([jnp.concatenate(self.centre_blocks[o * nb:(o + 1) * nb]) for o in range(self.n_out)])
+
+    @property
+    def n_units(self) -> int:
+        """Hidden units per output, j."""
+        return sum(int(b.shape[-1]) for b in self.centre_blocks[: self._nb])
+
+    @property
+    def size(self) -> int:
+        return self.n_out * self.n_units
+
+    # flat arrays -----------------------------------------------------------------------------
+    def features(self, a, b):
+        """Ξ's rows ξ_o (n_out, j), eq. (17) per coordinate."""
+        return jnp.stack([jnp.concatenate(self._xi_out(a, b, o), axis=-1) for o in range(self.n_out)])
+
+    def output(self, xi, theta):
+        """F_o = ξ_oᵀ θ_o, eq. (19)."""
+        return jnp.sum(xi * theta.reshape(self.n_out, -1), axis=1)
+
+    def update(self, xi, s, theta, gamma):
+        """θ̇_o = γ s_o ξ_o, eqs. (30)–(31), with Remark 2's projection (flat Θ)."""
+        xb = tuple(xi[o, a:b] for o in range(self.n_out) for a, b in dev.block_bounds(self.n_units))
+        return dev.join(self.update_blocks(xb, s, dev.split(theta, self.n_out), gamma))
+
+    # blocks (inside the compiled loop) ---------------------------------------------------------
+    def _xi_out(self, a, b, o):
+        phi = self.w_a[o] * a[o] + self.w_b[o] * b[o]
+        nb = self._nb
+        return tuple(jnp.tanh(self.slope[o] * (phi - c)) for c in self.centre_blocks[o * nb:(o + 1) * nb])
+
+    def features_blocks(self, a, b) -> tuple:
+        """ξ_o of eq. (17), output by output, block by block (the layout of Θ's blocks)."""
+        return tuple(x for o in range(self.n_out) for x in self._xi_out(a, b, o))
+
+    def output_blocks(self, xi_blocks, theta_blocks):
+        nb = self._nb
+        return jnp.stack([sum(jnp.sum(theta_blocks[o * nb + i] * xi_blocks[o * nb + i]) for i in range(nb))
+                          for o in range(self.n_out)])
+
+    def update_blocks(self, xi_blocks, s, theta_blocks, gamma) -> tuple:
+        nb = self._nb
+        raw = tuple(gamma * s[o] * xi_blocks[o * nb + i] for o in range(self.n_out) for i in range(nb))
+        if self.project:
+            growth = la.mm(s, self.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ
+            active = (sq_norm(theta_blocks) >= self.radius**2) & (growth > 0)
+            coef = jnp.where(active, gamma * growth / self.radius**2, 0.0)
+            raw = tuple(r - coef * t for r, t in zip(raw, theta_blocks))
+        return raw
+
+    def clip_blocks(self, theta_blocks) -> tuple:
+        if not self.project:
+            return theta_blocks
+        scale = jnp.minimum(1.0, self.radius / jnp.maximum(jnp.sqrt(sq_norm(theta_blocks)), 1e-300))
+        return tuple(t * scale for t in theta_blocks)

@@ -58,11 +58,18 @@ def design_summary(ctrl) -> dict:
     for t in ctrl.terms:
         if isinstance(t, (T.PositionNetwork, T.ForceNetwork)):
             c = np.asarray(t.network.centres)
-            nets[t.key] = {"units": int(c.size), "outputs": t.network.n_out, "first_centre": float(c[0]),
-                           "last_centre": float(c[-1]),
-                           "step": float(c[1] - c[0]) if c.size > 1 else None,
-                           "slope": float(t.network.slope), "w_a": _f(t.network.w_a), "w_b": _f(t.network.w_b),
-                           "radius": float(t.network.radius) if t.network.project else None}
+            if c.ndim == 1:  # one hidden layer shared by the outputs (TanhNetwork)
+                nets[t.key] = {"units": int(c.size), "outputs": t.network.n_out, "first_centre": float(c[0]),
+                               "last_centre": float(c[-1]),
+                               "step": float(c[1] - c[0]) if c.size > 1 else None,
+                               "slope": float(t.network.slope), "w_a": _f(t.network.w_a), "w_b": _f(t.network.w_b),
+                               "radius": float(t.network.radius) if t.network.project else None}
+            else:  # one hidden layer per coordinate (CoordinateNetwork): per-coordinate lists
+                nets[t.key] = {"units": int(c.shape[1]), "outputs": t.network.n_out, "per_coordinate": True,
+                               "first_centre": c[:, 0].tolist(), "last_centre": c[:, -1].tolist(),
+                               "step": (c[:, 1] - c[:, 0]).tolist() if c.shape[1] > 1 else None,
+                               "slope": _f(t.network.slope), "w_a": _f(t.network.w_a), "w_b": _f(t.network.w_b),
+                               "radius": float(t.network.radius) if t.network.project else None}
     if nets:
         out["networks"] = nets
     for t in ctrl.terms:

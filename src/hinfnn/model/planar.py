@@ -26,6 +26,7 @@ class TwoLinkArm(Arm):
     l2: float
     g: float = 9.8
     n: int = static_field(default=2)
+    coriolis_matrix_in_law = True  # the law forms C (closed form, cheaper than products)
 
     # Each closed form is written once, on the sines and cosines of q1, q2, q1 + q2 (one
     # vectorised sine and cosine of three angles); terms() evaluates them once for all six.

@@ -144,3 +144,51 @@ class ImplicitSurface(Surface):
 
     def theta(self, x):
         return jnp.atleast_1d(self.theta_fn(x, self.params))
+
+
+@pytree_dataclass
+class TaskConstraint(Surface):
+    """A geometry (:mod:`hinfnn.model.geometry`, Cartesian) as a constraint in task coordinates
+    whose value determines the tool point: θ̂(x) = geometry.θ(task.point(x)) (Cartesian planar,
+    position and pose maps). The last k coordinates are the constrained ones: choose the task
+    map's order so that Π = ∂θ̂/∂x2 does not vanish along the path (e.g. (x, y, r, z) for a
+    near-horizontal plane); where it does, (A3) fails (Ω, Γ are NaN and the run stops).
+
+    Ω by Newton's method from the nominal surface's implicit function (30 iterations), Γ and Ṡ by
+    autodiff (the generic :class:`Surface` machinery)."""
+
+    geometry: object
+    task: object
+    m: int = static_field(default=1)
+    k: int = static_field(default=1)
+
+    def theta(self, x):
+        return jnp.atleast_1d(self.geometry.theta(self.task.point(x)))
+
+
+@pytree_dataclass
+class FittedConstraint(Surface):
+    """The constraint in coordinates fitted to the surface (:class:`~hinfnn.model.taskmap.FittedTaskMap`):
+    θ̂(x) = x_n, the signed distance of the tool point. Closed forms: Â = [0 … 0 1], Σ = 0, Π = 1,
+    Ω = 0, Γ = 0, S = I, Ṡ = 0; λ = F_n is the normal force (N)."""
+
+    m: int = static_field(default=2)
+    k: int = static_field(default=1)
+
+    def theta(self, x):
+        return x[self.m:]
+
+    def A_hat(self, x):
+        return jnp.concatenate([jnp.zeros((self.k, self.m)), jnp.eye(self.k)], axis=1) + 0.0 * x[0]
+
+    def Omega(self, x1, iterations: int = 0):
+        return jnp.zeros(self.k) + 0.0 * x1[0]
+
+    def Gamma(self, x1):
+        return jnp.zeros((self.k, self.m)) + 0.0 * x1[0]
+
+    def S(self, x1):
+        return jnp.eye(self.m + self.k) + 0.0 * x1[0]
+
+    def S_dot(self, x1, x1_dot):
+        return jnp.zeros((self.m + self.k, self.m + self.k)) + 0.0 * x1[0]

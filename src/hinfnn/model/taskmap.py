@@ -7,14 +7,28 @@ docstring says where the map is singular (where ∂x/∂(p, R) loses rank or x j
 * :class:`PlanarTaskMap`: planar arms (all joints about one axis): two in-plane coordinates and,
   optionally, the tool angle in that plane;
 * :class:`PositionTaskMap`: x = p (3-DOF positioning);
-* :class:`PoseTaskMap`: x = (p, r), r the rotation vector of R_refᵀ R (6-DOF arms).
+* :class:`PoseTaskMap`: x = (p, r), r the rotation vector of R_refᵀ R (6-DOF arms), in a task
+  frame and in any order (the constrained coordinate last);
+* :class:`FittedTaskMap`: coordinates fitted to a surface (:mod:`hinfnn.model.geometry`): surface
+  coordinates, the tool orientation relative to the surface's frame there, and the signed
+  distance last (polar around a drum, spherical around a ball, in-plane for a plane).
+
+Every map also says where the tool point lives for a surface (:meth:`space`, the arm's Cartesian
+space: 2-D for planar maps, 3-D otherwise; ``space_rows`` are the rows of the frame Jacobian it
+uses), how to get that point back from task coordinates when the coordinates contain it
+(:meth:`point`, used by :class:`~hinfnn.model.surface.TaskConstraint`), the names and units of
+its coordinates (:meth:`names`) and its distance from its singularities (:meth:`margin`, rad or m;
+a run records it as ``task_margin``).
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 
+from .. import _linalg as la
 from .._pytree import pytree_dataclass, static_field
 from ..errors import ConfigError
 
@@ -51,6 +65,34 @@ class PlanarTaskMap:
     def dim(self) -> int:
         return 3 if self.with_angle else 2
 
+    space_dim = 2
+
+    @property
+    def space_rows(self) -> tuple:
+        return (_AXES[self.plane[0]], _AXES[self.plane[1]])
+
+    def space(self, p):
+        """The tool point in the plane's coordinates (p_a, p_b)."""
+        a, b = self.space_rows
+        return jnp.stack([p[a], p[b]])
+
+    def point(self, x):
+        return x[:2]
+
+    def names(self) -> list[tuple[str, str]]:
+        out = [(f"p_{self.plane[0]}", "m"), (f"p_{self.plane[1]}", "m")]
+        return out + ([("phi", "rad")] if self.with_angle else [])
+
+    def margin(self, p, R):
+        """π − |φ − phi_ref| (rad): how far the tool angle is from where φ jumps; +inf without angle."""
+        return self.margin_x(self(p, R))
+
+    def margin_x(self, x):
+        """:meth:`margin` from task coordinates."""
+        if not self.with_angle:
+            return jnp.asarray(jnp.inf)
+        return jnp.pi - jnp.abs(x[2] - self.phi_ref)
+
     def __call__(self, p, R):
         a, b = _AXES[self.plane[0]], _AXES[self.plane[1]]
         pos = jnp.stack([p[a], p[b]])
@@ -71,6 +113,24 @@ class PositionTaskMap:
     def dim(self) -> int:
         return 3
 
+    space_dim = 3
+    space_rows = (0, 1, 2)
+
+    def space(self, p):
+        return p
+
+    def point(self, x):
+        return x
+
+    def names(self):
+        return [("p_x", "m"), ("p_y", "m"), ("p_z", "m")]
+
+    def margin(self, p, R):
+        return jnp.asarray(jnp.inf)
+
+    def margin_x(self, x):
+        return jnp.asarray(jnp.inf)
+
     def __call__(self, p, R):
         return p
 
@@ -79,19 +139,39 @@ class PositionTaskMap:
 _SMALL_S2 = 1e-4
 
 
-def _log_scale(s2, c):
-    """θ / sin θ from s2 = sin²θ and c = cos θ, smooth in s2 (no square root at s2 = 0).
-
-    For small s2 (and c > 0), θ / sin θ = atan(t)/ (c t) with t² = s2 / c²:
-    (1/c)(1 − t²/3 + t⁴/5 − t⁶/7 + t⁸/9); the first dropped term is below 1e-17 there.
-    """
+def _log_scale_value(s2, c):
     small = (s2 < _SMALL_S2) & (c > 0)
     t2 = jnp.where(small, s2 / (c * c), 0.0)
     series = (1.0 - t2 / 3.0 + t2**2 / 5.0 - t2**3 / 7.0 + t2**4 / 9.0) / jnp.where(small, c, 1.0)
     s2_safe = jnp.where(small, 1.0, s2)
     s = jnp.sqrt(s2_safe)
     exact = jnp.arctan2(s, c) / s
-    return jnp.where(small, series, exact)
+    return jnp.where(small, series, exact), small, t2
+
+
+@jax.custom_jvp
+def _log_scale(s2, c):
+    """θ / sin θ from s2 = sin²θ and c = cos θ, smooth in s2 (no square root at s2 = 0).
+
+    For small s2 (and c > 0), θ / sin θ = atan(t)/ (c t) with t² = s2 / c²:
+    (1/c)(1 − t²/3 + t⁴/5 − t⁶/7 + t⁸/9); the first dropped term is below 1e-17 there.
+    Its derivatives are written out (custom JVP: fewer operations under the nested forward-mode
+    derivatives of the task Jacobian and its rate): ∂g/∂c = −1/(s2 + c²) exactly, and
+    ∂g/∂s2 = (c/(s2 + c²) − g)/(2 s2), by its series for small s2."""
+    return _log_scale_value(s2, c)[0]
+
+
+@_log_scale.defjvp
+def _log_scale_jvp(primals, tangents):
+    s2, c = primals
+    ds2, dc = tangents
+    g, small, t2 = _log_scale_value(s2, c)
+    r = s2 + c * c
+    series = (-1.0 / 3.0 + 2.0 * t2 / 5.0 - 3.0 * t2**2 / 7.0 + 4.0 * t2**3 / 9.0 - 5.0 * t2**4 / 11.0) \
+        / jnp.where(small, c**3, 1.0)
+    exact = (c / r - g) / (2.0 * jnp.where(small, 1.0, s2))
+    g_s2 = jnp.where(small, series, exact)
+    return g, g_s2 * ds2 - dc / r
 
 
 def so3_log(R):
@@ -123,7 +203,11 @@ def so3_exp(r):
 @pytree_dataclass
 class PoseTaskMap:
     """x = (p, r): tool position and r = log(R_refᵀ R), the rotation vector of the tool's
-    orientation relative to ``R_ref`` (both in the base frame).
+    orientation relative to ``R_ref`` (both in the base frame); with a task frame (``frame_rot``,
+    ``frame_pos``: its axes and origin in the base frame) the position is R_fᵀ(p − o) and R_ref is
+    still given in the base frame. ``order`` permutes the six coordinates (x = raw[order]), so
+    that the coordinate a surface constrains can be put last, e.g. (0, 1, 3, 4, 5, 2) for a
+    table: (x, y, r, z).
 
     r is computed by :func:`so3_log`: smooth and exact near the identity (R = R_ref), where its
     Jacobian is the identity in body-fixed angular velocity. Singular at rotation angle
@@ -133,6 +217,13 @@ class PoseTaskMap:
     """
 
     R_ref: jax.Array
+    frame_rot: jax.Array | None = None
+    frame_pos: jax.Array | None = None
+    order: tuple = static_field(default=(0, 1, 2, 3, 4, 5))
+
+    def __post_init__(self):
+        if sorted(self.order) != list(range(6)):
+            raise ConfigError(f"{self.order!r} is not a permutation of 0 … 5", key="order")
 
     @staticmethod
     def identity() -> "PoseTaskMap":
@@ -142,12 +233,47 @@ class PoseTaskMap:
     def dim(self) -> int:
         return 6
 
+    space_dim = 3
+    space_rows = (0, 1, 2)
+
+    def space(self, p):
+        return p
+
+    def _raw(self, p, R):
+        pos = p if self.frame_pos is None else p - self.frame_pos
+        pos = pos if self.frame_rot is None else la.mm(self.frame_rot.T, pos)
+        return jnp.concatenate([pos, so3_log(la.mm(self.R_ref.T, R))])
+
     def __call__(self, p, R):
-        return jnp.concatenate([p, so3_log(self.R_ref.T @ R)])
+        raw = self._raw(p, R)
+        if tuple(self.order) == tuple(range(6)):
+            return raw
+        return raw[jnp.asarray(self.order)]
+
+    def _unorder(self, x):
+        inv = [self.order.index(i) for i in range(6)]
+        return x[jnp.asarray(inv)] if tuple(self.order) != tuple(range(6)) else x
+
+    def point(self, x):
+        """The tool point (base frame) of task coordinates x."""
+        pos = self._unorder(x)[:3]
+        pos = pos if self.frame_rot is None else self.frame_rot @ pos
+        return pos if self.frame_pos is None else pos + self.frame_pos
 
     def rotation(self, x):
-        """The tool rotation R = R_ref exp([r]×) of task coordinates x = (p, r)."""
-        return self.R_ref @ so3_exp(x[3:6])
+        """The tool rotation R = R_ref exp([r]×) of task coordinates x."""
+        return self.R_ref @ so3_exp(self._unorder(x)[3:6])
+
+    def names(self):
+        raw = [("p_x", "m"), ("p_y", "m"), ("p_z", "m"), ("r_x", "rad"), ("r_y", "rad"), ("r_z", "rad")]
+        return [raw[i] for i in self.order]
+
+    def margin(self, p, R):
+        """π − |r| (rad)."""
+        return self.singularity_margin(self._raw(p, R))
+
+    def margin_x(self, x):
+        return self.singularity_margin(self._unorder(x))
 
     @staticmethod
     def singularity_margin(x):
@@ -155,3 +281,89 @@ class PoseTaskMap:
         r = x[3:6]
         t2 = jnp.sum(r * r)
         return jnp.pi - jnp.where(t2 > 0, jnp.sqrt(jnp.where(t2 > 0, t2, 1.0)), 0.0)
+
+
+@pytree_dataclass
+class FittedTaskMap:
+    """Task coordinates fitted to a surface (a fittable :mod:`~hinfnn.model.geometry` kind):
+
+    * 3-D (spatial arms, ``geometry.dim == 3``): x = (s1, s2, r, d), r = log((F(s) R_off)ᵀ R)
+      the tool orientation relative to the surface frame F(s) (its third axis the inward
+      normal) turned by ``R_off``; r = 0 holds the tool's z axis along the inward normal
+      (``orientation=False``: x = (s1, s2, d) for 3-DOF positioning arms);
+    * 2-D (planar arms): x = (s, φ_rel, d), φ_rel the angle from the inward normal to the tool
+      axis (column ``tool_axis`` of R) in the plane ``plane`` (``orientation=False``: x = (s, d)).
+
+    s are the surface coordinates of the tool point, d its signed distance (positive inside), so
+    the constraint is θ̂(x) = d and Π = 1 everywhere (:class:`~hinfnn.model.surface.FittedConstraint`);
+    λ is then the normal force in newtons. Singular where the geometry's coordinates are (poles,
+    centre, axis: see its class), at r's half turn (|r| = π) and where φ_rel = ±π (the tool
+    pointing out of the surface); :meth:`margin` is the smallest distance (rad) to these.
+    """
+
+    geometry: Any
+    R_off: jax.Array | None = None
+    plane: str = static_field(default="xz")
+    tool_axis: str = static_field(default="x")
+    orientation: bool = static_field(default=True)
+
+    @property
+    def space_dim(self) -> int:
+        return int(self.geometry.dim)
+
+    @property
+    def dim(self) -> int:
+        if self.space_dim == 3:
+            return 6 if self.orientation else 3
+        return 3 if self.orientation else 2
+
+    @property
+    def space_rows(self) -> tuple:
+        if self.space_dim == 3:
+            return (0, 1, 2)
+        return (_AXES[self.plane[0]], _AXES[self.plane[1]])
+
+    def space(self, p):
+        if self.space_dim == 3:
+            return p
+        a, b = self.space_rows
+        return jnp.stack([p[a], p[b]])
+
+    def _orientation(self, s, R):
+        F = self.geometry.frame(s)
+        if self.space_dim == 3:
+            Rd = F if self.R_off is None else la.mm(F, self.R_off)
+            return so3_log(la.mm(Rd.T, R))
+        a, b = self.space_rows
+        k = _AXES[self.tool_axis]
+        v = jnp.stack([R[a, k], R[b, k]])
+        n = F[:, 1]
+        return jnp.arctan2(n[0] * v[1] - n[1] * v[0], jnp.sum(n * v))[None]
+
+    def __call__(self, p, R):
+        s, d = self.geometry.coordinates(self.space(p))
+        parts = [s] + ([self._orientation(s, R)] if self.orientation else []) + [jnp.atleast_1d(d)]
+        return jnp.concatenate(parts)
+
+    def point(self, x):
+        ns = self.space_dim - 1
+        return self.geometry.point(x[:ns], x[-1])
+
+    def names(self):
+        geo = self.geometry.coordinate_names()
+        rot = ([("r_x", "rad"), ("r_y", "rad"), ("r_z", "rad")] if self.space_dim == 3 else [("phi_rel", "rad")])
+        return geo[:-1] + (rot if self.orientation else []) + geo[-1:]
+
+    def margin(self, p, R):
+        return self.margin_x(self(p, R))
+
+    def margin_x(self, x):
+        """The smallest of the geometry's margin at the point of x and the orientation's (rad)."""
+        m = self.geometry.singularity_margin(self.point(x))
+        if not self.orientation:
+            return m
+        ns = self.space_dim - 1
+        r = x[ns:-1]
+        if self.space_dim == 3:
+            return jnp.minimum(m, PoseTaskMap.singularity_margin(jnp.concatenate([jnp.zeros(3), r])))
+        return jnp.minimum(m, jnp.pi - jnp.abs(r[0]))

@@ -248,6 +248,35 @@ def _did_you_mean(name, names):
     return f"; links in the file: {', '.join(sorted(names)[:20])}"
 
 
+def _lock(parsed: _Parser, locked: dict):
+    """Turn the joints named in ``locked`` into fixed joints at the given position (rad or m):
+    the joint's origin composed with its motion there."""
+    src = parsed.source
+    by_name = {j.name: j for j in parsed.joints}
+    movable = [j.name for j in parsed.joints if j.type in MOVING_TYPES]
+    for name, value in locked.items():
+        if name not in by_name:
+            raise UrdfError(f"cannot lock joint {name!r}: no joint of that name in the file"
+                            + _did_you_mean(name, movable).replace("links in the file", "moving joints"), src,
+                            "locked_joints")
+        j = by_name[name]
+        if j.type not in MOVING_TYPES:
+            raise UrdfError(f"cannot lock joint {name!r}: it is {j.type} (allowed: {', '.join(MOVING_TYPES)})", src,
+                            "locked_joints")
+        value = float(value)
+        if not math.isfinite(value):
+            raise UrdfError(f"cannot lock joint {name!r} at {value} (allowed: a finite position)", src,
+                            "locked_joints")
+        a = j.axis
+        if j.type == "prismatic":
+            motion = (np.eye(3), a * value)
+        else:
+            K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+            motion = (np.eye(3) + math.sin(value) * K + (1 - math.cos(value)) * K @ K, np.zeros(3))
+        locked_joint = dataclasses.replace(j, type="fixed", origin=_compose(j.origin, motion))
+        parsed.joints[parsed.joints.index(j)] = locked_joint
+
+
 def _extract_chain(parsed: _Parser, base_link, ee_link, tool_T):
     """Serial chain base → ee: placements, axes, lumped inertias, tool placement (NumPy)."""
     src, links = parsed.source, parsed.links
@@ -454,7 +483,8 @@ class UrdfChain:
         prism = np.array([k == "prismatic" for k in self.joint_types])[:, None]
         S = jnp.concatenate([jnp.where(prism, aw, _cross(p, aw)), jnp.where(prism, 0.0, aw)], axis=-1)
         cw = p + jnp.sum(R * self.com[:, None, :], axis=-1)
-        Ic = jnp.einsum("nij,njk,nlk->nil", R, self.inertia, R)
+        RI = jnp.sum(R[:, :, :, None] * self.inertia[:, None, :, :], axis=2)  # R_i I_i (batched 3 × 3)
+        Ic = jnp.sum(RI[:, :, None, :] * R[:, None, :, :], axis=3)  # (R_i I_i) R_iᵀ
         Ib = Ic + self.mass[:, None, None] * (jnp.sum(cw * cw, axis=-1)[:, None, None] * eye[None]
                                               - cw[:, :, None] * cw[:, None, :])
         R_tool = la.mm(R[-1], self.tool_rot)
@@ -497,7 +527,7 @@ class UrdfChain:
     def _crba(k: _Kinematics):
         """M_ij = S_iᵀ I^c_{max(i,j)} S_j with composite inertias I^c_j = Σ_{k≥j} I_k."""
         F = _inertia_apply(_rcumsum(k.m), _rcumsum(k.h), _rcumsum(k.Ib), k.S)  # F_j = I^c_j S_j
-        A = k.S @ F.T  # A_ij = S_i · F_j, equal to M_ij for i ≤ j
+        A = la.mm(k.S, F.T)  # A_ij = S_i · F_j, equal to M_ij for i ≤ j
         upper = np.triu(np.ones(A.shape, dtype=bool))
         return jnp.where(upper, A, A.T)
 
@@ -605,11 +635,38 @@ class UrdfChain:
         return replace(self, gravity=jnp.asarray(gravity, float))
 
 
+def planar_chain(masses, lengths, g: float = 9.81) -> UrdfChain:
+    """The n-link planar arm with a point mass at the tip of each link (the arm of Sec. VI for
+    n = 2) as a chain: joints about z in the x–y plane, joint 1 at the origin turning from x
+    towards y, link i of length l_i along its body's x axis, gravity along −y, the tool at the last
+    tip with its x axis along the last link. With :class:`~hinfnn.model.taskmap.PlanarTaskMap`
+    ``("xy", with_angle=True)`` the task coordinates are (x, y, φ = Σ q); it equals
+    :class:`~hinfnn.model.arm.PlanarPointMassArm` (the autodiff oracle, tested) and runs on
+    CRBA/RNEA."""
+    m = np.asarray(masses, dtype=float)
+    L = np.asarray(lengths, dtype=float)
+    n = m.size
+    f = lambda x: jnp.asarray(np.asarray(x, dtype=float))  # noqa: E731
+    pos = np.zeros((n, 3))
+    pos[1:, 0] = L[:-1]
+    com = np.zeros((n, 3))
+    com[:, 0] = L
+    return UrdfChain(
+        placement_rot=f(np.broadcast_to(np.eye(3), (n, 3, 3))), placement_pos=f(pos),
+        axes=f(np.broadcast_to([0.0, 0.0, 1.0], (n, 3))), mass=f(m), com=f(com), inertia=f(np.zeros((n, 3, 3))),
+        tool_rot=f(np.eye(3)), tool_pos=f([L[-1], 0.0, 0.0]), gravity=f([0.0, -float(g), 0.0]),
+        lower=f(np.full(n, -np.inf)), upper=f(np.full(n, np.inf)), effort_limit=f(np.full(n, np.inf)),
+        velocity_limit=f(np.full(n, np.inf)), n=n, joint_types=("revolute",) * n,
+        joint_names=tuple(f"joint{i + 1}" for i in range(n)), body_links=tuple((f"link{i + 1}",) for i in range(n)))
+
+
 def load_urdf_string(text: str, base_link: str, ee_link: str, *, tool_xyz=(0.0, 0.0, 0.0),
                      tool_rpy=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.81),
-                     source: str = "<string>") -> UrdfChain:
+                     source: str = "<string>", locked: dict | None = None) -> UrdfChain:
     """:func:`load_urdf` of URDF text (``source`` names it in error messages)."""
     parsed = _Parser(text, source)
+    if locked:
+        _lock(parsed, dict(locked))
     tool_T = (rpy_matrix(np.asarray(tool_rpy, float)), np.asarray(tool_xyz, float))
     moving, placements, bodies, tool = _extract_chain(parsed, base_link, ee_link, tool_T)
     f = lambda x: jnp.asarray(np.asarray(x, dtype=float))  # noqa: E731
@@ -625,10 +682,12 @@ def load_urdf_string(text: str, base_link: str, ee_link: str, *, tool_xyz=(0.0, 
 
 
 def load_urdf(path, base_link: str, ee_link: str, *, tool_xyz=(0.0, 0.0, 0.0),
-              tool_rpy=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.81)) -> UrdfChain:
+              tool_rpy=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.81), locked: dict | None = None) -> UrdfChain:
     """Serial chain from ``base_link`` to ``ee_link`` of a URDF file, with a fixed tool offset
-    (xyz, rpy in the end-effector link's frame) and gravity (base frame). Raises
-    :class:`UrdfError` naming the file, the element and the problem."""
+    (xyz, rpy in the end-effector link's frame) and gravity (base frame). ``locked`` maps joint
+    names to positions (rad or m) at which they are held fixed (e.g. one joint of a 7-DOF arm, so
+    that n equals the task dimension). Raises :class:`UrdfError` naming the file, the element and
+    the problem."""
     path = os.fspath(path)
     try:
         with open(path, encoding="utf-8") as fh:
@@ -636,7 +695,7 @@ def load_urdf(path, base_link: str, ee_link: str, *, tool_xyz=(0.0, 0.0, 0.0),
     except OSError as e:
         raise UrdfError(f"cannot read the file ({e.strerror})", path) from None
     return load_urdf_string(text, base_link, ee_link, tool_xyz=tool_xyz, tool_rpy=tool_rpy,
-                            gravity=gravity, source=path)
+                            gravity=gravity, source=path, locked=locked)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -652,16 +711,47 @@ def _task_derivatives(task, p, R, Jf, Jf_dot, qd):
     def column(p, R, v, W):
         return jax.jvp(task, (p, R), (v, W))[1]
 
-    vt, wt = Jf[:3] @ qd, Jf[3:] @ qd
-    Rd = skew(wt) @ R
+    vt, wt = la.mm(Jf[:3], qd), la.mm(Jf[3:], qd)
+    Rd = la.mm(skew(wt), R)
 
     def both(v, w, vd, wd):
-        W = skew(w) @ R
-        Wd = skew(wd) @ R + skew(w) @ Rd
+        W = la.mm(skew(w), R)
+        Wd = la.mm(skew(wd), R) + la.mm(skew(w), Rd)
         return jax.jvp(column, (p, R, v, W), (vt, Rd, vd, Wd))
 
     J, Jd = jax.vmap(both, in_axes=1, out_axes=1)(Jf[:3], Jf[3:], Jf_dot[:3], Jf_dot[3:])
     return J, Jd
+
+
+def _task_derivatives_times(task, p, R, Jf, Jf_dot, qd, V):
+    """J̇ V for a few joint-space directions (columns of V, or a vector): the columns of
+    :func:`_task_derivatives` for those directions only."""
+    mm = la.mm
+
+    def column(p, R, vl, W):
+        return jax.jvp(task, (p, R), (vl, W))[1]
+
+    vt, wt = mm(Jf[:3], qd), mm(Jf[3:], qd)
+    Rd = mm(skew(wt), R)
+
+    def one(v):
+        w, wd = mm(Jf[3:], v), mm(Jf_dot[3:], v)
+        W = mm(skew(w), R)
+        Wd = mm(skew(wd), R) + mm(skew(w), Rd)
+        return jax.jvp(column, (p, R, mm(Jf[:3], v), W), (vt, Rd, mm(Jf_dot[:3], v), Wd))[1]
+
+    if V.ndim == 1:
+        return one(V)
+    return jax.vmap(one, in_axes=1, out_axes=1)(V)
+
+
+def _task_jacobian(task, p, R, Jf):
+    """J = ∂x/∂q alone (the plant needs no J̇): one directional derivative of the task map per
+    joint."""
+    def column(v, w):
+        return jax.jvp(task, (p, R), (v, la.mm(skew(w), R)))[1]
+
+    return jax.vmap(column, in_axes=1, out_axes=1)(Jf[:3], Jf[3:])
 
 
 @pytree_dataclass
@@ -728,8 +818,64 @@ class UrdfArm(Arm):
         return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=J, J_dot=J_dot, M=self.chain._crba(k),
                         C=self.chain._coriolis(k, qd), G=self.chain._gravity(k))
 
+    def law_terms(self, q, qd) -> ArmTerms:
+        """x, J, M, G sharing one forward pass; neither C nor J̇ formed (J_dot None): ``aux`` keeps
+        the kinematics, the frame Jacobian and its derivative for :meth:`C_product` and
+        :meth:`J_dot_times`."""
+        k = self.chain._kinematics(q)
+        Jf = self.chain._jacobian(k)
+        Jf_dot = self.chain._jacobian_dot(k, qd)
+        J = _task_jacobian(self.task, k.p_tool, k.R_tool, Jf)
+        return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=J, J_dot=None, M=self.chain._crba(k), C=None,
+                        G=self.chain._gravity(k), aux=(k, Jf, Jf_dot))
+
+    def C_product(self, terms: ArmTerms, q, qd, v):
+        """C(q, q̇) v by one bilinear Newton–Euler pass on the kinematics of :meth:`law_terms`."""
+        if terms.C is not None:
+            return la.mm(terms.C, v)
+        if terms.aux is None:
+            return self.chain.C_times(q, qd, v)
+        return self.chain._christoffel(terms.aux[0], qd, v)
+
+    def J_dot_times(self, terms: ArmTerms, q, qd, v):
+        """J̇(q, q̇) v: one column of :func:`_task_derivatives` (the task map's second directional
+        derivative along the frame motion), not the whole J̇."""
+        if terms.J_dot is not None:
+            return la.mm(terms.J_dot, v)
+        if terms.aux is None:
+            return la.mm(self.J_dot(q, qd), v)
+        k, Jf, Jf_dot = terms.aux
+        return _task_derivatives_times(self.task, k.p_tool, k.R_tool, Jf, Jf_dot, qd, v)
+
+    def point(self, q):
+        """The tool point in the task map's space (3-D, or the plane's coordinates)."""
+        return self.task.space(self.chain.fk(q)[0])
+
+    def point_jacobian(self, q):
+        Jf = self.chain.frame_jacobian(q)
+        return jnp.stack([Jf[i] for i in self.task.space_rows])
+
+    @property
+    def space_dim(self) -> int:
+        return int(self.task.space_dim)
+
+    def plant_terms(self, q, qd) -> ArmTerms:
+        """x, J, M, bias = C q̇ + G (RNEA), tool point and its Jacobian, from one forward pass."""
+        k = self.chain._kinematics(q)
+        Jf = self.chain._jacobian(k)
+        return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=_task_jacobian(self.task, k.p_tool, k.R_tool, Jf),
+                        J_dot=None, M=self.chain._crba(k), C=None, G=None,
+                        bias=self.chain._rnea(k, qd, jnp.zeros_like(qd), self.chain._a0()),
+                        p=self.task.space(k.p_tool), J_p=jnp.stack([Jf[i] for i in self.task.space_rows]))
+
+    def task_margin(self, q):
+        """The task map's distance from its singularities at q (:meth:`~hinfnn.model.taskmap.PoseTaskMap.margin`)."""
+        return self.task.margin(*self.chain.fk(q))
+
     def forward_dynamics(self, q, qd, tau_total, terms: ArmTerms | None = None):
         """q̈ = M⁻¹ (τ_total − C q̇ − G); without ``terms`` by CRBA + RNEA (C is not formed)."""
         if terms is None:
             return self.chain.forward_dynamics(q, qd, tau_total)
+        if terms.bias is not None:
+            return la.spd_solve(terms.M, tau_total - terms.bias)
         return la.solve(terms.M, tau_total - la.mm(terms.C, qd) - terms.G)

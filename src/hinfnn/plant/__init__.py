@@ -4,8 +4,8 @@
 engines implement the same :class:`hinfnn.protocols.Plant` protocol.
 """
 
-from .contact import PenaltyContact
+from .contact import Friction, PenaltyContact
 from .disturbance import SquareWave
 from .rigid import ContactCache, JointState, RigidBodyPlant
 
-__all__ = ["RigidBodyPlant", "JointState", "ContactCache", "PenaltyContact", "SquareWave"]
+__all__ = ["RigidBodyPlant", "JointState", "ContactCache", "PenaltyContact", "Friction", "SquareWave"]

@@ -1,11 +1,22 @@
 """The built-in true plant: rigid-body arm, penalty contact on the true surface, disturbance.
 
 Paper eq. (1) with the TRUE parameters, ``M(q) q̈ + C(q, q̇) q̇ + G(q) + Jᵀ(q) F = τ + ω``, F the
-force of a frictionless unilateral penalty contact on the TRUE surface
-(:class:`~hinfnn.plant.contact.PenaltyContact`), ω the joint disturbance
+force of a unilateral penalty contact on the TRUE surface
+(:class:`~hinfnn.plant.contact.PenaltyContact`) with optional friction
+(:class:`~hinfnn.plant.contact.Friction`), ω the joint disturbance
 (:class:`~hinfnn.plant.disturbance.SquareWave`). A continuous plant in the sense of
 :class:`hinfnn.protocols.Plant`: the simulator integrates it with the controller (RK4), and
 only the measurements of :meth:`RigidBodyPlant.sense` reach the controller.
+
+Two kinds of true surface:
+
+* a constraint in task coordinates (:class:`~hinfnn.model.surface.Surface`, e.g. the inclined
+  line of Sec. VI, whose task coordinates are the tip position): penetration θ/‖∇θ‖ at h(q), the
+  force F = f_n n in task coordinates, joint torque JᵀF (the paper's arm, numbers unchanged);
+* a Cartesian shape (:mod:`hinfnn.model.geometry`): the penetration is its EXACT signed distance
+  at the tool point p (the arm's :meth:`~hinfnn.model.arm.Arm.point`, in its Cartesian space),
+  the contact force F_c = f_n n + F_t (friction) acts at p, its joint torque is τ_c = J_pᵀ F_c,
+  and the force sensor's F is that force in task coordinates, F = J⁻ᵀ τ_c (so that JᵀF = τ_c).
 """
 
 from __future__ import annotations
@@ -18,8 +29,9 @@ import jax.numpy as jnp
 
 from .. import _linalg as la
 from .._pytree import pytree_dataclass
+from ..model.geometry import Geometry
 from ..protocols import Measurement
-from .contact import PenaltyContact
+from .contact import Friction, PenaltyContact
 from .disturbance import SquareWave
 
 
@@ -40,6 +52,10 @@ class ContactCache:
     F: jax.Array
     normal_force: jax.Array
     penetration: jax.Array
+    tau_c: jax.Array | None = None  # joint torque of the contact (Cartesian surfaces)
+    F_contact: jax.Array | None = None  # the contact force at the tool point, Cartesian
+    friction: jax.Array | None = None  # its tangential part F_t
+    L_M: jax.Array | None = None  # Cholesky factor of the true M (Cartesian surfaces)
 
 
 @pytree_dataclass
@@ -50,7 +66,13 @@ class RigidBodyPlant:
     surface: object
     contact: PenaltyContact
     disturbance: SquareWave
+    friction: Friction | None = None
     discrete: ClassVar[bool] = False
+
+    @property
+    def cartesian(self) -> bool:
+        """True when the true surface is a Cartesian shape (contact at the tool point)."""
+        return isinstance(self.surface, Geometry)
 
     @property
     def n(self) -> int:
@@ -71,37 +93,84 @@ class RigidBodyPlant:
 
     def sense(self, t, state: JointState):
         """Sensors: joint angles, rates and the force sensor's F (exact, noise-free)."""
+        if self.cartesian:
+            return self._sense_cartesian(state)
         at = self.arm.terms(state.q, state.qd)  # the true arm's kinematics and dynamics, once
         F, f_n, p = self.contact_state(state.q, state.qd, at)
         return Measurement(q=state.q, qd=state.qd, F=F), ContactCache(terms=at, F=F, normal_force=f_n, penetration=p)
 
+    def _sense_cartesian(self, state: JointState):
+        at = self.arm.plant_terms(state.q, state.qd)  # x, J, M, C q̇ + G, tool point p and J_p
+        p_dot = la.mm(at.J_p, state.qd)
+        d, d_dot = jax.jvp(self.surface.signed_distance, (at.p,), (p_dot,))  # exact penetration
+        n = self.surface.normal(at.p)
+        f_n = self.contact.normal_force(d, d_dot)
+        F_c = f_n * n
+        F_t = jnp.zeros_like(F_c)
+        if self.friction is not None:
+            v_t = p_dot - la.mm(n, p_dot) * n
+            F_t = self.friction.force(f_n, v_t)
+            F_c = F_c + F_t
+        tau_c = la.mm(at.J_p.T, F_c)
+        # in task coordinates, Jᵀ F = τ_c: F = (J Jᵀ)⁻¹ J τ_c (one Cholesky factorisation, no
+        # pivoting loop in the compiled step)
+        F = la.spd_solve(la.mm(at.J, at.J.T), la.mm(at.J, tau_c))
+        L_M = la.chol(at.M)
+        return (Measurement(q=state.q, qd=state.qd, F=F),
+                ContactCache(terms=at, F=F, normal_force=f_n, penetration=d, tau_c=tau_c, F_contact=F_c,
+                             friction=F_t, L_M=L_M))
+
     def derivative(self, t, state: JointState, tau, w, cache: ContactCache):
         """(q̇, q̈) and q̈ from eq. (1) with the TRUE parameters."""
         t_ = cache.terms
-        qdd = self.arm.forward_dynamics(state.q, state.qd, tau + w - la.mm(t_.J.T, cache.F), terms=t_)
+        if cache.tau_c is None:  # the paper's path, unchanged
+            qdd = self.arm.forward_dynamics(state.q, state.qd, tau + w - la.mm(t_.J.T, cache.F), terms=t_)
+        else:
+            qdd = la.chol_solve(cache.L_M, tau + w - cache.tau_c - t_.bias)
         return JointState(q=state.qd, qd=qdd), qdd
 
     def diagnostics(self, state: JointState, w, cache: ContactCache) -> dict:
-        return {"q": state.q, "qd": state.qd, "F": cache.F, "normal_force": cache.normal_force,
-                "penetration": cache.penetration, "disturbance": w, "x_true": cache.terms.x}
+        out = {"q": state.q, "qd": state.qd, "F": cache.F, "normal_force": cache.normal_force,
+               "penetration": cache.penetration, "disturbance": w, "x_true": cache.terms.x}
+        if self.cartesian:
+            out["F_contact"] = cache.F_contact
+            out["friction_force"] = jnp.sqrt(jnp.sum(cache.friction**2))
+            out["task_margin"] = self.arm.task_margin(state.q)
+        return out
 
     # --- contact and start pose ---------------------------------------------------------------------
     def contact_state(self, q, qd, terms=None):
-        """(F, f_n, p): force vector on the surface, normal force, penetration depth."""
+        """(F, f_n, p): force on the surface in task coordinates, normal force, penetration depth."""
+        if self.cartesian:
+            _, c = self._sense_cartesian(JointState(q=q, qd=qd))
+            return c.F, c.normal_force, c.penetration
         t = terms if terms is not None else self.arm.terms(q, qd)
         x_dot = la.mm(t.J, qd)
         p, p_dot = jax.jvp(self.surface.signed_distance, (t.x,), (x_dot,))
         f_n = self.contact.normal_force(p, p_dot)
-        return f_n * self.surface.inward_normal(t.x), f_n, p
+        n = self.surface.inward_normal(t.x)
+        if self.friction is None:
+            return f_n * n, f_n, p
+        # task coordinates = the tip position here (Sec. VI): friction along the line
+        return f_n * n + self.friction.force(f_n, x_dot - la.mm(n, x_dot) * n), f_n, p
 
     def measure(self, q, qd) -> Measurement:
         """The measurement at (q, q̇) (:meth:`sense` without its cache)."""
         return self.sense(0.0, JointState(q=jnp.asarray(q, dtype=float), qd=jnp.asarray(qd, dtype=float)))[0]
 
-    def initial_q(self, u1_0, elbow_up: bool = True):
+    def initial_q(self, u1_0, elbow_up: bool = True, q_guess=None):
         """Joint angles with the TRUE end-effector at x1 = u1_0 on the TRUE surface, zero
         penetration (docs/paper-conventions.md, Initial state: elbow up, q2 < 0). One compiled
-        program (a new process lowers each eager operation separately, about 5 ms apiece)."""
+        program (a new process lowers each eager operation separately, about 5 ms apiece).
+
+        Cartesian surfaces: the first n − 1 task coordinates of the TRUE arm equal ``u1_0`` and
+        the tool point is on the true surface (signed distance 0), solved by damped Newton
+        steps from ``q_guess`` (joint angles near the intended branch; default: the arm's
+        zero pose); NaN when that does not converge (out of reach, or another branch)."""
+        if self.cartesian:
+            u1 = jnp.atleast_1d(jnp.asarray(u1_0, dtype=float))
+            guess = jnp.zeros(self.n) if q_guess is None else jnp.asarray(q_guess, dtype=float)
+            return _initial_q_cartesian(self, u1, guess)
         return _initial_q(self, jnp.asarray(u1_0, dtype=float), bool(elbow_up))
 
     def effective_mass(self, q):
@@ -112,10 +181,35 @@ class RigidBodyPlant:
 
 @jax.jit
 def _effective_mass(plant, q):
-    t = plant.arm.terms(q, jnp.zeros_like(q))
-    n = plant.surface.inward_normal(t.x)
-    Jn = la.mm(t.J.T, n)
+    if plant.cartesian:
+        t = plant.arm.plant_terms(q, jnp.zeros_like(q))
+        Jn = la.mm(t.J_p.T, plant.surface.normal(t.p))
+    else:
+        t = plant.arm.terms(q, jnp.zeros_like(q))
+        Jn = la.mm(t.J.T, plant.surface.inward_normal(t.x))
     return 1.0 / la.mm(Jn, jnp.linalg.solve(t.M, Jn))
+
+
+@jax.jit
+def _initial_q_cartesian(plant, u1, q):
+    """Damped Newton (Levenberg–Marquardt) on r(q) = (h(q)[:m] − u1, d(p(q))) = 0."""
+    arm, surf = plant.arm, plant.surface
+    m = u1.shape[0]
+
+    def residual(q):
+        return jnp.concatenate([arm.h(q)[:m] - u1, jnp.atleast_1d(surf.signed_distance(arm.point(q)))])
+
+    def body(_, q):
+        r = residual(q)
+        Jr = jax.jacfwd(residual)(q)
+        A = Jr.T @ Jr + 1e-10 * jnp.eye(q.shape[0])
+        step = jnp.linalg.solve(A, Jr.T @ r)
+        scale = jnp.minimum(1.0, 0.5 / jnp.maximum(jnp.max(jnp.abs(step)), 1e-300))  # ≤ 0.5 rad a step
+        return q - scale * step
+
+    q = jax.lax.fori_loop(0, 100, body, q)
+    ok = jnp.max(jnp.abs(residual(q))) < 1e-10
+    return jnp.where(ok, q, jnp.nan)
 
 
 @functools.partial(jax.jit, static_argnames="elbow_up")

@@ -141,6 +141,39 @@ def _scaling(traj: Trajectory) -> str | None:
     return None if sc is None else sc.nominal.surface.scaling
 
 
+def _coordinates(runs) -> list[tuple[str, str]] | None:
+    """Names and units of the task coordinates (x = (u1, x2)) of the first run whose scenario
+    says, or None (the native coordinates of the Sec. VI arm)."""
+    for r in runs:
+        sc = _scenario(r.traj)
+        if sc is None:
+            continue
+        try:
+            return sc.coordinate_names()
+        except Exception:  # noqa: BLE001 - a figure never fails over a label
+            return None
+    return None
+
+
+_GREEK = {"phi": r"\phi", "phi_rel": r"\phi_{rel}", "r_x": "r_x", "r_y": "r_y", "r_z": "r_z", "s": "s",
+          "s1": "s_1", "s2": "s_2", "s_lon": r"s_{lon}", "s_lat": r"s_{lat}", "s_axial": r"s_{ax}",
+          "s_arc": r"s_{arc}", "d": "d"}
+
+
+def _math(name: str) -> str:
+    """A coordinate's name as mathtext (p_x -> $p_x$, phi_rel -> $\\phi_{rel}$)."""
+    if name in _GREEK:
+        return f"${_GREEK[name]}$"
+    head, _, tail = name.partition("_")
+    return f"${head}_{{{tail}}}$" if tail else f"${head}$"
+
+
+def _tall(n_panels: int, zoom: bool) -> tuple[int, int]:
+    """Figure size for n stacked panels (with a zoom row each when ``zoom``)."""
+    per = 620 if zoom else 380
+    return SIZE[0], max(SIZE[1], 430 + per * n_panels)
+
+
 @dataclasses.dataclass(frozen=True)
 class _Run:
     name: str
@@ -549,11 +582,11 @@ def _series(runs: list[_Run], field: str, column: int | None = None, scale: floa
     return out
 
 
-def _reference(runs: list[_Run], field: str):
+def _reference(runs: list[_Run], field: str, column: int | None = None):
     """The reference from the run that covers the longest time (references agree across runs)."""
     best = None
     for r in runs:
-        s = r.signal(field)
+        s = r.signal(field, column)
         if s is not None and (best is None or s[0][-1] > best[0][-1]):
             best = s
     return best
@@ -700,6 +733,36 @@ def _with_final(runs: list[_Run], field: str) -> list[_Run]:
     return out
 
 
+_COORD_DOC = {"s": "arc length along the surface", "s1": "first in-plane coordinate", "s2": "second in-plane coordinate",
+              "s_lon": "longitude (arc length)", "s_lat": "latitude (arc length)", "s_axial": "along the axis",
+              "s_arc": "arc length about the axis", "phi_rel": "tool angle from the surface normal",
+              "phi": "tool angle", "r_x": "tool rotation vector, x", "r_y": "tool rotation vector, y",
+              "r_z": "tool rotation vector, z (about the normal for fitted coordinates)"}
+
+
+def _width(runs, field: str) -> int:
+    """Number of columns of a field (1 for a scalar field)."""
+    for r in runs:
+        a = r.traj.arrays.get(field)
+        if a is not None:
+            a = np.asarray(a)
+            return 1 if a.ndim == 1 else int(a.shape[1])
+    return 1
+
+
+def _joint_title(runs, i: int) -> str:
+    for r in runs:
+        sc = _scenario(r.traj)
+        names = getattr(sc, "joint_names", None) if sc is not None else None
+        if names is not None:
+            try:
+                js = names()
+                return f"joint {i + 1}: {js[i]}" if i < len(js) else f"joint {i + 1}"
+            except Exception:  # noqa: BLE001
+                return f"joint {i + 1}"
+    return f"joint {i + 1}"
+
+
 _CONTACT_NOTE = ("Penetration of the true surface: > 0 in contact (normal force = max(0, stiffness "
                  "× penetration + damping × its rate)), < 0 the distance above it (no force).")
 
@@ -745,22 +808,49 @@ def run_figures(runs: dict[str, Trajectory], out_dir, *,
         fig = _build(title, sub, panels, size, t_end, windows, extra)
         written.append(_save(fig, out_dir / name))
 
-    emit("u1.png", r"Motion $u_1(t)$ and its reference $u_{1d}(t)$",
-         [_Panel(r"$u_1$ (m)", _series(group, "u1"), _reference(group, "u1_d"))])
-    emit("lambda.png", r"Force $\lambda(t)$ and its reference $\lambda_d(t)$",
-         [_Panel(_lambda_label(group), _series(group, "lam"), _reference(group, "lam_d"),
-                 zoom=True)])
-    emit("tau.png", r"Applied torques $\tau_1(t)$, $\tau_2(t)$",
-         [_Panel(r"$\tau_1$ (N·m)", _series(group, "tau", 0), zoom=True),
-          _Panel(r"$\tau_2$ (N·m)", _series(group, "tau", 1), zoom=True)],
-         size=SIZE_TALL)
+    names = _coordinates(group)
+    m = _width(group, "u1")
+    k = _width(group, "lam")
+    n = _width(group, "tau")
+    if names is None or (m == 1 and k == 1 and n == 2):  # the Sec. VI arm: the paper's layout
+        emit("u1.png", r"Motion $u_1(t)$ and its reference $u_{1d}(t)$",
+             [_Panel(r"$u_1$ (m)", _series(group, "u1"), _reference(group, "u1_d"))])
+        emit("lambda.png", r"Force $\lambda(t)$ and its reference $\lambda_d(t)$",
+             [_Panel(_lambda_label(group), _series(group, "lam"), _reference(group, "lam_d"),
+                     zoom=True)])
+        emit("tau.png", r"Applied torques $\tau_1(t)$, $\tau_2(t)$",
+             [_Panel(r"$\tau_1$ (N·m)", _series(group, "tau", 0), zoom=True),
+              _Panel(r"$\tau_2$ (N·m)", _series(group, "tau", 1), zoom=True)],
+             size=SIZE_TALL)
+    else:
+        motion = names[:m]
+        emit("u1.png", f"Motion coordinates $u_1$ ({m}) and their references",
+             [_Panel(f"{_math(nm)} ({unit})", _series(group, "u1", i), _reference(group, "u1_d", i),
+                     title=f"{nm}: {_COORD_DOC.get(nm, 'task coordinate')}")
+              for i, (nm, unit) in enumerate(motion)], size=_tall(m, False))
+        emit("errors.png", r"Tracking errors $e_{u1} = u_1 - u_{1d}$ (the controller's view) and $e_\lambda$",
+             [_Panel(f"$e$ {_math(nm)} ({unit})", _series(group, "e_u1", i), title=f"error of {nm}")
+              for i, (nm, unit) in enumerate(motion)]
+             + [_Panel(r"$e_\lambda$" + (f" {j + 1}" if k > 1 else "") + " (N)", _series(group, "e_lam", j),
+                       zoom=True, title="force error") for j in range(k)],
+             size=_tall(m + k, False))
+        emit("lambda.png", r"Force $\lambda(t)$ (the normal force) and its reference $\lambda_d(t)$",
+             [_Panel(_lambda_label(group) if k == 1 else f"$\\lambda_{j + 1}$", _series(group, "lam", j),
+                     _reference(group, "lam_d", j), zoom=True) for j in range(k)],
+             size=SIZE if k == 1 else _tall(k, True))
+        emit("tau.png", f"Applied joint torques $\\tau_1 \\ldots \\tau_{{{n}}}$",
+             [_Panel(f"$\\tau_{i + 1}$ (N·m)", _series(group, "tau", i), title=_joint_title(group, i))
+              for i in range(n)], size=_tall(n, False))
     emit("J.png", r"H∞ tracking performance index $J(t)$, eq. (34)",
          [_Panel(r"$J(t)$ (log scale)", _series(_with_final(group, "J"), "J"), log=True,
                  title=_J_TITLE)])
-    emit("contact.png", "Contact: normal force and penetration of the true surface",
-         [_Panel("normal force (N)", _series(group, "normal_force"), zoom=True),
-          _Panel("penetration (mm)", _series(group, "penetration", scale=1e3), zoom=True)],
-         size=SIZE_TALL, extra=_CONTACT_NOTE)
+    contact = [_Panel("normal force (N)", _series(group, "normal_force"), zoom=True),
+               _Panel("penetration (mm)", _series(group, "penetration", scale=1e3), zoom=True)]
+    if any(np.any(np.asarray(r.traj.arrays.get("friction_force", [0.0])) != 0) for r in group):
+        contact.append(_Panel("friction force (N)", _series(group, "friction_force"), zoom=True,
+                              title="tangential (friction) force of the tool on the surface"))
+    emit("contact.png", "Contact: normal force and penetration of the true surface", contact,
+         size=SIZE_TALL if len(contact) == 2 else _tall(3, True), extra=_CONTACT_NOTE)
 
     learners = [r for r in group if any(
         f in r.traj.arrays and np.any(np.asarray(r.traj.arrays[f])[: _end(r.traj)] != 0)

@@ -48,21 +48,47 @@ def check(sc) -> None:
     if type(sc.plant.arm) is not type(sc.nominal.arm):
         raise ConfigError(f"nominal and true arm models must have the same structure (true: {sc.plant.arm.model!r}, "
                           f"nominal: {sc.nominal.arm.model!r})", key="nominal.arm.model")
-    n = getattr(type(sc.plant.arm), "n", None)
-    if n is not None and len(d.amplitude) != n:
+    from ..model.geometry import Geometry
+
+    geo = [isinstance(getattr(sc, who).surface.build(), Geometry) for who in ("plant", "nominal")]
+    if geo[0] != geo[1]:
+        raise ConfigError(f"the true and nominal surfaces must both be task-space constraints (inclined_line) or both "
+                          f"Cartesian shapes (true: {sc.plant.surface.kind!r}, nominal: {sc.nominal.surface.kind!r})",
+                          key="nominal.surface.kind")
+    cartesian = geo[0]
+    plant = sc.build_plant()
+    n = int(plant.n)
+    if len(d.amplitude) != n:
         raise ConfigError(f"must be a list of {n} numbers (one per joint), got {list(d.amplitude)!r}",
                           key="plant.disturbance.amplitude")
-    plant = sc.build_plant()
+    if cartesian:
+        _check_cartesian(sc, plant)
+    elif isinstance(sc.initial.u1, tuple):
+        raise ConfigError(f"must be a number (m = 1 for this surface), got {list(sc.initial.u1)}", key="initial.u1")
+    constraint = sc.build_constraint() if cartesian else sc.nominal.surface.build()
+    m, k = constraint.m, constraint.k
+    rm, rk = sc.reference.sizes()
+    for name, got, want in (("u1_offset", rm, m), ("lam_offset", rk, k)):
+        if got is not None and got != want:
+            what = "motion" if name.startswith("u1") else "force"
+            raise ConfigError(f"gives {got if got != -1 else 'lists of different lengths of'} {what} coordinates, the "
+                              f"task coordinates have {want} (m = {m}, k = {k})", key=f"reference.{name}")
     q0 = np.asarray(sc.initial_q(plant))
     if not np.all(np.isfinite(q0)):
+        if cartesian:
+            raise ConfigError(f"u1(0) = {_fmt(sc.initial.u1)} on the true surface: the start pose was not found from "
+                              f"initial.q_guess = {list(sc.initial.q_guess) or 'zeros'} (out of reach, or give joint "
+                              "angles near the intended pose)", key="initial.u1")
         reach = getattr(sc.plant.arm, "reach", None)
         between = f" (|x| must be between {reach()[0]:g} and {reach()[1]:g} m)" if reach else ""
-        raise ConfigError(f"u1(0) = {sc.initial.u1:g} on the true surface is out of the true arm's reach{between}",
+        raise ConfigError(f"u1(0) = {_fmt(sc.initial.u1)} on the true surface is out of the true arm's reach{between}",
                           key="initial.u1")
     controllers = [sc.build_controller(kind) for kind in sc.kinds]
     for ctrl in controllers:
         ctrl.check_start(q0)
-    if sc.controller.singularity_stop > 0:
+    if cartesian:
+        _check_path(sc, controllers[0], q0)
+    elif sc.controller.singularity_stop > 0:
         _check_path_against_singularity(sc, q0)
     _check_step_against_contact(sc, plant, q0)
 
@@ -88,6 +114,80 @@ def _check_path_against_singularity(sc, q0) -> None:
                           key="reference.u1_amplitude", value=worst[0], bound=stop)
 
 
+def _fmt(v):
+    return f"{v:g}" if isinstance(v, float) else str([float(x) for x in v])
+
+
+def _check_cartesian(sc, plant) -> None:
+    """Dimensions of the Cartesian case: the arm's space vs the surfaces, m = n − 1 for u1(0)."""
+    arm = plant.arm
+    dim = int(arm.space_dim)
+    for who in ("plant", "nominal"):
+        g = getattr(sc, who).surface.build()
+        if int(g.dim) != dim:
+            space = "a plane (2-D)" if dim == 2 else "3-D space"
+            raise ConfigError(f"a {g.dim}-D surface ({getattr(sc, who).surface.kind!r}) for an arm whose tool moves in "
+                              f"{space}", key=f"{who}.surface.kind")
+    m = plant.n - 1
+    u1 = sc.initial.u1
+    got = len(u1) if isinstance(u1, tuple) else 1
+    if got != m:
+        raise ConfigError(f"must give the {m} motion coordinates (n − 1 for n = {plant.n} joints), got {got}",
+                          key="initial.u1")
+    if sc.initial.q_guess and len(sc.initial.q_guess) != plant.n:
+        raise ConfigError(f"must list {plant.n} joint angles, got {len(sc.initial.q_guess)}", key="initial.q_guess")
+
+
+#: Closest approach of the desired path to a singularity of the task coordinates (rad or m).
+MIN_MARGIN = 0.05
+
+
+def _check_path(sc, ctrl, q0) -> None:
+    """The desired path (u1d on the nominal surface, sampled over the run) must stay clear of the
+    task coordinates' singularities and, for Cartesian constraints, of Π = 0 ((A3))."""
+    import jax
+    import jax.numpy as jnp
+
+    task = getattr(ctrl.arm, "task", None)
+    ref = sc.build_reference()
+    t = jnp.linspace(0.0, sc.simulation.t_final, 201)
+    surf = ctrl.surface
+    margin, pi = _path_quantities(task, surf, ref, t)
+    margin, pi = np.asarray(margin), np.asarray(pi)
+    if task is not None and np.min(margin) < MIN_MARGIN:
+        i = int(np.argmin(margin))
+        raise ConfigError(f"the desired path comes within {margin[i]:.3g} (rad or m) of a singularity of the task "
+                          f"coordinates at t = {float(t[i]):.3g} s (poles, centre or axis of fitted coordinates, a half "
+                          "turn of the rotation vector, or where an angle wraps): move the path or the coordinates' "
+                          "reference (pole, angle_ref_deg, ref_rpy_deg)", key="reference")
+    bad = ~np.isfinite(pi) | (np.abs(pi) < 1e-3)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ConfigError(f"at t = {float(t[i]):.3g} s the desired path reaches a point where the nominal surface cannot "
+                          f"be written x2 = Ω(x1) in these task coordinates (|Π| = {abs(pi[i]):.3g}: assumption (A3) "
+                          "fails); put another coordinate last (task.constrained) or use task.map = \"fitted\"",
+                          key="reference")
+    del jax
+
+
+def _path_quantities(task, surf, ref, t):
+    import jax
+    import jax.numpy as jnp
+
+    @jax.jit
+    def run(task, surf, ref, t):
+        def one(ti):
+            u1 = ref(ti).u1_d
+            x = jnp.concatenate([u1, surf.Omega(u1)])
+            marg = task.margin_x(x) if task is not None else jnp.asarray(jnp.inf)
+            Pi = surf.Pi(x)
+            return marg, jnp.linalg.det(Pi)
+
+        return jax.vmap(one)(t)
+
+    return run(task, surf, ref, t)
+
+
 def _check_step_against_contact(sc, plant, q0) -> None:
     """RK4 resolves the contact oscillation only if ω dt is small: ω = √(k/m_eff), m_eff the
     true arm's effective mass along the surface normal at the start pose."""
@@ -103,3 +203,25 @@ def _check_step_against_contact(sc, plant, q0) -> None:
             f"dt = {dt:g} s is too large for the contact: its natural frequency is {omega:.4g} rad/s "
             f"(stiffness {k:g} N/m, effective mass {m_eff:.3g} kg) and its damping rate "
             f"{c / m_eff:.4g} 1/s, so RK4 needs dt <= {0.5 / rate:.3g} s", key="simulation.dt")
+    fr = sc.plant.friction
+    if fr.active:
+        # the smoothed Coulomb law is a damper of slope mu f_n / v_s for |v_t| << v_s: the same rule
+        f_scale = _force_scale(sc)
+        slope = fr.coulomb * f_scale / fr.v_smooth + fr.viscous
+        if slope / m_eff * dt > 0.5:
+            raise ConfigError(
+                f"{fr.v_smooth:g} m/s is too small for dt = {dt:g} s: the smoothed Coulomb friction acts as a damper of "
+                f"mu f_n / v_s + c_v = {slope:.4g} N s/m at the reference force {f_scale:.3g} N (effective mass "
+                f"{m_eff:.3g} kg), so RK4 needs v_s >= {fr.coulomb * f_scale / max(0.5 * m_eff / dt - fr.viscous, 1e-300):.3g} "
+                "m/s (or a smaller dt)", key="plant.friction.v_smooth")
+
+
+def _force_scale(sc) -> float:
+    """The largest |λd| over the run (sampled), a scale for the normal force."""
+    import jax
+    import jax.numpy as jnp
+
+    ref = sc.build_reference()
+    t = jnp.linspace(0.0, sc.simulation.t_final, 201)
+    lam = np.asarray(jax.jit(jax.vmap(lambda ti: ref(ti).lam_d))(t))
+    return float(np.max(np.abs(lam))) if lam.size else 0.0

@@ -2,8 +2,10 @@
 the cross-field checks, and the runs it describes.
 
 A scenario has the sections ``plant`` (the truth), ``nominal`` (what the controller is told),
-``controller``, ``reference``, ``initial`` and ``simulation``; ``files/paper.toml`` is the
-paper's Sec. VI with a comment on every value the paper does not state. A file gives every key,
+``task`` (the task coordinates; default: the arm's native ones), ``controller``, ``reference``,
+``initial`` and ``simulation``; ``files/paper.toml`` is the paper's Sec. VI with a comment on
+every value the paper does not state, ``planar3-drum``, ``ur5-table`` and ``ur5-sphere`` the
+shipped arms-and-surfaces scenarios (docs/arms-and-surfaces.md). A file gives every key,
 or names a ``base`` (a shipped name or a path) and gives only what differs.
 
 Everything is checked before anything is compiled: types and ranges (the section dataclasses,
@@ -19,6 +21,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import difflib
+import inspect
 import math
 import tomllib
 from importlib import resources
@@ -28,8 +31,8 @@ from typing import Any
 from ..errors import ConfigError
 from . import schema
 from .schema import param, section
-from .sections import (ControllerConfig, InitialConfig, NominalConfig, PlantConfig, ReferenceConfig,
-                       SimulationConfig)
+from .sections import (ControllerConfig, InitialConfig, NativeTaskConfig, NominalConfig, PlantConfig, ReferenceConfig,
+                       SimulationConfig, TaskConfig)
 
 SHIPPED = "files"
 
@@ -44,6 +47,7 @@ class Scenario:
     description: str = param(doc="one line on what the scenario is")
     plant: PlantConfig = param(doc="the truth")
     nominal: NominalConfig = param(doc="the nominal model")
+    task: TaskConfig = param(NativeTaskConfig(map="native"), doc="the task coordinates")
     controller: ControllerConfig = param(doc="the controller")
     reference: ReferenceConfig = param(doc="the desired motion and force")
     initial: InitialConfig = param(doc="the start")
@@ -63,7 +67,7 @@ class Scenario:
     def from_dict(cls, raw: dict, overrides=(), *, source: str = "<dict>", check: bool = True) -> "Scenario":
         """Build from a plain dict (the TOML table), resolving ``base`` and applying overrides."""
         items = override_items(overrides)
-        data = resolve_base(raw, source)
+        data = resolve_base(_resolve_paths(raw, source), source)
         for key, value in items:
             set_key(data, key, value)
         try:
@@ -108,19 +112,70 @@ class Scenario:
         return self.controller.kinds
 
     # --- building the library objects ----------------------------------------------------------------
+    def task_map(self):
+        """The task map (:mod:`hinfnn.model.taskmap`) the arms are built with; None for the arm's
+        native coordinates (the two_link arm of Sec. VI)."""
+        if not self.nominal.arm.task_maps and self.task.map != "native":
+            raise ConfigError(f"the {self.nominal.arm.model!r} arm has only its native task coordinates (the tip "
+                              "position); use arm model \"planar\" or \"urdf\" for other coordinates", key="task.map")
+        geometry = None
+        if self.task.fitted:
+            geometry = self.nominal.surface.build()
+        return self.task.build(self.nominal.arm, geometry)
+
     def build_plant(self):
         """The true plant (``plant.engine`` chooses the class)."""
         s = self.simulation
-        return self.plant.build(dt=s.dt, control_period=s.control_period if s.control == "sampled" else None)
+        return self.plant.build(task=self.task_map(), dt=s.dt,
+                                control_period=s.control_period if s.control == "sampled" else None)
 
     def build_arm(self, who: str):
-        return getattr(self, who).arm.build()
+        return getattr(self, who).arm.build(self.task_map(), key=f"{who}.arm")
 
     def build_surface(self, who: str):
+        """The surface as its kind builds it: a task-space constraint (inclined_line) or a
+        Cartesian shape (:mod:`hinfnn.model.geometry`)."""
         return getattr(self, who).surface.build()
 
+    def build_constraint(self, arm=None):
+        """The controller's constraint θ̂(x) in task coordinates: the nominal surface itself for a
+        task-space kind; for a Cartesian shape, θ̂ = d in fitted coordinates
+        (:class:`~hinfnn.model.surface.FittedConstraint`) or θ̂(x) = θ(point(x))
+        (:class:`~hinfnn.model.surface.TaskConstraint`), with m = n − 1 and k = 1."""
+        from ..model.geometry import Geometry
+        from ..model.surface import FittedConstraint, TaskConstraint
+
+        surface = self.nominal.surface.build()
+        if not isinstance(surface, Geometry):
+            return surface
+        arm = arm if arm is not None else self.build_arm("nominal")
+        m = arm.n - 1
+        if self.task.fitted:
+            return FittedConstraint(m=m, k=1)
+        task = self.task_map() if self.task.map != "native" else self.nominal.arm.native_task()
+        if task is None:
+            raise ConfigError(f"a {self.nominal.surface.kind!r} surface needs task coordinates that contain the tool "
+                              "point: set task.map", key="task.map")
+        return TaskConstraint(geometry=surface, task=task, m=m, k=1)
+
+    def coordinate_names(self) -> list[tuple[str, str]] | None:
+        """Names and units of the task coordinates (motion coordinates first, the constrained one
+        last), or None for the native coordinates of the two_link arm (x1, x2)."""
+        task = self.task_map()
+        return None if task is None else task.names()
+
+    def joint_names(self) -> list[str]:
+        """The moving joints' names (URDF), or joint1 … jointn."""
+        arm = self.build_arm("nominal")
+        chain = getattr(arm, "chain", None)
+        return list(chain.joint_names) if chain is not None else [f"joint{i + 1}" for i in range(arm.n)]
+
     def build_reference(self):
-        return self.reference.build()
+        ref = self.reference
+        if "m" in inspect.signature(ref.build).parameters:
+            n = self.nominal.arm.build(self.task_map(), key="nominal.arm").n
+            return ref.build(m=n - 1, k=1)
+        return ref.build()
 
     @property
     def control_period(self) -> float | None:
@@ -137,15 +192,20 @@ class Scenario:
         """Design the controller ``kind`` (default: the scenario's only kind) from the NOMINAL
         model. Raises :class:`DesignError` with the dotted key of the failing gain."""
         kind = kind or _only(self.kinds)
-        s = self.simulation
-        q_start = self.initial_q() if self.controller.force_rate.kappa != 0.0 else None
-        return self.controller.build(kind, self.nominal.arm.build(), self.nominal.surface.build(),
-                                     u1_range=self.reference.u1_range(), q_start=q_start,
+        arm = self.build_arm("nominal")
+        u1_range = q_start = None
+        if self.controller.force_rate.kappa != 0.0:
+            u1_range = self.reference.u1_range() if hasattr(self.reference, "u1_range") else None
+            q_start = self.initial_q()
+        return self.controller.build(kind, arm, self.build_constraint(arm), u1_range=u1_range, q_start=q_start,
                                      period=self.control_period)
 
     def initial_q(self, plant=None):
         """The start pose (the truth: inverse kinematics of the true arm onto the true surface)."""
         plant = plant or self.build_plant()
+        if getattr(plant, "cartesian", False):
+            guess = self.initial.q_guess or None
+            return plant.initial_q(self.initial.u1, elbow_up=self.initial.elbow == "up", q_guess=guess)
         return plant.initial_q(self.initial.u1, elbow_up=self.initial.elbow == "up")
 
     def sim_options(self) -> dict:
@@ -312,7 +372,23 @@ def resolve_base(raw: dict, source: str, _chain: tuple = ()) -> dict:
         if err.key is not None:
             raise
         raise ConfigError(str(err), key="base") from None
-    return deep_merge(resolve_base(base_raw, base_source, chain), raw)
+    return deep_merge(resolve_base(_resolve_paths(base_raw, base_source), base_source, chain), raw)
+
+
+def _resolve_paths(raw: dict, source: str) -> dict:
+    """URDF paths (``*.arm.file`` ending in .urdf) relative to the scenario file that names them,
+    made absolute (so a scenario.toml written elsewhere still finds them)."""
+    if source == "<dict>" or not Path(source).is_file():
+        return raw
+    out = raw
+    for who in ("plant", "nominal"):
+        arm = raw.get(who, {}).get("arm") if isinstance(raw.get(who), dict) else None
+        f = arm.get("file") if isinstance(arm, dict) else None
+        if isinstance(f, str) and f.endswith(".urdf") and not Path(f).is_absolute():
+            if out is raw:
+                out = copy.deepcopy(raw)
+            out[who]["arm"]["file"] = str((Path(source).parent / f).resolve())
+    return out
 
 
 def suggest_key(key: str) -> str:
@@ -370,8 +446,11 @@ def _normalise_presets(sc: Scenario, explicit: set) -> Scenario:
         return sc
     values = dict(zip(("centre_start", "centre_step", "centre_count"), CENTRE_PRESETS_F[nf.preset]))
     for key, value in values.items():
-        if key in explicit and not math.isclose(getattr(nf, key), value, rel_tol=1e-12, abs_tol=1e-12):
-            raise ConfigError(f"{getattr(nf, key):g} conflicts with preset {nf.preset!r} ({key} = {value:g}); "
+        given = getattr(nf, key)
+        if key in explicit and (isinstance(given, tuple)
+                                or not math.isclose(given, value, rel_tol=1e-12, abs_tol=1e-12)):
+            shown = list(given) if isinstance(given, tuple) else f"{given:g}"
+            raise ConfigError(f"{shown} conflicts with preset {nf.preset!r} ({key} = {value:g}); "
                               "set controller.network_f.preset = \"custom\" to choose the centres",
                               key=f"controller.network_f.{key}")
     values = {k: (int(v) if k == "centre_count" else float(v)) for k, v in values.items()}

@@ -3,9 +3,12 @@
 ====================  ===========  =====================================================
 scenario key          registry     values shipped
 ====================  ===========  =====================================================
-``*.arm.model``       ``ARMS``     ``two_link``
-``*.surface.kind``    ``SURFACES`` ``inclined_line``
+``*.arm.model``       ``ARMS``     ``two_link``, ``planar``, ``urdf``
+``*.surface.kind``    ``SURFACES`` ``inclined_line``; ``plane``, ``sphere``, ``cylinder`` (3-D);
+                                   ``circle``, ``line``, ``sine`` (2-D); ``python``
 ``plant.engine``      ``PLANTS``   ``hinfnn`` (default)
+``task.map``          ``TASKS``    ``native`` (default), ``planar``, ``pose``, ``fitted``
+``reference.kind``    ``REFERENCES`` ``cosine`` (default), ``cosines``
 ``controller.kind``   ``hinfnn.controllers.KINDS``: ``fl``, ``hinf``, ``hinf_nn``
 ====================  ===========  =====================================================
 
@@ -28,5 +31,7 @@ from .schema import Registry
 ARMS = Registry("arm model", "model")
 SURFACES = Registry("surface kind", "kind")
 PLANTS = Registry("physics engine of the true plant", "engine", default="hinfnn")
+TASKS = Registry("task coordinates", "map", default="native")
+REFERENCES = Registry("reference kind", "kind", default="cosine")
 
-__all__ = ["ARMS", "SURFACES", "PLANTS", "Registry"]
+__all__ = ["ARMS", "SURFACES", "PLANTS", "TASKS", "REFERENCES", "Registry"]

@@ -29,7 +29,8 @@ from typing import Any, Literal, NewType, Union
 
 from ..errors import ConfigError
 
-#: A number (times the identity) or a square matrix given as a list of equal-length rows.
+#: A number (times the identity), a flat list (the diagonal) or a square matrix given as a list of
+#: equal-length rows.
 Matrix = NewType("Matrix", object)
 
 _MISSING = dataclasses.MISSING
@@ -153,7 +154,7 @@ def allowed(tp, meta) -> str:
     if tp is str:
         return "a string"
     if tp is Matrix:
-        return "a number or a square matrix" + (f" with entries{tail}" if tail else "")
+        return "a number, a list (the diagonal) or a square matrix" + (f" with entries{tail}" if tail else "")
     if typing.get_origin(tp) is tuple:
         inner = _args(tp)[0]
         if inner is str:
@@ -216,6 +217,9 @@ def _value(key: str, value, tp, meta):
             raise ConfigError(f"must be {words}, got {value!r}{hint}", key=key)
         return value
     if tp is Matrix:
+        if isinstance(value, list) and value and not any(isinstance(r, list) for r in value):
+            # a flat list: the diagonal
+            return tuple(_number(f"{key}[{i}]", v, meta, "a number") for i, v in enumerate(value))
         if isinstance(value, list):
             rows = value
             if not rows or not all(isinstance(r, list) and len(r) == len(rows) for r in rows):
@@ -272,6 +276,21 @@ def load(cls, data, path: str = "", exclude=()):
         cls = reg.lookup(chosen, f"{path}{reg.key}")
     fields = fields_of(cls, exclude)
     names = [f.name for f, _ in fields]
+    if chosen is not None:  # keys of another kind: the kind is what is wrong (or the keys are)
+        foreign = [k for k in data if k not in names and isinstance(k, str)]
+        owners = {}
+        for other in reg.names():
+            if other == chosen:
+                continue
+            theirs = {f.name for f, _ in fields_of(reg[other], exclude)}
+            for k in foreign:
+                if k in theirs:
+                    owners.setdefault(k, other)
+        if owners:
+            listed = ", ".join(f"{k!r} ({reg.key} = {o!r})" for k, o in owners.items())
+            raise ConfigError(f"{reg.key} = {chosen!r} does not take the key{'s' if len(owners) > 1 else ''} "
+                              f"{listed}; remove {'them' if len(owners) > 1 else 'it'} or choose that "
+                              f"{reg.what}", key=f"{path}{reg.key}")
     for key in data:
         if key not in names:
             if isinstance(key, str) and any(c in key for c in "\n\r"):

@@ -1,22 +1,44 @@
 """The sections of a scenario file, as typed dataclasses, and how each builds its objects.
 
-Arms, surfaces and plants are *registered* sections (:mod:`hinfnn.scenario.registry`): the
-``model`` / ``kind`` / ``engine`` key of the TOML table chooses the class, and the class builds
-the library object (``build()``). Controllers are chosen by ``controller.kind`` from
-:data:`hinfnn.controllers.KINDS`.
+Arms, surfaces, plants, task coordinates and references are *registered* sections
+(:mod:`hinfnn.scenario.registry`): the ``model`` / ``kind`` / ``engine`` / ``map`` key of the TOML
+table chooses the class, and the class builds the library object (``build()``). Controllers are
+chosen by ``controller.kind`` from :data:`hinfnn.controllers.KINDS`.
 """
 
 from __future__ import annotations
 
+import functools
 import math
+from pathlib import Path
 
 import numpy as np
 
 from ..errors import ConfigError, DesignError
-from .registry import ARMS, PLANTS, SURFACES
+from .registry import ARMS, PLANTS, REFERENCES, SURFACES, TASKS
 from .schema import Matrix, param, section
 
 from typing import ClassVar, Literal
+
+#: A number (the same for every coordinate or joint) or a list of numbers (one each).
+Numbers = float | tuple[float, ...]
+
+
+def _length(path: str, name: str, value, sizes, what: str = "numbers") -> None:
+    """A list key must have one of ``sizes`` entries (ConfigError at ``path.name``)."""
+    if isinstance(value, tuple) and len(value) not in sizes:
+        want = " or ".join(str(n) for n in sizes)
+        raise ConfigError(f"must be a list of {want} {what}, got {len(value)}: {list(value)}", key=f"{path}.{name}")
+
+
+def per_item(value, n: int, key: str, what: str) -> np.ndarray:
+    """A number broadcast to n items, or a list of exactly n (ConfigError at ``key``)."""
+    a = np.atleast_1d(np.asarray(value, dtype=float))
+    if a.size == 1:
+        return np.full(n, float(a[0]))
+    if a.size != n:
+        raise ConfigError(f"must be a number or a list of {n} ({what}), got {len(a)}: {a.tolist()}", key=key)
+    return a
 
 
 # --- arms ------------------------------------------------------------------------------------------
@@ -24,13 +46,24 @@ from typing import ClassVar, Literal
 
 @section
 class ArmConfig:
-    """An arm model (``model`` chooses the kind)."""
+    """An arm model (``model`` chooses the kind). ``build(task, key)`` returns the arm with the
+    task coordinates ``task`` (a task map of :mod:`hinfnn.model.taskmap`, or None for the arm's
+    native coordinates); ``key`` (``plant.arm`` or ``nominal.arm``) names the section in errors."""
 
     __registry__ = ARMS
     model: str = param(doc="arm model")
 
-    def build(self):
+    #: the plane of a planar arm's Cartesian space in its tool frame (None: a spatial arm)
+    plane = None
+    #: task.map may choose its coordinates (False: only the native ones, the two_link arm)
+    task_maps = True
+
+    def build(self, task=None, key: str = "arm"):
         raise NotImplementedError
+
+    def native_task(self, key: str = "task.map"):
+        """The task map of ``task.map = "native"`` (None: h(q) is the arm's own)."""
+        return None
 
 
 @ARMS.register("two_link")
@@ -45,15 +78,182 @@ class TwoLinkArmConfig(ArmConfig):
     g: float = param(doc="gravity, m/s^2", ge=0.0, le=100.0)
 
     n = 2
+    task_maps = False
 
-    def build(self):
+    def build(self, task=None, key: str = "arm"):
         from ..model import TwoLinkArm
 
+        if task is not None:
+            raise ConfigError("the two_link arm has only its native task coordinates, the tip position "
+                              "(x1, x2); use model = \"planar\" (or a URDF) for other coordinates", key="task.map")
         return TwoLinkArm(m1=self.m1, m2=self.m2, l1=self.l1, l2=self.l2, g=self.g)
 
     def reach(self) -> tuple[float, float]:
         """(innermost, outermost) distance of the tip from the base."""
         return abs(self.l1 - self.l2), self.l1 + self.l2
+
+
+@ARMS.register("planar")
+@section
+class PlanarArmConfig(ArmConfig):
+    """An n-link planar arm with a point mass at the tip of each link (like Sec. VI), in the
+    vertical x–y plane of its base (gravity along −y, joint 1 turns from the x axis towards y).
+    Native task coordinates: the tip (x, y) for n = 2, (x, y, φ) with the tool angle φ = Σq for
+    n = 3. Built as a chain (:func:`hinfnn.model.urdf.planar_chain`: CRBA and RNEA, tested equal to
+    the autodiff :class:`~hinfnn.model.arm.PlanarPointMassArm`)."""
+
+    masses: tuple[float, ...] = param(doc="tip mass of each link, kg", gt=0.0, le=1e4)
+    lengths: tuple[float, ...] = param(doc="length of each link, m", gt=0.0, le=100.0)
+    g: float = param(9.81, doc="gravity, m/s^2", ge=0.0, le=100.0)
+
+    plane = "xy"
+
+    def validate(self, path):
+        if len(self.masses) != len(self.lengths):
+            raise ConfigError(f"must list one length per mass ({len(self.masses)} masses, {len(self.lengths)} "
+                              "lengths)", key=f"{path}.lengths")
+        if len(self.masses) < 2:
+            raise ConfigError("a planar arm needs at least 2 links", key=f"{path}.masses")
+
+    @property
+    def n(self) -> int:
+        return len(self.masses)
+
+    def native_task(self, key: str = "task.map"):
+        from ..model import PlanarTaskMap
+
+        if self.n in (2, 3):
+            return PlanarTaskMap("xy", with_angle=self.n == 3)
+        raise ConfigError(f"a planar arm with {self.n} joints has no native task coordinates (3 at most: x, y, φ); "
+                          "lock joints or use fewer links", key=key)
+
+    def build(self, task=None, key: str = "arm"):
+        from ..model import UrdfArm
+        from ..model.urdf import planar_chain
+
+        task = task if task is not None else self.native_task()
+        if task.dim != self.n:
+            raise ConfigError(f"the planar arm has n = {self.n} joints but the task coordinates have {task.dim}: the "
+                              "paper's reduced model needs a square Jacobian", key="task.map")
+        return UrdfArm(planar_chain(self.masses, self.lengths, self.g), task)
+
+    def reach(self) -> tuple[float, float]:
+        L = sorted(self.lengths)
+        return max(0.0, L[-1] - sum(L[:-1])), float(sum(L))
+
+
+def urdf_path(value: str) -> str:
+    """A ``file`` value: a shipped robot (``"ur5"``, ``"planar/three_link"``: a name without
+    ``.urdf``) or a path to a ``.urdf`` file."""
+    if value.endswith(".urdf"):
+        return value
+    from ..model.urdf import asset_path
+
+    parts = value.split("/")
+    if len(parts) == 1:
+        parts = [parts[0], parts[0]]
+    return asset_path(*parts[:-1], parts[-1] + ".urdf")
+
+
+@functools.lru_cache(maxsize=32)
+def _load_chain(path, mtime, base_link, ee_link, tool_xyz, tool_rpy, gravity, locked):
+    from ..model.urdf import load_urdf
+
+    return load_urdf(path, base_link, ee_link, tool_xyz=tool_xyz, tool_rpy=tool_rpy, gravity=gravity,
+                     locked=dict(locked))
+
+
+@ARMS.register("urdf")
+@section
+class UrdfArmConfig(ArmConfig):
+    """A serial arm read from a URDF file (:mod:`hinfnn.model.urdf`): the chain from ``base_link``
+    to ``ee_link`` with a tool offset, full rigid-body inertias. The true arm (``plant.arm``) may
+    perturb the file's inertial parameters: ``mass_scale``, ``com_shift``, ``payload_*``; the
+    nominal arm is usually the file as written."""
+
+    file: str = param(doc="URDF: a shipped robot ('ur5', 'planar/three_link', 'planar/sec6_two_link') or a path "
+                          "to a .urdf file (relative to the scenario file)")
+    base_link: str = param(doc="link the chain starts from (fixed)")
+    ee_link: str = param(doc="end-effector link")
+    tool_xyz: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="tool point in the end-effector link's frame, m",
+                                        ge=-10.0, le=10.0)
+    tool_rpy_deg: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="tool frame's roll, pitch, yaw in the "
+                                            "end-effector link's frame, degrees", ge=-360.0, le=360.0)
+    gravity: tuple[float, ...] = param((0.0, 0.0, -9.81), doc="gravitational acceleration in the base frame, m/s^2",
+                                       ge=-100.0, le=100.0)
+    locked_joints: tuple[str, ...] = param((), doc="joints held fixed (e.g. one of a 7-DOF arm, so that the number "
+                                           "of moving joints equals the task coordinates')")
+    locked_positions: tuple[float, ...] = param((), doc="their positions (rad or m; default 0 each)",
+                                                ge=-100.0, le=100.0)
+    mass_scale: Numbers = param(1.0, doc="scale of each body's mass and rotational inertia (one number, or one per "
+                                         "moving joint's body)", gt=0.0, le=100.0)
+    com_shift: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="shift of each body's centre of mass in its frame, m "
+                                         "(3 numbers for every body, or 3 per body)", ge=-10.0, le=10.0)
+    payload_mass: float = param(0.0, doc="a point mass at the tool, kg", ge=0.0, le=1e4)
+    payload_xyz: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="its position in the tool frame, m",
+                                           ge=-10.0, le=10.0)
+
+    plane = "xz"
+
+    def validate(self, path):
+        for name in ("tool_xyz", "tool_rpy_deg", "gravity", "payload_xyz"):
+            _length(path, name, getattr(self, name), (3,))
+        if self.locked_positions and len(self.locked_positions) != len(self.locked_joints):
+            raise ConfigError(f"must give one position per locked joint ({len(self.locked_joints)}), got "
+                              f"{len(self.locked_positions)}", key=f"{path}.locked_positions")
+        if len(set(self.locked_joints)) != len(self.locked_joints):
+            raise ConfigError(f"lists a joint twice: {list(self.locked_joints)}", key=f"{path}.locked_joints")
+        if len(self.com_shift) % 3:
+            raise ConfigError(f"must be 3 numbers, or 3 per body, got {len(self.com_shift)}", key=f"{path}.com_shift")
+
+    def chain(self, key: str = "arm"):
+        """The (perturbed) chain; URDF problems as ConfigError at ``key.file`` (or the key named)."""
+        from ..model.urdf import UrdfError
+
+        path = urdf_path(self.file)
+        try:
+            mtime = Path(path).stat().st_mtime_ns
+        except OSError:
+            mtime = None
+        locked = tuple(zip(self.locked_joints, self.locked_positions or (0.0,) * len(self.locked_joints)))
+        try:
+            chain = _load_chain(path, mtime, self.base_link, self.ee_link, tuple(self.tool_xyz),
+                                tuple(math.radians(v) for v in self.tool_rpy_deg), tuple(self.gravity), locked)
+        except UrdfError as err:
+            where = err.element if err.element in ("base_link", "ee_link", "locked_joints") else "file"
+            element = "" if where != "file" or not err.element else f"{err.element}: "
+            raise ConfigError(f"{err.file}: {element}{err.problem}", key=f"{key}.{where}") from None
+        n = chain.n
+        scale = per_item(self.mass_scale, n, f"{key}.mass_scale", f"one per body, n = {n}")
+        shift = np.asarray(self.com_shift, float)
+        if shift.size not in (3, 3 * n):
+            raise ConfigError(f"must be 3 numbers, or 3 per body ({3 * n}), got {shift.size}", key=f"{key}.com_shift")
+        shift = np.broadcast_to(shift.reshape(-1, 3), (n, 3))
+        if np.any(scale != 1.0) or np.any(shift != 0.0) or self.payload_mass != 0.0:
+            import jax.numpy as jnp
+
+            chain = chain.perturbed(mass_scale=jnp.asarray(scale), com_shift=jnp.asarray(shift),
+                                    payload_mass=self.payload_mass, payload_xyz=tuple(self.payload_xyz))
+        return chain
+
+    def native_task(self, key: str = "task.map"):
+        raise ConfigError("a URDF arm has no native task coordinates: choose task.map = \"fitted\" (fitted to the "
+                          "nominal surface), \"pose\" or \"planar\"", key=key)
+
+    def build(self, task=None, key: str = "arm"):
+        from ..model import UrdfArm
+
+        chain = self.chain(key)
+        if task is None:
+            self.native_task()
+        if chain.n != task.dim:
+            names = ", ".join(chain.joint_names)
+            hint = (f"lock {chain.n - task.dim} of them with {key}.locked_joints" if chain.n > task.dim
+                    else "use task coordinates with fewer entries or a longer chain")
+            raise ConfigError(f"the chain from {self.base_link!r} to {self.ee_link!r} has n = {chain.n} moving joints "
+                              f"({names}) but the task coordinates have {task.dim}: the paper's reduced model needs a "
+                              f"square Jacobian; {hint}", key=f"{key}.locked_joints" if chain.n > task.dim else "task.map")
+        return UrdfArm(chain, task)
 
 
 # --- surfaces ------------------------------------------------------------------------------------
@@ -87,6 +287,203 @@ class InclinedLineConfig(SurfaceConfig):
         return InclinedLine(delta=math.radians(self.delta_deg), d_G=self.d_G, scaling=self.scaling)
 
 
+_UNIT = dict(doc="constraint scaling: 'unit' (θ is the signed distance: λ is the normal force in N)")
+
+
+@section
+class GeometryConfig(SurfaceConfig):
+    """A Cartesian surface (:mod:`hinfnn.model.geometry`): the true one is contacted at the tool
+    point with its exact signed distance; the nominal one is the controller's constraint in the
+    task coordinates (or what ``task.map = "fitted"`` fits them to)."""
+
+    scaling: Literal["unit"] = param("unit", **_UNIT)
+    dim = 3
+    vectors = ()
+
+    def validate(self, path):
+        for name in self.vectors:
+            _length(path, name, getattr(self, name), (self.dim,))
+
+
+@SURFACES.register("plane")
+@section
+class PlaneConfig(GeometryConfig):
+    """A plane in 3-D, any pose; material on the side opposite to ``normal``."""
+
+    point: tuple[float, ...] = param(doc="a point of the plane (base frame), m", ge=-100.0, le=100.0)
+    normal: tuple[float, ...] = param(doc="outward normal: out of the material (e.g. up for a table top)",
+                                      ge=-1e6, le=1e6)
+    tangent: tuple[float, ...] = param((1.0, 0.0, 0.0), doc="direction of the first in-plane coordinate "
+                                       "(fitted coordinates; projected onto the plane)", ge=-1e6, le=1e6)
+    vectors = ("point", "normal", "tangent")
+
+    def validate(self, path):
+        super().validate(path)
+        n, t = np.asarray(self.normal), np.asarray(self.tangent)
+        if not np.linalg.norm(n) > 0:
+            raise ConfigError("must not be zero", key=f"{path}.normal")
+        if not np.linalg.norm(t - (t @ n) / (n @ n) * n) > 1e-9 * np.linalg.norm(t):
+            raise ConfigError("must not be parallel to the normal", key=f"{path}.tangent")
+
+    def build(self):
+        from ..model.geometry import Plane
+
+        return Plane.build(self.point, self.normal, self.tangent)
+
+
+@SURFACES.register("sphere")
+@section
+class SphereConfig(GeometryConfig):
+    """A ball (material inside). Fitted coordinates: longitude and latitude (as arc lengths) about
+    ``pole`` from ``meridian``; singular at the poles."""
+
+    centre: tuple[float, ...] = param(doc="centre (base frame), m", ge=-100.0, le=100.0)
+    radius: float = param(doc="radius, m", gt=0.0, le=100.0)
+    pole: tuple[float, ...] = param((0.0, 1.0, 0.0), doc="polar axis of the fitted coordinates (keep the path "
+                                    "away from it)", ge=-1e6, le=1e6)
+    meridian: tuple[float, ...] = param((0.0, 0.0, 1.0), doc="direction of zero longitude and latitude (s = 0)",
+                                        ge=-1e6, le=1e6)
+    vectors = ("centre", "pole", "meridian")
+
+    def validate(self, path):
+        super().validate(path)
+        _not_parallel(path, "meridian", self.meridian, self.pole)
+
+    def build(self):
+        from ..model.geometry import Sphere
+
+        return Sphere.build(self.centre, self.radius, self.pole, self.meridian)
+
+
+def _not_parallel(path, name, a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if not (np.linalg.norm(b) > 0 and np.linalg.norm(a) > 0):
+        raise ConfigError("must not be zero", key=f"{path}.{name}")
+    if np.linalg.norm(np.cross(a, b)) <= 1e-9 * np.linalg.norm(a) * np.linalg.norm(b):
+        raise ConfigError("must not be parallel to the axis", key=f"{path}.{name}")
+
+
+@SURFACES.register("cylinder")
+@section
+class CylinderConfig(GeometryConfig):
+    """A solid cylinder (material inside). Fitted coordinates: axial position and arc length about
+    the axis from ``reference``."""
+
+    point: tuple[float, ...] = param(doc="a point of the axis (base frame), m", ge=-100.0, le=100.0)
+    axis: tuple[float, ...] = param(doc="axis direction", ge=-1e6, le=1e6)
+    radius: float = param(doc="radius, m", gt=0.0, le=100.0)
+    reference: tuple[float, ...] = param((0.0, 0.0, 1.0), doc="direction of zero angle (fitted coordinates)",
+                                         ge=-1e6, le=1e6)
+    vectors = ("point", "axis", "reference")
+
+    def validate(self, path):
+        super().validate(path)
+        _not_parallel(path, "reference", self.reference, self.axis)
+
+    def build(self):
+        from ..model.geometry import Cylinder
+
+        return Cylinder.build(self.point, self.axis, self.radius, self.reference)
+
+
+@SURFACES.register("circle")
+@section
+class CircleConfig(GeometryConfig):
+    """A disc in a planar arm's plane (a drum seen end-on; material inside). Fitted (polar)
+    coordinates: arc length from the plane's first axis; they jump opposite ``angle_ref_deg``."""
+
+    centre: tuple[float, ...] = param(doc="centre in the arm's plane, m", ge=-100.0, le=100.0)
+    radius: float = param(doc="radius, m", gt=0.0, le=100.0)
+    angle_ref_deg: float = param(0.0, doc="polar angle at the middle of the working range, degrees (the "
+                                 "fitted coordinate jumps 180 degrees away)", ge=-360.0, le=360.0)
+    dim = 2
+    vectors = ("centre",)
+
+    def build(self):
+        from ..model.geometry import Circle
+
+        return Circle.build(self.centre, self.radius, math.radians(self.angle_ref_deg))
+
+
+@SURFACES.register("line")
+@section
+class LineConfig(GeometryConfig):
+    """A straight line in a planar arm's plane; material on the side opposite to ``normal``."""
+
+    point: tuple[float, ...] = param(doc="a point of the line, m", ge=-100.0, le=100.0)
+    normal: tuple[float, ...] = param(doc="outward normal (out of the material)", ge=-1e6, le=1e6)
+    dim = 2
+    vectors = ("point", "normal")
+
+    def validate(self, path):
+        super().validate(path)
+        if not np.linalg.norm(self.normal) > 0:
+            raise ConfigError("must not be zero", key=f"{path}.normal")
+
+    def build(self):
+        from ..model.geometry import Line
+
+        return Line.build(self.point, self.normal)
+
+
+@SURFACES.register("sine")
+@section
+class SineConfig(GeometryConfig):
+    """A wavy floor b = offset + amplitude sin(2π a / wavelength + phase) in a planar arm's plane
+    (coordinates (a, b)), material below. Not fittable: use task.map = "planar"."""
+
+    amplitude: float = param(doc="amplitude, m", ge=-10.0, le=10.0)
+    wavelength: float = param(doc="wavelength, m", gt=0.0, le=1e3)
+    phase_deg: float = param(0.0, doc="phase, degrees", ge=-360.0, le=360.0)
+    offset: float = param(0.0, doc="mean height, m", ge=-100.0, le=100.0)
+    dim = 2
+
+    def build(self):
+        import jax.numpy as jnp
+
+        from ..model.geometry import SineProfile
+
+        return SineProfile(amplitude=jnp.asarray(self.amplitude), wavelength=jnp.asarray(self.wavelength),
+                           phase=jnp.asarray(math.radians(self.phase_deg)), offset=jnp.asarray(self.offset))
+
+
+@SURFACES.register("python")
+@section
+class PythonSurfaceConfig(GeometryConfig):
+    """θ(p, params) from your own Python: ``function = "package.module:name"`` (positive inside
+    the material, smooth). The plant's penetration is the exact distance to {θ = 0}."""
+
+    scaling: Literal["user"] = param("user", doc="constraint scaling: 'user' (λ in the units of θ's gradient)")
+    function: str = param(doc="'module:name' of a function theta(p, params) -> scalar (importable)")
+    params: tuple[float, ...] = param((0.0,), doc="its parameters", ge=-1e6, le=1e6)
+    space: int = param(3, doc="dimension of p: 3 (spatial arms) or 2 (a planar arm's plane)", ge=2, le=3)
+
+    @property
+    def dim(self):  # type: ignore[override]
+        return self.space
+
+    def function_object(self, key="surface"):
+        import importlib
+
+        module, _, name = self.function.partition(":")
+        if not module or not name:
+            raise ConfigError(f"must look like 'module:name', got {self.function!r}", key=f"{key}.function")
+        try:
+            fn = getattr(importlib.import_module(module), name)
+        except (ImportError, AttributeError) as err:
+            raise ConfigError(f"cannot import {self.function!r}: {err}", key=f"{key}.function") from None
+        if not callable(fn):
+            raise ConfigError(f"{self.function!r} is not a function", key=f"{key}.function")
+        return fn
+
+    def build(self):
+        import jax.numpy as jnp
+
+        from ..model.geometry import UserSurface
+
+        return UserSurface(params=jnp.asarray(self.params, float), theta_fn=self.function_object(), dim=self.space)
+
+
 # --- the true plant ---------------------------------------------------------------------------------
 
 
@@ -116,6 +513,26 @@ class DisturbanceConfig:
 
 
 @section
+class FrictionConfig:
+    """Coulomb + viscous friction of the tool along the true surface (the controller does not model
+    it); off by default."""
+
+    coulomb: float = param(0.0, doc="Coulomb friction coefficient mu (tangential force mu f_n, smoothed)",
+                           ge=0.0, le=10.0)
+    viscous: float = param(0.0, doc="viscous friction while in contact, N s/m", ge=0.0, le=1e6)
+    v_smooth: float = param(1e-3, doc="Coulomb smoothing speed v_s: mu f_n tanh(sliding speed / v_s), m/s", gt=0.0, le=10.0)
+
+    @property
+    def active(self) -> bool:
+        return self.coulomb > 0 or self.viscous > 0
+
+    def build(self):
+        from ..plant import Friction
+
+        return Friction(coulomb=self.coulomb, viscous=self.viscous, v_smooth=self.v_smooth) if self.active else None
+
+
+@section
 class PlantConfig:
     """The truth: what the simulated arm and surface really are (``engine`` chooses the physics)."""
 
@@ -128,10 +545,12 @@ class PlantConfig:
     surface: SurfaceConfig = param(doc="the true surface", exclude=("scaling",))
     contact: ContactConfig = param(doc="contact law")
     disturbance: DisturbanceConfig = param(doc="joint disturbance")
+    friction: FrictionConfig = param(doc="friction of the tool along the surface")
 
-    def build(self, **context):
-        """The plant object. ``context``: ``dt`` (the simulation step) and ``control_period``
-        (None for continuous control), for engines that step themselves."""
+    def build(self, task=None, **context):
+        """The plant object. ``task``: the task map the arm is built with (None: the arm's own
+        coordinates); ``context``: ``dt`` (the simulation step) and ``control_period`` (None for
+        continuous control), for engines that step themselves."""
         raise NotImplementedError
 
 
@@ -140,11 +559,12 @@ class PlantConfig:
 class RigidPlantConfig(PlantConfig):
     """hinfnn's own plant: rigid-body arm, penalty contact on the true surface."""
 
-    def build(self, **context):
+    def build(self, task=None, **context):
         from ..plant import RigidBodyPlant
 
-        return RigidBodyPlant(arm=self.arm.build(), surface=self.surface.build(), contact=self.contact.build(),
-                              disturbance=self.disturbance.build())
+        return RigidBodyPlant(arm=self.arm.build(task, key="plant.arm"), surface=self.surface.build(),
+                              contact=self.contact.build(), disturbance=self.disturbance.build(),
+                              friction=self.friction.build())
 
 
 @PLANTS.register("mujoco")
@@ -160,7 +580,19 @@ class MujocoPlantConfig(PlantConfig):
     callback: Literal["host", "pure_callback"] = param(
         "host", doc="how the compiled loop calls MuJoCo ('pure_callback': JAX's public API, ~4x slower)")
 
-    def build(self, *, dt=1e-4, control_period=None, **context):
+    def validate(self, path):
+        # the MJCF is written for the Sec. VI arm and a flat contact line (docs/mujoco.md)
+        if self.arm.model != "two_link":
+            raise ConfigError(f"the MuJoCo plant models the two_link arm only, got arm model {self.arm.model!r}; "
+                              "use plant.engine = \"hinfnn\" for this arm", key=f"{path}.engine")
+        if self.surface.kind != "inclined_line":
+            raise ConfigError(f"the MuJoCo plant models the inclined_line surface only, got {self.surface.kind!r}; "
+                              "use plant.engine = \"hinfnn\" for this surface", key=f"{path}.engine")
+        if getattr(self.friction, "active", False):
+            raise ConfigError("the MuJoCo plant has no tool friction along the surface; set plant.friction's "
+                              "coefficients to 0 or use plant.engine = \"hinfnn\"", key=f"{path}.friction")
+
+    def build(self, task=None, *, dt=1e-4, control_period=None, **context):
         from ..plant.mujoco import MujocoPlant, require_mujoco
 
         require_mujoco()
@@ -177,6 +609,141 @@ class NominalConfig:
     surface: SurfaceConfig = param(doc="the nominal surface")
 
 
+# --- task coordinates ----------------------------------------------------------------------------
+
+_PLANES = Literal["auto", "xy", "xz", "yz", "yx", "zx", "zy"]
+_AXIS = Literal["x", "y", "z"]
+
+
+def _rpy(deg):
+    from ..model.urdf import rpy_matrix
+
+    return rpy_matrix(np.radians(np.asarray(deg, float)))
+
+
+@section
+class TaskConfig:
+    """The task coordinates x = h(q) (``map`` chooses them). The controller works in them, the
+    reference is given in them and the force sensor's F is expressed in them; the last one is the
+    coordinate the surface constrains (k = 1), the first n − 1 are the motion coordinates u1.
+    ``build(arm, geometry)`` returns the task map for the arm section and the nominal surface."""
+
+    __registry__ = TASKS
+    map: str = param(doc="task coordinates")
+
+    fitted = False
+
+    def build(self, arm, geometry):
+        raise NotImplementedError
+
+    def _plane(self, arm, plane):
+        if plane != "auto":
+            return plane
+        if arm.plane is None:
+            raise ConfigError(f"the {arm.model!r} arm is not planar; use task.map = \"pose\" or \"fitted\"",
+                              key="task.plane")
+        return arm.plane
+
+
+@TASKS.register("native")
+@section
+class NativeTaskConfig(TaskConfig):
+    """The arm's own coordinates: the tip position of the two_link arm (Sec. VI) and of a 2-link
+    planar arm, (x, y, φ) of a 3-link planar arm; a URDF arm has none."""
+
+    def build(self, arm, geometry):
+        return arm.native_task()
+
+
+@TASKS.register("planar")
+@section
+class PlanarTaskConfig(TaskConfig):
+    """Cartesian coordinates in a planar arm's plane: (a, b[, φ]), φ the tool axis's angle from
+    the plane's first axis (jumps by 2π opposite phi_ref_deg)."""
+
+    plane: _PLANES = param("auto", doc="the arm's plane as two axes of its base frame, e.g. 'xz' ('auto': 'xy' "
+                                       "for a planar arm, 'xz' for a URDF)")
+    with_angle: bool = param(True, doc="add the tool angle phi as the third coordinate (x = (a, b, phi))")
+    tool_axis: _AXIS = param("x", doc="the tool frame's axis whose angle is phi")
+    phi_ref_deg: float = param(0.0, doc="tool angle at the middle of the working range, degrees", ge=-360.0,
+                               le=360.0)
+
+    def build(self, arm, geometry):
+        from ..model import PlanarTaskMap
+
+        return PlanarTaskMap(self._plane(arm, self.plane), with_angle=self.with_angle, tool_axis=self.tool_axis,
+                             phi_ref=math.radians(self.phi_ref_deg))
+
+
+@TASKS.register("pose")
+@section
+class PoseTaskConfig(TaskConfig):
+    """Tool position in a task frame and the rotation vector of R_refᵀR (6-DOF arms), with the
+    position coordinate ``constrained`` moved last: x = (the other two, r_x, r_y, r_z, that one).
+    Singular where R_refᵀR is a half turn."""
+
+    frame_xyz: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="task frame origin (base frame), m", ge=-100.0,
+                                         le=100.0)
+    frame_rpy_deg: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="task frame's roll, pitch, yaw, degrees",
+                                             ge=-360.0, le=360.0)
+    ref_rpy_deg: tuple[float, ...] = param((180.0, 0.0, 0.0), doc="reference orientation R_ref (roll, pitch, yaw "
+                                           "in the base frame, degrees): r = 0 there (default: tool z down)",
+                                           ge=-360.0, le=360.0)
+    constrained: _AXIS = param("z", doc="task-frame axis of the position coordinate put last (the one the surface "
+                                        "constrains)")
+
+    def validate(self, path):
+        for name in ("frame_xyz", "frame_rpy_deg", "ref_rpy_deg"):
+            _length(path, name, getattr(self, name), (3,))
+
+    def build(self, arm, geometry):
+        import jax.numpy as jnp
+
+        from ..model import PoseTaskMap
+
+        c = "xyz".index(self.constrained)
+        order = tuple(i for i in range(3) if i != c) + (3, 4, 5, c)
+        return PoseTaskMap(R_ref=jnp.asarray(_rpy(self.ref_rpy_deg)), frame_rot=jnp.asarray(_rpy(self.frame_rpy_deg)),
+                           frame_pos=jnp.asarray(self.frame_xyz, float), order=order)
+
+
+@TASKS.register("fitted")
+@section
+class FittedTaskConfig(TaskConfig):
+    """Coordinates fitted to the NOMINAL surface (plane, sphere, cylinder; circle, line): surface
+    coordinates (arc lengths, m), the tool orientation relative to the surface frame there (3-D:
+    rotation vector, r = 0 with the tool z axis along the inward normal, turned by tool_rpy_deg;
+    2-D: the angle phi_rel from the inward normal to the tool axis), and the signed distance d last.
+    The constraint is then θ̂ = d with Π = 1 everywhere, and λ is the normal force in N."""
+
+    tool_rpy_deg: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="3-D: the tool orientation at r = 0 relative to "
+                                            "the surface frame (roll, pitch, yaw, degrees)", ge=-360.0, le=360.0)
+    orientation: bool = param(True, doc="include the tool orientation (false: x = (s, d) for arms with n = dim)")
+    plane: _PLANES = param("auto", doc="2-D: the arm's plane ('auto': 'xy' for a planar arm, 'xz' for a URDF)")
+    tool_axis: _AXIS = param("x", doc="2-D: the tool frame's axis pressed along the normal (phi_rel = 0)")
+
+    fitted = True
+
+    def validate(self, path):
+        _length(path, "tool_rpy_deg", self.tool_rpy_deg, (3,))
+
+    def build(self, arm, geometry):
+        import jax.numpy as jnp
+
+        from ..model.geometry import Geometry
+        from ..model.taskmap import FittedTaskMap
+
+        if not isinstance(geometry, Geometry) or not getattr(geometry, "fittable", False):
+            kind = type(geometry).__name__
+            raise ConfigError(f"fitted coordinates need a nominal surface of kind plane, sphere, cylinder, circle or "
+                              f"line (got {kind}); use task.map = \"planar\" or \"pose\"", key="task.map")
+        if geometry.dim == 2:
+            return FittedTaskMap(geometry=geometry, plane=self._plane(arm, self.plane), tool_axis=self.tool_axis,
+                                 orientation=self.orientation)
+        R_off = None if not any(self.tool_rpy_deg) else jnp.asarray(_rpy(self.tool_rpy_deg))
+        return FittedTaskMap(geometry=geometry, R_off=R_off, orientation=self.orientation)
+
+
 # --- the controller -------------------------------------------------------------------------------
 
 
@@ -184,45 +751,71 @@ class NominalConfig:
 class GainsConfig:
     rho: float = param(doc="attenuation level rho", gt=0.0, le=1e6)
     mu_z: float = param(doc="mu_z of eq. (27)", gt=0.0, le=1e8)
-    K_p: float = param(doc="position gain K_p", gt=0.0, le=1e8)
-    K_v: float = param(doc="velocity gain K_v", gt=0.0, le=1e8)
+    K_p: Numbers = param(doc="position gain K_p (a number, or one per motion coordinate)", gt=0.0, le=1e8)
+    K_v: Numbers = param(doc="velocity gain K_v (a number, or one per motion coordinate)", gt=0.0, le=1e8)
     alpha_lam: float = param(doc="force weight alpha_lam", gt=0.0, le=1e8)
     alpha_z: float = param(doc="alpha_z of eq. (27)", gt=0.0, le=1e8)
     beta_lam: Literal["min"] | float = param(doc="beta_lam of eq. (32), or \"min\" for its Theorem 1 bound",
                                              gt=0.0, le=1e8)
     gamma_1: float = param(doc="learning rate gamma_1 of eq. (30)", gt=0.0, le=1e8)
     gamma_2: float = param(doc="learning rate gamma_2 of eq. (31)", gt=0.0, le=1e8)
-    Q_p: Matrix = param(doc="weight Q_p (2m x 2m, symmetric positive definite)", ge=-1e8, le=1e8)
-    R_p: Matrix = param(doc="weight R_p (m x m; 1x1 for the planar arm)", ge=-1e8, le=1e8)
+    Q_p: Matrix = param(doc="weight Q_p (2m x 2m, symmetric positive definite; a number: times the identity)",
+                        ge=-1e8, le=1e8)
+    R_p: Matrix = param(doc="weight R_p (m x m; 1x1 for the planar arm; a number: times the identity)",
+                        ge=-1e8, le=1e8)
 
     def build(self):
         from ..controllers import Gains
 
-        return Gains(K_p=self.K_p, K_v=self.K_v, rho=self.rho, mu_z=self.mu_z, alpha_z=self.alpha_z,
+        def diag(v):
+            return np.diag(np.asarray(v, float)) if isinstance(v, tuple) else v
+
+        def matrix(v):
+            a = np.asarray(v, float)
+            return np.diag(a) if a.ndim == 1 else a
+
+        return Gains(K_p=diag(self.K_p), K_v=diag(self.K_v), rho=self.rho, mu_z=self.mu_z, alpha_z=self.alpha_z,
                      alpha_lam=self.alpha_lam, beta_lam=None if self.beta_lam == "min" else self.beta_lam,
-                     gamma_1=self.gamma_1, gamma_2=self.gamma_2, Q_p=np.asarray(self.Q_p, float),
-                     R_p=np.asarray(self.R_p, float))
+                     gamma_1=self.gamma_1, gamma_2=self.gamma_2, Q_p=matrix(self.Q_p), R_p=matrix(self.R_p))
 
 
 @section
 class NetworkConfig:
-    centre_start: float = param(doc="first centre c_1", ge=-1e6, le=1e6)
-    centre_step: float = param(doc="spacing of the centres", gt=0.0, le=1e6)
-    centre_count: int = param(doc="number of hidden units", ge=1, le=5000)
-    slope: float = param(doc="tanh slope alpha of eq. (17)", gt=0.0, le=1e6)
-    w_a: float = param(doc="weight of the first input (e_u1 for F_p, e_lam for F_f) in the network input",
-                       ge=-1e6, le=1e6)
-    w_b: float = param(doc="weight of the second input (e_u1_dot for F_p, z for F_f) in the network input",
-                       ge=-1e6, le=1e6)
+    """A network of eqs. (17)–(19). With one output (m = 1, k = 1) and plain numbers: the paper's
+    network; with several outputs, one hidden layer per coordinate on that coordinate's inputs
+    (:class:`~hinfnn.controllers.network.CoordinateNetwork`), and the centre, slope and weight
+    keys may be lists (one per coordinate)."""
+
+    centre_start: Numbers = param(doc="first centre c_1 (or one per coordinate)", ge=-1e6, le=1e6)
+    centre_step: Numbers = param(doc="spacing of the centres (or one per coordinate)", gt=0.0, le=1e6)
+    centre_count: int = param(doc="number of hidden units (per coordinate)", ge=1, le=5000)
+    slope: Numbers = param(doc="tanh slope alpha of eq. (17) (or one per coordinate)", gt=0.0, le=1e6)
+    w_a: Numbers = param(doc="weight of the first input (e_u1 for F_p, e_lam for F_f) in the network input",
+                         ge=-1e6, le=1e6)
+    w_b: Numbers = param(doc="weight of the second input (e_u1_dot for F_p, z for F_f) in the network input",
+                         ge=-1e6, le=1e6)
     projection: bool = param(doc="Remark 2 projection onto ||Theta|| <= radius")
     radius: float = param(doc="projection radius d (Remark 2)", gt=0.0, le=1e12)
 
     def build(self, name: str, n_out: int):
-        from ..controllers import TanhNetwork, centres_from
+        from ..controllers import CoordinateNetwork, TanhNetwork, centres_from
 
-        return TanhNetwork.build(centres_from(self.centre_start, self.centre_step, self.centre_count), n_out=n_out,
-                                 slope=self.slope, w_a=self.w_a, w_b=self.w_b,
-                                 radius=self.radius if self.projection else None, name=name)
+        lists = [k for k in ("centre_start", "centre_step", "slope", "w_a", "w_b") if isinstance(getattr(self, k), tuple)]
+        if n_out == 1 and not lists:
+            return TanhNetwork.build(centres_from(self.centre_start, self.centre_step, self.centre_count), n_out=n_out,
+                                     slope=self.slope, w_a=self.w_a, w_b=self.w_b,
+                                     radius=self.radius if self.projection else None, name=name)
+
+        def each(key):
+            try:
+                return per_item(getattr(self, key), n_out, f"{name}.{key}", f"one per coordinate, {n_out}")
+            except ConfigError as err:
+                raise DesignError(str(err).split(": ", 1)[1], key=err.key) from None
+
+        starts, steps = each("centre_start"), each("centre_step")
+        centres = np.stack([centres_from(a, b, self.centre_count) for a, b in zip(starts, steps)])
+        return CoordinateNetwork.build(centres, slope=each("slope"), w_a=each("w_a"), w_b=each("w_b"),
+                                       radius=self.radius if self.projection else None, name=name)
 
 
 @section
@@ -331,7 +924,23 @@ def prefixed(err: DesignError) -> DesignError:
 
 @section
 class ReferenceConfig:
-    """u1d = u1_offset + u1_amplitude cos(2π t / u1_period + u1_phase), λd likewise."""
+    """The desired motion u1d(t) (m coordinates) and force λd(t) (k) (``kind`` chooses the form)."""
+
+    __registry__ = REFERENCES
+    kind: str = param(doc="reference kind")
+
+    def build(self):
+        raise NotImplementedError
+
+    def sizes(self) -> tuple[int | None, int | None]:
+        """(m, k) the reference is for (None: any)."""
+        return None, None
+
+
+@REFERENCES.register("cosine")
+@section
+class CosineConfig(ReferenceConfig):
+    """u1d = u1_offset + u1_amplitude cos(2π t / u1_period + u1_phase), λd likewise (m = k = 1)."""
 
     u1_offset: float = param(doc="u1d offset, m", ge=-100.0, le=100.0)
     u1_amplitude: float = param(doc="u1d cosine amplitude, m", ge=-100.0, le=100.0)
@@ -360,11 +969,76 @@ class ReferenceConfig:
             lam_offset=a(self.lam_offset), lam_amplitude=a(self.lam_amplitude),
             lam_omega=a(2 * math.pi / self.lam_period), lam_phase=a(self.lam_phase))
 
+    def sizes(self):
+        return 1, 1
+
+
+@REFERENCES.register("cosines")
+@section
+class CosinesConfig(ReferenceConfig):
+    """One cosine per coordinate, faded in: u1d_i = u1_offset_i + r_u(t) u1_amplitude_i cos(2π t /
+    u1_period_i + u1_phase_i) and λd_j = r_λ(t) (lam_offset_j + lam_amplitude_j cos(...)), r the
+    quintic ramp from 0 to 1 over u1_ramp (lam_ramp) seconds (0: none). Each key is a number (the
+    same for every coordinate) or a list (one per coordinate: m for u1_*, k for lam_*). A circle of
+    radius a in two coordinates: amplitudes [a, a], phases [0, -pi/2] (radians)."""
+
+    u1_offset: Numbers = param(doc="u1d offsets (m or rad, per coordinate)", ge=-100.0, le=100.0)
+    u1_amplitude: Numbers = param(0.0, doc="u1d cosine amplitudes", ge=-100.0, le=100.0)
+    u1_period: Numbers = param(1.0, doc="u1d periods, s", gt=0.0, le=1e6)
+    u1_phase: Numbers = param(0.0, doc="u1d phases, rad", ge=-1e3, le=1e3)
+    u1_ramp: float = param(0.0, doc="fade-in time of the u1d cosines (u1d, its rate and acceleration start at the "
+                                    "offsets and 0), s", ge=0.0, le=1e6)
+    lam_offset: Numbers = param(doc="lam_d offsets", ge=-1e7, le=1e7)
+    lam_amplitude: Numbers = param(0.0, doc="lam_d cosine amplitudes", ge=-1e7, le=1e7)
+    lam_period: Numbers = param(1.0, doc="lam_d periods, s", gt=0.0, le=1e6)
+    lam_phase: Numbers = param(0.0, doc="lam_d phases, rad", ge=-1e3, le=1e3)
+    lam_ramp: float = param(0.0, doc="fade-in time of lam_d from 0, s", ge=0.0, le=1e6)
+
+    def sizes(self):
+        def n(keys):
+            lens = {len(getattr(self, k)) for k in keys if isinstance(getattr(self, k), tuple)}
+            return lens.pop() if len(lens) == 1 else (None if not lens else -1)
+
+        return n(("u1_offset", "u1_amplitude", "u1_period", "u1_phase")), \
+            n(("lam_offset", "lam_amplitude", "lam_period", "lam_phase"))
+
+    def validate(self, path):
+        for group in (("u1_offset", "u1_amplitude", "u1_period", "u1_phase"),
+                      ("lam_offset", "lam_amplitude", "lam_period", "lam_phase")):
+            lens = {len(getattr(self, k)) for k in group if isinstance(getattr(self, k), tuple)}
+            if len(lens) > 1:
+                bad = next(k for k in group if isinstance(getattr(self, k), tuple)
+                           and len(getattr(self, k)) != len(getattr(self, group[0]) if isinstance(
+                               getattr(self, group[0]), tuple) else max(lens)))
+                raise ConfigError(f"the lists of {', '.join(group)} must have the same length", key=f"{path}.{bad}")
+
+    def build(self, m: int | None = None, k: int | None = None):
+        import jax.numpy as jnp
+
+        from ..reference import SmoothCosineReference
+
+        m0, k0 = self.sizes()
+        m = m or m0 or 1
+        k = k or k0 or 1
+
+        def v(key, n, f=lambda x: x):
+            return jnp.asarray(f(per_item(getattr(self, key), n, f"reference.{key}", "one per coordinate")))
+
+        return SmoothCosineReference(
+            u1_offset=v("u1_offset", m), u1_amplitude=v("u1_amplitude", m),
+            u1_omega=v("u1_period", m, lambda p: 2 * math.pi / p), u1_phase=v("u1_phase", m),
+            lam_offset=v("lam_offset", k), lam_amplitude=v("lam_amplitude", k),
+            lam_omega=v("lam_period", k, lambda p: 2 * math.pi / p), lam_phase=v("lam_phase", k),
+            u1_ramp=jnp.asarray(self.u1_ramp), lam_ramp=jnp.asarray(self.lam_ramp))
+
 
 @section
 class InitialConfig:
-    u1: float = param(doc="u1(0): true end-effector x1 on the true surface, m", ge=-100.0, le=100.0)
-    elbow: Literal["up", "down"] = param(doc="inverse-kinematics branch")
+    u1: Numbers = param(doc="u1(0): the true end-effector's motion coordinates on the true surface (m, rad; a "
+                            "list of m for m > 1)", ge=-100.0, le=100.0)
+    elbow: Literal["up", "down"] = param("up", doc="inverse-kinematics branch (two_link arm)")
+    q_guess: tuple[float, ...] = param((), doc="joint angles near the start pose, rad (the start pose is solved by "
+                                       "Newton's method from them; default all 0)", ge=-100.0, le=100.0)
 
 
 @section

@@ -24,7 +24,6 @@ from __future__ import annotations
 import collections
 import dataclasses
 import hashlib
-import json
 import math
 import os
 import shutil
@@ -35,7 +34,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import ConfigError, DesignError, HinfnnError
+from ..errors import ConfigError, HinfnnError
 from . import store
 from .sampling import RunSpec, runs as all_runs
 from .spec import SweepSpec

@@ -32,7 +32,7 @@ import dataclasses
 import difflib
 import hashlib
 import json
-import math
+
 import re
 import typing
 from importlib import resources

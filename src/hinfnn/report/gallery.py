@@ -1,0 +1,193 @@
+"""``report.md`` of the gallery (:mod:`hinfnn.gallery`): for every shipped arms-and-surfaces
+scenario, its setup (truth vs nominal), the designed gains, the metrics per coordinate and per
+joint, the issue's expectations checked, and the figures.
+
+Every number comes from the scenario and the results documents (``metrics.json``); nothing here
+runs a controller or the plant.
+"""
+
+from __future__ import annotations
+
+import datetime
+import math
+
+from .markdown import _f, percent
+
+#: The expectations of the issue that every H∞-only and adaptive run is checked against.
+EXPECT_FRACTION = 0.10  # RMS e_λ over the last 2 s below this fraction of the mean force reference
+
+
+def _vec(v, digits=3) -> str:
+    if isinstance(v, (list, tuple)):
+        return "(" + ", ".join(_f(x, digits) for x in v) + ")"
+    return _f(v, digits)
+
+
+def _arm_text(arm) -> str:
+    if arm.model == "urdf":
+        extra = []
+        scale = arm.mass_scale
+        if (isinstance(scale, tuple) and any(s != 1.0 for s in scale)) or (not isinstance(scale, tuple) and scale != 1.0):
+            extra.append(f"mass × {_vec(scale)}")
+        if any(arm.com_shift):
+            extra.append(f"centre-of-mass shift {_vec(arm.com_shift)} m")
+        if arm.payload_mass:
+            extra.append(f"payload {arm.payload_mass:g} kg at {_vec(arm.payload_xyz)} m in the tool frame")
+        locked = f", locked {list(arm.locked_joints)}" if arm.locked_joints else ""
+        return (f"URDF `{arm.file}` from `{arm.base_link}` to `{arm.ee_link}`, tool {_vec(arm.tool_xyz)} m{locked}"
+                + ("; " + ", ".join(extra) if extra else "; the file as written"))
+    if arm.model == "planar":
+        return f"planar, point masses {_vec(arm.masses)} kg, links {_vec(arm.lengths)} m, g = {arm.g:g}"
+    return f"{arm.model}"
+
+
+def _surface_text(s) -> str:
+    keys = [k for k in s.__dataclass_fields__ if k not in ("kind", "scaling")]
+    return f"{s.kind}: " + ", ".join(f"{k} {_vec(getattr(s, k))}" for k in keys)
+
+
+def _reference_text(r) -> str:
+    if r.kind != "cosines":
+        return r.kind
+    return (f"u1d = {_vec(r.u1_offset)} + r(t)·{_vec(r.u1_amplitude)}·cos(2πt/{_vec(r.u1_period)} s + "
+            f"{_vec(r.u1_phase)}), fade-in {r.u1_ramp:g} s; λd = r(t)·({_vec(r.lam_offset)} + "
+            f"{_vec(r.lam_amplitude)} cos(2πt/{_vec(r.lam_period)} s)), fade-in {r.lam_ramp:g} s")
+
+
+def _mean_force(sc) -> float:
+    off = sc.reference.lam_offset
+    return float(off[0] if isinstance(off, tuple) else off)
+
+
+def _setup(sc) -> list[str]:
+    p, n = sc.plant, sc.nominal
+    names = sc.coordinate_names() or []
+    fr = p.friction
+    rows = [
+        ("true arm", _arm_text(p.arm)), ("nominal arm", _arm_text(n.arm)),
+        ("true surface", _surface_text(p.surface)), ("nominal surface", _surface_text(n.surface)),
+        ("task coordinates", f"`{sc.task.map}`: x = (" + ", ".join(f"{a} [{u}]" for a, u in names) + ")"
+         + " — the last one constrained (k = 1), λ the normal force in N"),
+        ("contact", f"penalty, stiffness {p.contact.stiffness:g} N/m, damping {p.contact.damping:g} N·s/m, at the "
+                    "exact signed distance of the true surface at the tool point"),
+        ("friction", (f"Coulomb μ = {fr.coulomb:g} (smoothed over {fr.v_smooth:g} m/s), viscous {fr.viscous:g} N·s/m"
+                      if fr.active else "none") + " — not modelled by the controllers"),
+        ("joint disturbance", f"square wave ±{_vec(p.disturbance.amplitude)} N·m, period {p.disturbance.period:g} s"),
+        ("reference", _reference_text(sc.reference)),
+        ("start", f"u1(0) = {_vec(sc.initial.u1)} on the true surface, at rest, zero contact force"),
+        ("simulation", f"{sc.simulation.t_final:g} s, RK4 dt = {sc.simulation.dt:g} s, continuous-time control"),
+    ]
+    return ["| | |", "|---|---|"] + [f"| {a} | {b} |" for a, b in rows]
+
+
+def _design(doc) -> list[str]:
+    d = next((r.get("design") for r in doc["runs"] if r["controller"] == "hinf_nn" and r.get("design")), None) \
+        or next((r.get("design") for r in doc["runs"] if r.get("design")), {})
+    g = d.get("gains", {})
+    ric = d.get("riccati", {})
+    out = ["| gain | value |", "|---|---|"]
+
+    def diag(v):
+        if isinstance(v, list) and v and isinstance(v[0], list):
+            dg = [v[i][i] for i in range(len(v))]
+            off = max(abs(v[i][j]) for i in range(len(v)) for j in range(len(v)) if i != j) if len(v) > 1 else 0.0
+            return f"diag{_vec(dg)}" + ("" if off == 0 else f" (off-diagonal up to {_f(off)})")
+        return _vec(v)
+
+    for key in ("K_p", "K_v", "rho", "R_p", "Q_p", "alpha_lam", "alpha_z", "beta_lam", "mu_z", "gamma_1", "gamma_2"):
+        if key in g:
+            out.append(f"| {key} | {diag(g[key])} |")
+    vp = d.get("v_p_gains")
+    if vp:
+        m = len(vp)
+        out.append(f"| v_p = −R_p⁻¹B_pᵀP_p x_p | on (e, ė) of coordinate 1: ({_f(vp[0][0])}, {_f(vp[0][m])}) "
+                   f"(the same for every coordinate) |")
+    if ric and "residual" in ric:
+        eigs = sorted({round(e[0], 3) for e in ric.get("closed_loop_eigs", [])})
+        out.append(f"| Riccati eq. ({ric.get('equation')}) | residual {_f(ric['residual'])}, P_p ≻ 0 (min eig "
+                   f"{_f(ric.get('min_eig_P'))}), closed-loop poles of A_p − B_pR_p⁻¹B_pᵀP_p: {_vec(eigs)} |")
+    nets = d.get("networks", {})
+    for key, label in (("theta_p", "F_p"), ("theta_f", "F_f")):
+        net = nets.get(key)
+        if net:
+            out.append(f"| {label} network | {net['outputs']} output(s), {net['units']} tanh units each, centres "
+                       f"{_vec(net['first_centre'])} … {_vec(net['last_centre'])}, slope {_vec(net['slope'])} |")
+    return out
+
+
+def _metrics(sc, doc) -> list[str]:
+    names = sc.coordinate_names() or [("u1", "m")]
+    m = len(doc["runs"][0]["metrics"]["rms_e_u1_each"])
+    head = ["run", "status"] + [f"RMS e {a} ({u})" for a, u in names[:m]] + \
+        ["RMS e_λ (N)", "last 2 s", "last 2 s / mean λd", "peak |τ| per joint (N·m)", "out of contact",
+         "dissipation at every sample", "J(T)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    mean = _mean_force(sc)
+    for r in doc["runs"]:
+        x = r["metrics"]
+        status = r["status"] if r["status"] == "ok" else f"stopped at {_f(r.get('t_fail'))} s"
+        ratio = x["rms_e_lam_last2s"] / mean if mean else math.nan
+        cells = [r["name"], status] + [_f(v, 3) for v in x["rms_e_u1_each"]] + \
+            [_f(x["rms_e_lam"], 3), _f(x["rms_e_lam_last2s"], 3), percent(ratio),
+             _vec([round(v, 1) for v in x["peak_abs_tau"]], 4), percent(x["fraction_out_of_contact"]),
+             _f(x["dissipation_holds_for_all_t"]), _f(x["J_T"])]
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", "Last 2 s, per coordinate: " + "; ".join(
+        f"{r['name']} {_vec(r['metrics']['rms_e_u1_each_last2s'])}" for r in doc["runs"]) + "."]
+    return lines
+
+
+def _expectations(sc, doc) -> tuple[list[str], bool]:
+    mean = _mean_force(sc)
+    lines, ok_all = [], True
+    for r in doc["runs"]:
+        if r["controller"] not in ("hinf", "hinf_nn"):
+            continue
+        x = r["metrics"]
+        checks = [("10 s with status ok", r["status"] == "ok" and x["t_end"] >= sc.simulation.t_final - 1e-9),
+                  ("dissipation inequality at every sample", x["dissipation_holds_for_all_t"] is True),
+                  (f"RMS e_λ last 2 s < {EXPECT_FRACTION:.0%} of mean λd ({_f(EXPECT_FRACTION * mean)} N)",
+                   x["rms_e_lam_last2s"] < EXPECT_FRACTION * mean)]
+        if r["controller"] == "hinf":  # the issue asks it of the adaptive run "once learning has settled"
+            checks[-1] = (checks[-1][0] + " (asked of the adaptive run; shown for comparison)", checks[-1][1])
+        for what, held in checks:
+            counted = r["controller"] == "hinf_nn" or not what.startswith("RMS")
+            ok_all &= held or not counted
+            lines.append(f"- {r['name']}: {what}: **{'yes' if held else 'no'}**")
+    return lines, ok_all
+
+
+_CAPTIONS = {
+    "u1.png": "motion coordinates and their references", "errors.png": "tracking errors per coordinate and e_λ",
+    "lambda.png": "force λ (the normal force) and λd", "tau.png": "joint torques",
+    "contact.png": "normal force, penetration, friction", "J.png": "J(t) of eq. (34)", "weights.png": "network weights",
+}
+
+
+def gallery_report(sections: list[dict], *, command: str) -> str:
+    """The gallery's report.md from its sections: {"scenario", "doc", "figures", "seconds"}."""
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    lines = ["# hinfnn gallery: any serial arm, any smooth surface", "",
+             f"`{command}`, {stamp}. Each scenario below is a shipped file (`hinfnn run NAME` runs it alone); "
+             "its folder holds metrics.json, trajectory.npz, scenario.toml and the figures.", "",
+             "Errors are what the controller measures (nominal kinematics, task coordinates fitted to the "
+             "NOMINAL surface); λ is the normal force in N. The contact uses the TRUE surface's exact signed "
+             "distance at the tool point; friction and the disturbance are unknown to every controller.", ""]
+    summary = ["| scenario | runs | expectations met | simulation (s) |", "|---|---|---|---|"]
+    body = []
+    for s in sections:
+        sc, doc = s["scenario"], s["doc"]
+        exp, ok = _expectations(sc, doc)
+        summary.append(f"| [{sc.name}](#{sc.name}) | {', '.join(r['name'] for r in doc['runs'])} | "
+                       f"{'yes' if ok else '**no**'} | {s['seconds']:.0f} |")
+        body += [f"## {sc.name}", "", sc.description, "", "### Setup", ""] + _setup(sc)
+        body += ["", "### Design (the adaptive controller's; the H∞-only law has the same gains)", ""] + _design(doc)
+        body += ["", "### Metrics", ""] + _metrics(sc, doc)
+        body += ["", "### The issue's expectations", ""] + exp + ["", "### Figures", ""]
+        for name in ("u1.png", "errors.png", "lambda.png", "contact.png", "tau.png", "J.png", "weights.png"):
+            if name in s["figures"]:
+                body += [f"![{sc.name}: {_CAPTIONS[name]}]({sc.name}/{name})", ""]
+    return "\n".join(lines + summary + [""] + body)
+
+
+__all__ = ["gallery_report"]
