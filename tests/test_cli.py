@@ -107,8 +107,9 @@ def _alternative(key, tp, meta, value):
     if typing.get_origin(tp) is tuple:
         return [v + 0.5 for v in value]
     args = typing.get_args(tp)
-    if float in args:  # beta_lam: a number or "min"
-        return 5.0
+    if float in args:  # beta_lam: a number or "min"; tau_f: a number <= 1 or "auto"
+        hi = meta.get("lt") if meta.get("lt") is not None else meta.get("le")
+        return 5.0 if hi is None or 5.0 < hi else hi / 2
     if str in args:  # controller.kind: a name or a list
         return ["fl", "hinf"]
     raise AssertionError((key, tp))

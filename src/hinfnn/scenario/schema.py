@@ -43,7 +43,7 @@ def param(default=_MISSING, *, doc: str, gt=None, ge=None, lt=None, le=None, cho
     ``allowed``: the words for what it accepts, when the type alone does not say (a callable is
     called each time: e.g. the names of a registry that grows)."""
     meta = {"doc": doc, "gt": gt, "ge": ge, "lt": lt, "le": le, "choices": choices, "hidden": hidden,
-            "exclude": exclude, "allowed": allowed}
+            "exclude": exclude, "allowed": allowed, "empty_ok": isinstance(default, tuple) and not default}
     if isinstance(default, (list, dict)):
         return dataclasses.field(default_factory=lambda: default, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -230,7 +230,7 @@ def _value(key: str, value, tp, meta):
         return _number(key, value, meta, words)
     if typing.get_origin(tp) is tuple:
         inner = _args(tp)[0]
-        if not isinstance(value, list) or not value:
+        if not isinstance(value, list) or not (value or meta.get("empty_ok")):  # [] where () is the default
             raise ConfigError(f"must be {words}, got {value!r}", key=key)
         if inner is str:
             if not all(isinstance(v, str) for v in value):

@@ -32,7 +32,6 @@ import dataclasses
 import difflib
 import hashlib
 import json
-
 import re
 import typing
 from importlib import resources
