@@ -61,8 +61,8 @@ _SUMMARIES = [
     ("tau_abs_max", "N·m", "max |τ_i| over the steps since the previous sample", "max"),
     ("tau_variation", "N·m", "Σ|τ_i(t_k) − τ_i(t_k−1)| over the steps since the previous sample", "sum"),
     ("tau_sq", "(N·m)²", "Σ τ_i² over the steps since the previous sample, this one included", "sum"),
-    ("e_u1_sq", "m²", "Σ ‖e_u1‖² over the steps since the previous sample, this one included", "sum"),
-    ("e_lam_sq", "(λ units)²", "Σ ‖e_λ‖² over the steps since the previous sample, this one included", "sum"),
+    ("e_u1_sq", "m²", "Σ e_u1² (per coordinate) over the steps since the previous sample, this one included", "sum"),
+    ("e_lam_sq", "(λ units)²", "Σ e_λ² (per coordinate) over the steps since the previous sample, this one included", "sum"),
     ("steps_out_of_contact", "-", "steps with the end-effector off the true surface (more than 1 nm above it) since "
      "the previous sample, this one included",
      "sum"),
@@ -93,7 +93,7 @@ for _row in _SUMMARIES:
 SUMMARY_FIELDS = {f.name: f.summary for f in FIELDS.values() if f.summary}
 
 #: What :func:`hinfnn.compute_metrics` needs: ``fields="metrics"`` stores only these.
-METRICS_FIELDS = ("t", "e_u1", "e_lam", "tau", "normal_force", "J", "J_aug", "V", "supply",
+METRICS_FIELDS = ("t", "e_u1", "e_lam", "tau", "normal_force", "J", "J_aug", "V", "supply", "task_margin",
                   *SUMMARY_FIELDS)
 
 

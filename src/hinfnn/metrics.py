@@ -67,8 +67,8 @@ def compute_metrics(traj, last: float = 2.0) -> dict:
 
     ``*_last2s`` are over t ≥ t_end − ``last``. ``tv_rate_tau_last2s`` is the total variation
     of each τ_i per second over that window (how oscillatory the torque is).
-    ``rms_e_u1_each`` and ``rms_e_lam_each`` (and their ``_last2s``) are per coordinate, from the
-    stored samples (the overall RMS values cover every step); ``min_task_margin`` is the closest the
+    ``rms_e_u1_each`` and ``rms_e_lam_each`` (and their ``_last2s``) are per coordinate (the
+    overall ``rms_e_u1`` is the root of the sum of their squares); ``min_task_margin`` is the closest the
     true pose's task coordinates came to their singularities (rad or m; None when not recorded).
     ``dissipation_min_margin`` is min over t > 0 of ρ²∫₀ᵗ(‖f_p‖²+‖f_f‖²) − (J(t) + V(t) − V(0)): the
     theorems claim the inequality for every T, not only the final one. ``t_end`` is the time the
@@ -93,14 +93,15 @@ def compute_metrics(traj, last: float = 2.0) -> dict:
         per = int(traj.save_every)
         n_all, n_win = (n - 1) * per + 1, (n - 1 - first) * per + 1
 
-        def rms(name, own):  # own: the window's first sample's own contribution
-            total = np.sum(arr[name], axis=0)
-            win = own + np.sum(arr[name][first + 1:], axis=0)
-            return np.sqrt(total / n_all), np.sqrt(win / n_win)
+        def ms(name, own):  # mean squares per component; own: the window's first sample's own contribution
+            x = arr[name].reshape(n, -1)
+            return np.sum(x, axis=0) / n_all, (own + np.sum(x[first + 1:], axis=0)) / n_win
 
-        rms_u1, rms_u1_w = rms("e_u1_sq", e_u1[first] ** 2)
-        rms_lam, rms_lam_w = rms("e_lam_sq", e_lam[first] ** 2)
-        _, rms_tau_w = rms("tau_sq", tau[first] ** 2)
+        (u1_ms, u1_ms_w), (lam_ms, lam_ms_w) = (ms(f"e_{s}_sq", arr[f"e_{s}"].reshape(n, -1)[first] ** 2)
+                                                for s in ("u1", "lam"))
+        u1_each, u1_each_w, lam_each, lam_each_w = (np.sqrt(v) for v in (u1_ms, u1_ms_w, lam_ms, lam_ms_w))
+        rms_u1, rms_u1_w, rms_lam, rms_lam_w = (np.sqrt(np.sum(v)) for v in (u1_ms, u1_ms_w, lam_ms, lam_ms_w))
+        rms_tau_w = np.sqrt(ms("tau_sq", tau[first] ** 2)[1])
         max_u1, max_lam = np.max(arr["e_u1_abs_max"]), np.max(arr["e_lam_abs_max"])
         peak = arr["tau_abs_max"]
         peak_window = np.concatenate([np.abs(tau[first:first + 1]), peak[first + 1:]])
@@ -109,6 +110,13 @@ def compute_metrics(traj, last: float = 2.0) -> dict:
     else:  # a trajectory without the step summaries (e.g. fields=...): from the samples
         tw = tau[first:]
         rms_u1, rms_u1_w, rms_lam, rms_lam_w = _rms(e_u1), _rms(e_u1[first:]), _rms(e_lam), _rms(e_lam[first:])
+
+        def each(name, rows=slice(None)):
+            x = np.asarray(arr[name], dtype=float).reshape(n, -1)[rows]
+            return np.sqrt(np.mean(x**2, axis=0))
+
+        u1_each, u1_each_w, lam_each, lam_each_w = (each("e_u1"), each("e_u1", slice(first, None)), each("e_lam"),
+                                                    each("e_lam", slice(first, None)))
         rms_tau_w = _rms(tw)
         max_u1, max_lam = np.max(e_u1), np.max(e_lam)
         peak = np.abs(tau)
@@ -126,16 +134,12 @@ def compute_metrics(traj, last: float = 2.0) -> dict:
     else:  # a controller without the theorems' bookkeeping
         lhs = rhs = margin = J_T = math.nan
         holds = None
-    def each(name, rows=slice(None)):
-        x = np.asarray(arr[name], dtype=float).reshape(n, -1)[rows]
-        return [float(v) for v in np.sqrt(np.mean(x**2, axis=0))]
-
     margin_task = float(np.min(arr["task_margin"])) if "task_margin" in arr else None
     return {
-        "rms_e_u1_each": each("e_u1"),
-        "rms_e_u1_each_last2s": each("e_u1", slice(first, None)),
-        "rms_e_lam_each": each("e_lam"),
-        "rms_e_lam_each_last2s": each("e_lam", slice(first, None)),
+        "rms_e_u1_each": [float(v) for v in u1_each],
+        "rms_e_u1_each_last2s": [float(v) for v in u1_each_w],
+        "rms_e_lam_each": [float(v) for v in lam_each],
+        "rms_e_lam_each_last2s": [float(v) for v in lam_each_w],
         "min_task_margin": margin_task if margin_task is None or math.isfinite(margin_task) else None,
         "rms_e_u1": float(rms_u1),
         "max_abs_e_u1": float(max_u1),

@@ -88,6 +88,9 @@ class Controller(Protocol):
     """
 
     n: int
+    #: sizes of e_u1 and e_λ in ``signals`` (the motion and force coordinates; 1 if not given)
+    m: int
+    k: int
 
     def init(self) -> Any: ...
 

@@ -139,7 +139,9 @@ def _matrix(name, value, size) -> np.ndarray:
     elif arr.ndim == 1 and arr.size == size:
         arr = np.diag(arr)
     if arr.shape != (size, size):
-        raise DesignError(f"must be {size}x{size}, got shape {arr.shape}", key=name, value=arr.tolist())
+        got = f"a list of {arr.size}" if arr.ndim == 1 else f"shape {arr.shape}"
+        raise DesignError(f"must be a number, a list of {size} (the diagonal) or a {size}x{size} matrix "
+                          f"({size} = the coordinates it weighs), got {got}", key=name, value=arr.tolist())
     if not np.all(np.isfinite(arr)):
         raise DesignError(f"must be finite, got {arr.tolist()}", key=name, value=arr.tolist())
     return arr

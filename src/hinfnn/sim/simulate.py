@@ -245,12 +245,14 @@ def _init_carry(ctrl, y0, n):
     f64 = jnp.float64
     zero = jnp.zeros((), f64)
     y0 = SimState(plant=y0.plant, xc=ctrl.to_loop(y0.xc), acc=y0.acc)
+    # per-coordinate sums: e_u1 has the controller's m entries, e_λ its k (1 if it does not say)
+    sizes = {"tau_sq": n, "e_u1_sq": getattr(ctrl, "m", 1), "e_lam_sq": getattr(ctrl, "k", 1)}
     return Carry(y=y0, held=jnp.zeros(n, f64), status=jnp.zeros((), jnp.int32),
                  t_fail=jnp.array(jnp.nan, dtype=f64), bad_tau=zero, bad_pen=zero,
                  bad_parts=jnp.zeros((), jnp.int32), bad_sigma=jnp.array(jnp.nan, dtype=f64),
                  tau_peak=jnp.zeros(n, f64), tau_tv=jnp.zeros(n, f64),
                  tau_prev=jnp.full(n, jnp.nan, f64),
-                 sums={k: jnp.zeros(n if k == "tau_sq" else (), f64) for k in STEP_SUMS},
+                 sums={k: jnp.zeros(sizes.get(k, ()), f64) for k in STEP_SUMS},
                  maxes={k: jnp.zeros((), f64) for k in STEP_MAXES})
 
 

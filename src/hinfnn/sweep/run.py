@@ -37,7 +37,7 @@ import numpy as np
 from ..errors import ConfigError, HinfnnError
 from . import store
 from .sampling import RunSpec, runs as all_runs
-from .spec import SweepSpec
+from .spec import PER_COORDINATE_METRICS, SweepSpec
 
 #: Largest batch by default: past a few hundred members the throughput gains little (on the
 #: project's 2-core machine 202,000 trajectory-steps/s at 100 members, 237,000 at 1,000) and a
@@ -344,7 +344,7 @@ def member_row(r: RunSpec, traj, max_out_of_contact: float) -> dict:
                reason=None if code == 0 else failure_reason(code, {k: float(v) for k, v in traj.fail_details.items()}),
                error_key=None, t_fail=float(traj.t_fail) if code != 0 else math.nan)
     for k, v in m.items():
-        if isinstance(v, list):
+        if isinstance(v, list) and k not in PER_COORDINATE_METRICS:
             row.update({f"{k}_{i + 1}": float(x) for i, x in enumerate(v)})
         else:
             row[k] = v

@@ -56,6 +56,8 @@ DISTRIBUTION_PARAMS = {
 }
 #: Metrics with one value per joint: table columns ``NAME_1``, ``NAME_2``, ...
 PER_JOINT_METRICS = ("peak_abs_tau", "peak_abs_tau_last2s", "rms_tau_last2s", "tv_rate_tau_last2s")
+#: Metrics with one value per motion or force coordinate: one ``list<double>`` column each.
+PER_COORDINATE_METRICS = ("rms_e_u1_each", "rms_e_u1_each_last2s", "rms_e_lam_each", "rms_e_lam_each_last2s")
 #: Metrics that are true/false (the report gives their fractions).
 BOOL_METRICS = ("dissipation_holds", "dissipation_holds_for_all_t")
 DEFAULT_METRICS = ("rms_e_u1_last2s", "rms_e_lam_last2s", "peak_abs_tau", "fraction_out_of_contact")
@@ -515,4 +517,4 @@ def _check_varied(key: str, how: VarySpec, tp, base_value, base) -> Varied:
 
 
 __all__ = ["SweepSpec", "VarySpec", "Varied", "load_spec", "spec_from_dict", "spec_names", "spec_table", "DEFAULT_METRICS",
-           "PER_JOINT_METRICS", "BOOL_METRICS", "GRIDS", "DISTRIBUTIONS"]
+           "PER_JOINT_METRICS", "PER_COORDINATE_METRICS", "BOOL_METRICS", "GRIDS", "DISTRIBUTIONS"]

@@ -33,7 +33,7 @@ from pathlib import Path
 from ..errors import ConfigError
 from ..io import LoadError, atomic_write, atomic_write_text, dumps_json
 from ..metrics import METRIC_KEYS, UNITS
-from .spec import BOOL_METRICS, PER_JOINT_METRICS
+from .spec import BOOL_METRICS, PER_COORDINATE_METRICS, PER_JOINT_METRICS
 
 FORMAT = "hinfnn-sweep-1"
 MANIFEST = "manifest.json"
@@ -53,7 +53,7 @@ STATUSES = ("ok", "diverged", "invalid")
 
 def metric_columns(n_joints: int) -> list[str]:
     """The metric columns of the table: every metric of :func:`hinfnn.compute_metrics`, the
-    per-joint ones as ``NAME_1`` ... ``NAME_n``."""
+    per-joint ones as ``NAME_1`` ... ``NAME_n``, the per-coordinate ones as one list column."""
     cols = []
     for k in METRIC_KEYS:
         if k in PER_JOINT_METRICS:
@@ -102,7 +102,8 @@ def schema(spec, n_joints: int):
     fields += [pa.field(v.key, types[varied_type(v)]) for v in spec.varied]
     fields += [pa.field("status", pa.string()), pa.field("reason", pa.string()), pa.field("error_key", pa.string()),
                pa.field("t_fail", pa.float64())]
-    fields += [pa.field(c, pa.bool_() if c in BOOL_METRICS else pa.float64()) for c in metric_columns(n_joints)]
+    fields += [pa.field(c, pa.bool_() if c in BOOL_METRICS else pa.list_(pa.float64()) if c in PER_COORDINATE_METRICS
+                        else pa.float64()) for c in metric_columns(n_joints)]
     fields += [pa.field("t_end", pa.float64()), pa.field("partial", pa.bool_()), pa.field("bounded", pa.bool_()),
                pa.field("held_contact", pa.bool_())]
     meta = {"hinfnn_sweep": json.dumps({"format": FORMAT, "spec": spec.name, "units": column_units(n_joints)})}
