@@ -265,7 +265,7 @@ def test_reduced_order_identity_on_every_arm_and_surface(pair):
     for trial in range(4):
         q = q0 + (0.05 * rng.normal(size=n) if trial else 0.0)
         if isinstance(con, TaskConstraint):  # back onto the nominal surface: x2 = Ω(x1)
-            x = np.asarray(arm.h(jnp.asarray(q)))
+            x = np.array(arm.h(jnp.asarray(q)))
             x[m:] = np.asarray(con.Omega(jnp.asarray(x[:m])))
             q = np.asarray(arm.inverse_kinematics(jnp.asarray(x), jnp.asarray(q)))
         qd = rng.normal(size=n)

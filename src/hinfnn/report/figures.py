@@ -615,7 +615,11 @@ def sparse_note(runs: dict[str, Trajectory]) -> str | None:
         if sc is None or t.ndim != 1 or len(t) < 2:
             continue
         interval = float(t[1] - t[0])
-        period = min(sc.reference.u1_period, sc.reference.lam_period)
+        periods = [float(v) for p in (getattr(sc.reference, "u1_period", ()), getattr(sc.reference, "lam_period", ()))
+                   for v in (p if isinstance(p, tuple) else (p,))]
+        if not periods:
+            continue
+        period = min(periods)  # the cosine references: one period, or one per coordinate
         per = period / interval if interval > 0 else math.inf
         if per < MIN_SAMPLES_PER_PERIOD and (worst is None or per < worst[0]):
             worst = (per, interval, period, len(t))

@@ -195,7 +195,12 @@ class Scenario:
         arm = self.build_arm("nominal")
         u1_range = q_start = None
         if self.controller.force_rate.kappa != 0.0:
-            u1_range = self.reference.u1_range() if hasattr(self.reference, "u1_range") else None
+            if self.nominal.arm.model != "two_link" or self.nominal.surface.kind != "inclined_line":
+                raise ConfigError("the force-rate term is designed for the two_link arm on an inclined_line (its κ "
+                                  "rule uses the normal mass along the line's path; docs/beyond-the-paper.md), got "
+                                  f"a {self.nominal.arm.model!r} arm on a {self.nominal.surface.kind!r}; set it to 0",
+                                  key="controller.force_rate.kappa")
+            u1_range = self.reference.u1_range()
             q_start = self.initial_q()
         return self.controller.build(kind, arm, self.build_constraint(arm), u1_range=u1_range, q_start=q_start,
                                      period=self.control_period)
