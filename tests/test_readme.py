@@ -68,7 +68,7 @@ def runnable(words: list[str]) -> bool:
 
 
 def adapt(words: list[str], cwd: Path) -> list[str]:
-    if words[0] == "hinfnn" and len(words) > 1 and words[1] in ("run", "reproduce"):
+    if words[0] == "hinfnn" and len(words) > 1 and words[1] in ("run", "reproduce", "gallery"):
         if words[1] == "run" and words[2].endswith(".toml") and not (cwd / words[2]).exists():
             (cwd / words[2]).write_text('base = "paper"\n')
         words = words + ["--set", f"simulation.t_final={SHORT}"]
