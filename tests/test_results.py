@@ -240,6 +240,41 @@ def test_signal_at_start_up_gives_one_line_and_its_exit_code(tmp_path, cache, si
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_signal_raised_inside_a_gc_callback_is_not_lost(capsys, tmp_path):
+    """Python swallows an exception raised in a garbage-collection callback (JAX registers one) and
+    prints "Exception ignored in ..."; CI once saw a Ctrl-C vanish that way and the run finish
+    with exit 0. The handler remembers the signal, prints nothing there, and the command raises it
+    at its next check (between chunks, and before a result is put in place)."""
+    import gc
+
+    from hinfnn import _signals
+
+    previous = _signals.install()
+    try:
+        def callback(phase, info):
+            if phase == "start":
+                _signals.handler(signal.SIGINT, sys._getframe())
+
+        gc.callbacks.append(callback)
+        try:
+            gc.collect()
+        finally:
+            gc.callbacks.remove(callback)
+        assert "Exception ignored" not in capsys.readouterr().err
+        with pytest.raises(KeyboardInterrupt):
+            _signals.check()
+        _signals._delivered = None  # what cli.main does when it reports the interrupt
+        from hinfnn.io import OutputFolder
+
+        with pytest.raises(KeyboardInterrupt):
+            with OutputFolder(tmp_path / "r") as folder:
+                (folder.path / "x.txt").write_text("x")
+                _signals._delivered = signal.SIGINT  # as if swallowed while the result was computed
+        assert list(tmp_path.iterdir()) == []  # no result, no partial folder
+    finally:
+        _signals.restore(previous)
+
+
 def test_import_hinfnn_loads_no_jax():
     code = "import sys, hinfnn, hinfnn.cli; assert 'jax' not in sys.modules and 'numpy' not in sys.modules; " \
            "hinfnn.TwoLinkArm; assert 'jax' in sys.modules"

@@ -16,6 +16,7 @@ the signal, or a second signal comes, the command reports it and leaves at once
 from __future__ import annotations
 
 import signal
+import sys
 import time
 
 #: Exit codes of the ``hinfnn`` command (documented in ``hinfnn --help`` and docs/results.md).
@@ -44,7 +45,12 @@ def _in_import(frame) -> bool:
     return False
 
 
+_delivered: int | None = None  # the last signal raised as an exception, until the command handles it
+
+
 def _raise(signum):
+    global _delivered
+    _delivered = signum
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
     raise Terminated(f"terminated by signal {signum}")
@@ -86,6 +92,30 @@ def _alarm(signum, frame):
     _raise(held)
 
 
+def check() -> None:
+    """Raise again a signal whose exception Python swallowed. The handler raises wherever the
+    interpreter happens to be; inside a garbage-collection callback (JAX registers one) or a
+    ``__del__``, Python prints "Exception ignored in ..." and goes on, so the command would finish
+    as if never interrupted. The command calls this between steps of its work and before it puts
+    a result in place."""
+    global _delivered
+    if _delivered is not None:
+        signum, _delivered = _delivered, None
+        _raise(signum)
+
+
+def _unraisable(info) -> None:
+    """sys.unraisablehook while the handlers are installed: our own KeyboardInterrupt or
+    Terminated raised where Python cannot propagate it is kept for :func:`check` and not printed
+    (the command prints its one line); anything else goes to the previous hook."""
+    if _delivered is not None and info.exc_type in (KeyboardInterrupt, Terminated):
+        return
+    _previous_unraisable(info)
+
+
+_previous_unraisable = sys.__unraisablehook__
+
+
 class _suppress:
     def __enter__(self):
         return self
@@ -99,9 +129,12 @@ def install() -> dict:
     signal the process inherited as ignored (``nohup``, a background job of a script) stays
     ignored. Returns the previous handlers for :func:`restore` (empty outside the main thread,
     where handlers cannot be set)."""
-    global _pending
-    _pending = None
+    global _pending, _delivered, _previous_unraisable
+    _pending = _delivered = None
     previous = {}
+    if sys.unraisablehook is not _unraisable:
+        _previous_unraisable = sys.unraisablehook
+        sys.unraisablehook = _unraisable
     try:
         for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGALRM):
             old = signal.getsignal(signum)
@@ -116,8 +149,8 @@ def install() -> dict:
 
 def ignore() -> None:
     """Ignore further SIGINT/SIGTERM (while the command reports an interrupt and leaves)."""
-    global _pending
-    _pending = None
+    global _pending, _delivered
+    _pending = _delivered = None
     for signum in (signal.SIGINT, signal.SIGTERM):
         with _suppress():
             signal.signal(signum, signal.SIG_IGN)
@@ -126,8 +159,10 @@ def ignore() -> None:
 
 
 def restore(previous: dict) -> None:
-    global _pending
-    _pending = None
+    global _pending, _delivered
+    _pending = _delivered = None
+    if sys.unraisablehook is _unraisable:
+        sys.unraisablehook = _previous_unraisable
     with _suppress():
         signal.setitimer(signal.ITIMER_REAL, 0)
     for signum, handler in previous.items():

@@ -288,6 +288,7 @@ class Progress:
             self.tty = False
 
     def __call__(self, done: int, total: int, names=None):
+        _signals.check()  # between chunks: a signal swallowed inside a callback ends the command here
         if self.quiet:
             return
         if self.tty:

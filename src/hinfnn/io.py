@@ -35,6 +35,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ._signals import Terminated
+from ._signals import check as _check_signals
 from .errors import HinfnnError, LoadError
 
 FORMAT = "hinfnn-trajectory-1"
@@ -468,16 +469,21 @@ class OutputFolder:
         return self
 
     def __exit__(self, exc_type, exc, tb):
+        ok = exc_type is None
         try:
-            if exc_type is None:
+            if ok:
+                _check_signals()  # a Ctrl-C whose exception Python swallowed: no result then
                 write_marker(self.path, kind=self.kind, command=self.command)
                 self._commit()
+        except BaseException:
+            ok = False
+            raise
         finally:
             if self.path is not None and self.path.exists():
                 shutil.rmtree(self.path, ignore_errors=True)
             self._signals.__exit__(None, None, None)
             if self.reservation is not None:
-                self.reservation.release(keep_parents=exc_type is None)
+                self.reservation.release(keep_parents=ok)
         return False
 
     def _commit(self):
