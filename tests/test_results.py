@@ -8,7 +8,6 @@ in ``show`` (which needs only metrics.json), ``plot`` and ``export`` round trips
 from __future__ import annotations
 
 import csv
-import io
 import json
 import os
 import re
@@ -16,7 +15,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
