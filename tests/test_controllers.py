@@ -22,7 +22,7 @@ SRC = Path(H.__file__).parent
 
 
 def test_controllers_and_model_never_import_the_plant():
-    """DESIGN.md, the one rule: controllers/ and model/ import nothing from plant/ or sim/."""
+    """docs/architecture.md, the one rule: controllers/ and model/ import nothing from plant/ or sim/."""
     for folder in ("controllers", "model"):
         for path in (SRC / folder).glob("*.py"):
             tree = ast.parse(path.read_text())

@@ -1,4 +1,4 @@
-"""Typed errors. Each names the field, the value and what is allowed (see DESIGN.md, Errors)."""
+"""Typed errors. Each names the field, the value and what is allowed (docs/architecture.md)."""
 
 from __future__ import annotations
 

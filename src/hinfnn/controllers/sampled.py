@@ -31,7 +31,7 @@ This is exactly the simulator's sampled-data mode (``hinfnn.simulate(..., contro
 the same method on the same numbers, so replaying a simulated run's measurements through
 :meth:`SampledController.update` reproduces its held torques and final controller state
 (``tests/test_sampled.py``). The wrapper holds the controller and its reference only: it never
-sees a plant (DESIGN.md, "the one rule").
+sees a plant (docs/architecture.md, "the one rule").
 
 Entry points:
 
