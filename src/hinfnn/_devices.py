@@ -90,11 +90,11 @@ def sincos(x):
 # --- products of tiny matrices -------------------------------------------------------------------
 
 
-def mm(a, b):
-    """``a @ b`` for vectors and matrices; contractions over at most :data:`SMALL` terms are
-    written as multiply-and-sum (see the module docstring)."""
+def mm(a, b, limit: int = SMALL):
+    """``a @ b`` for vectors and matrices; contractions over at most ``limit`` (default
+    :data:`SMALL`) terms are written as multiply-and-sum (see the module docstring)."""
     if (not ENABLED["small_mm"] or a.ndim > 2 or b.ndim > 2 or a.shape[-1] != b.shape[0]
-            or a.shape[-1] > SMALL):
+            or a.shape[-1] > limit):
         return a @ b
     if a.ndim == 1 and b.ndim == 1:
         return jnp.sum(a * b)

@@ -23,17 +23,7 @@ SMALL_MM = 8
 def mm(a, b):
     """``a @ b`` for vectors and matrices (:func:`hinfnn._devices.mm`, with contractions up to
     :data:`SMALL_MM` written as multiply-and-sum)."""
-    k = a.shape[-1]
-    if (_dev.ENABLED["small_mm"] and _dev.SMALL < k <= SMALL_MM and a.ndim <= 2 and b.ndim <= 2
-            and k == b.shape[0]):
-        if a.ndim == 1 and b.ndim == 1:
-            return jnp.sum(a * b)
-        if a.ndim == 2 and b.ndim == 1:
-            return jnp.sum(a * b[None, :], axis=1)
-        if a.ndim == 1:
-            return jnp.sum(a[:, None] * b, axis=0)
-        return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
-    return _dev.mm(a, b)
+    return _dev.mm(a, b, limit=SMALL_MM)
 
 
 def inv(A):
