@@ -140,12 +140,7 @@ class TanhNetwork:
     def update_blocks(self, xi_blocks, s, theta_blocks, gamma) -> tuple:
         """Eqs. (30)–(31) (with Remark 2's projection) on blocks; returns Θ̇ as blocks."""
         raw = tuple(gamma * s[o] * x for o in range(self.n_out) for x in xi_blocks)
-        if self.project:
-            growth = la.mm(s, self.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ
-            active = (sq_norm(theta_blocks) >= self.radius**2) & (growth > 0)
-            coef = jnp.where(active, gamma * growth / self.radius**2, 0.0)
-            raw = tuple(r - coef * t for r, t in zip(raw, theta_blocks))
-        return raw
+        return _projected(self, raw, xi_blocks, s, theta_blocks, gamma)
 
     def clip_blocks(self, theta_blocks) -> tuple:
         """Θ put back on the ball ‖Θ‖ ≤ d if an integration step overshot it (Remark 2; the
@@ -294,15 +289,21 @@ class CoordinateNetwork:
     def update_blocks(self, xi_blocks, s, theta_blocks, gamma) -> tuple:
         nb = self._nb
         raw = tuple(gamma * s[o] * xi_blocks[o * nb + i] for o in range(self.n_out) for i in range(nb))
-        if self.project:
-            growth = la.mm(s, self.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ
-            active = (sq_norm(theta_blocks) >= self.radius**2) & (growth > 0)
-            coef = jnp.where(active, gamma * growth / self.radius**2, 0.0)
-            raw = tuple(r - coef * t for r, t in zip(raw, theta_blocks))
-        return raw
+        return _projected(self, raw, xi_blocks, s, theta_blocks, gamma)
 
     def clip_blocks(self, theta_blocks) -> tuple:
         if not self.project:
             return theta_blocks
         scale = jnp.minimum(1.0, self.radius / jnp.maximum(jnp.sqrt(sq_norm(theta_blocks)), 1e-300))
         return tuple(t * scale for t in theta_blocks)
+
+
+def _projected(net, raw, xi_blocks, s, theta_blocks, gamma) -> tuple:
+    """Remark 2's projection of the update Θ̇ = ``raw`` (blocks) of either network: on the ball's
+    boundary ‖Θ‖ ≥ d with sᵀΞΘ > 0, the outward part γ (sᵀΞΘ/d²) Θ is removed."""
+    if not net.project:
+        return raw
+    growth = la.mm(s, net.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ
+    active = (sq_norm(theta_blocks) >= net.radius**2) & (growth > 0)
+    coef = jnp.where(active, gamma * growth / net.radius**2, 0.0)
+    return tuple(r - coef * t for r, t in zip(raw, theta_blocks))
