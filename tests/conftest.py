@@ -30,6 +30,48 @@ H.configure()
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
 
+# Where the suite's time goes (opt-in): HINFNN_COMPILE_REPORT=FILE appends one JSON line per test
+# with the JAX programs it compiled in this process, and the seconds spent tracing, lowering and
+# compiling them (subprocesses a test starts are not counted). Summarise with
+# `python tests/compile_report.py FILE`.
+_COMPILE_REPORT = os.environ.get("HINFNN_COMPILE_REPORT")
+if _COMPILE_REPORT:
+    import json
+    import time
+
+    import jax.monitoring as _mon
+
+    _spans = {"/jax/core/compile/jaxpr_trace_duration": "trace",
+              "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
+              "/jax/core/compile/backend_compile_duration": "compile"}
+    _now: dict = {}
+
+    def _on_duration(event, seconds, **_):
+        name = _spans.get(event)
+        if name is not None and _now:
+            _now[name] = _now.get(name, 0.0) + seconds
+            if name == "compile":
+                _now["programs"] = _now.get("programs", 0) + 1
+
+    def _on_event(event, **_):
+        if event == "/jax/compilation_cache/cache_hits" and _now:
+            _now["cache_hits"] = _now.get("cache_hits", 0) + 1
+
+    _mon.register_event_duration_secs_listener(_on_duration)
+    _mon.register_event_listener(_on_event)
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        _now.clear()
+        _now["t0"] = time.perf_counter()
+        yield
+        wall = time.perf_counter() - _now.pop("t0")
+        with open(_COMPILE_REPORT, "a", encoding="utf-8") as f:
+            f.write(json.dumps({"test": item.nodeid, "wall": round(wall, 3), "pid": os.getpid(),
+                                **{k: round(v, 3) for k, v in _now.items()}}) + "\n")
+        _now.clear()
+
+
 def pytest_unconfigure(config):
     if _OWN_CACHE and not hasattr(config, "workerinput"):
         shutil.rmtree(os.environ[_SESSION_CACHE], ignore_errors=True)

@@ -32,9 +32,10 @@ SHORT = ["--set", "simulation.t_final=0.05"]
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    """One compilation cache for this module's subprocesses (each would compile for 6 s otherwise)."""
-    return tmp_path_factory.mktemp("cache")
+def cache():
+    """The test session's compilation cache (conftest.py), for this module's subprocesses: each
+    would compile for 6 s otherwise."""
+    return Path(os.environ["HINFNN_CACHE_DIR"])
 
 
 def _env(cache, **extra):

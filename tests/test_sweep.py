@@ -59,10 +59,10 @@ def spec_of(text, **kw):
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    """A compilation cache shared by this module's subprocesses and Ray workers (the suite's own
-    process runs without one)."""
-    return tmp_path_factory.mktemp("jax-cache")
+def cache():
+    """The test session's compilation cache (conftest.py), for this module's subprocesses and Ray
+    workers: they load what the suite compiled instead of compiling it again."""
+    return Path(os.environ["HINFNN_CACHE_DIR"])
 
 
 @pytest.fixture(scope="module")
