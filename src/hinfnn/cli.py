@@ -827,7 +827,7 @@ def main(argv=None) -> int:
         _signals.on_hard_exit = _hard_exit
     box: dict = {}
     try:
-        return _main(argv, box)
+        code = _main(argv, box)
     except KeyboardInterrupt as err:
         _signals.ignore()  # a second Ctrl-C while leaving changes nothing
         print(f"hinfnn: interrupted; {getattr(err, 'hinfnn_note', 'no output was written')}", file=sys.stderr)
@@ -843,6 +843,11 @@ def main(argv=None) -> int:
         warnings.showwarning = saved_showwarning
         _signals.on_hard_exit = None
         _signals.restore(previous)
+    if argv is None and "jax" in sys.modules:  # a program that loaded JAX: skip the interpreter's teardown
+        from . import _devices
+
+        _devices.fast_exit(code if isinstance(code, int) else 1)
+    return code
 
 
 def _hard_exit(signum: int) -> None:
