@@ -60,8 +60,18 @@ def hinfnn_command() -> list[str]:
     return [sys.executable, "-c", "import sys; from hinfnn.cli import main; sys.exit(main())"]
 
 
-def _launch(cmd: list[str], env: dict) -> dict:
-    """Run one process; returns the launch-to-first-chunk time and the child's breakdown."""
+def _children_cpu() -> float:
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def launch(cmd: list[str], env: dict) -> dict:
+    """Run one process; returns the launch-to-first-chunk time, the child's breakdown, its
+    wall time to exit (``total``) and CPU time (``cpu_total``, user + system) and its ``done``
+    line. One child at a time (the CPU time is the growth of this process's children's)."""
+    cpu0 = _children_cpu()
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True, bufsize=1)
@@ -80,6 +90,7 @@ def _launch(cmd: list[str], env: dict) -> dict:
             other.append(line)
     code = proc.wait()
     total = time.perf_counter() - t0
+    cpu_total = _children_cpu() - cpu0
     if code != 0 or first is None:
         tail = "".join(other[-20:])
         raise RuntimeError(f"{' '.join(cmd)} exited with {code} (first chunk seen: {first is not None}):\n{tail}")
@@ -93,7 +104,8 @@ def _launch(cmd: list[str], env: dict) -> dict:
         "compile": first["compile"],
         "first_chunk": chunk,
     }
-    return dict(first_step=first_at, first_step_child=child_age, total=total, phases=phases,
+    return dict(first_step=first_at, first_step_child=child_age, total=total, cpu_total=cpu_total,
+                first_since_main=first["since_main"], done=done, phases=phases,
                 cache_load=first["cache_load"], cache_hits=first["cache_hits"], cpu=first.get("cpu"),
                 programs=first["programs"], scenario_loaded=first.get("scenario_loaded"),
                 warnings=[ln.rstrip() for ln in other if "Warning" in ln])
@@ -122,9 +134,9 @@ def measure_startup(repeats: int = 3, t_final: float = 0.5, cmd: list[str] | Non
                    JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS", "cpu"))
         args = ["run", "paper", "--set", f"simulation.t_final={t_final}", "--out", str(out),
                 "--force", "--quiet"]
-        cold = _launch(cmd + args, env)
+        cold = launch(cmd + args, env)
         after_cold = _cache_size(cache)
-        warm = [_launch(cmd + args, env) for _ in range(repeats)]
+        warm = [launch(cmd + args, env) for _ in range(repeats)]
         at_end = _cache_size(cache)
     med = {p: statistics.median(r["phases"][p] for r in warm) for p in PHASES}
     med["cache_load"] = statistics.median(r["cache_load"] for r in warm)

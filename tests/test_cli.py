@@ -62,6 +62,56 @@ def test_run_writes_every_file(tmp_path, capsys):
     assert not list(tmp_path.glob(".*"))  # no temporary folders left
 
 
+def test_run_no_figures_writes_everything_but_the_pngs(tmp_path, capsys):
+    """--no-figures: the same files and numbers as a run with figures, and no PNG; `hinfnn plot`
+    draws the figures later from the saved result."""
+    args = ["run", "paper", "--set", "simulation.t_final=0.05", "--set", 'controller.kind=["fl", "hinf_nn"]']
+    assert cli.main(args + ["--out", str(tmp_path / "with")]) == 0
+    assert cli.main(args + ["--out", str(tmp_path / "without"), "--no-figures"]) == 0
+    printed = capsys.readouterr().out
+    assert "(metrics.json, trajectory.npz, scenario.toml)" in printed
+    with_files = {p.name for p in (tmp_path / "with").iterdir()}
+    without_files = {p.name for p in (tmp_path / "without").iterdir()}
+    assert not list((tmp_path / "without").glob("*.png"))
+    assert without_files == {n for n in with_files if not n.endswith(".png")}
+    a, b = H.load(tmp_path / "with"), H.load(tmp_path / "without")
+    for name in ("fl", "hinf_nn"):
+        ta, tb = a.trajectories[name], b.trajectories[name]
+        assert ta.arrays.keys() == tb.arrays.keys()
+        for k in ta.arrays:
+            np.testing.assert_array_equal(ta.arrays[k], tb.arrays[k])
+    da, db = (json.loads((tmp_path / d / "metrics.json").read_text()) for d in ("with", "without"))
+    assert da["command"] != db["command"]
+    da.pop("command"), db.pop("command")
+    assert da == db
+    assert cli.main(["plot", str(tmp_path / "without")]) == 0
+    for name in ("u1", "lambda", "tau", "J", "contact", "weights"):
+        _check_png(tmp_path / "without" / f"{name}.png")
+
+
+@pytest.mark.parametrize("args, code", [
+    (["run", "paper", "--set", "simulation.t_final=0.01", "--no-figures"], 0),
+    (["run", "paper", "--set", "simulation.dt=-1"], 2),
+])
+def test_program_ends_with_its_code_and_all_its_output(tmp_path, args, code):
+    """The fast_exit device (hinfnn._devices): the `hinfnn` program leaves without the
+    interpreter's teardown, with its exit code and everything it printed (stdout a pipe)."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, HINFNN_CACHE_DIR=str(tmp_path / "cache"), JAX_PLATFORMS="cpu")
+    proc = subprocess.run([sys.executable, "-c", "import sys; from hinfnn.cli import main; sys.exit(main())",
+                           *args, "--out", str(tmp_path / "out")], env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == code, proc.stderr
+    if code == 0:
+        assert proc.stdout.rstrip().endswith("scenario.toml)")  # the last line, flushed
+        assert "RMS e_u1" in proc.stdout
+    else:
+        assert proc.stderr.startswith("hinfnn: ConfigError") and "simulation.dt" in proc.stderr
+
+
 def test_reproduce_short_horizon_writes_every_file(tmp_path, capsys):
     out = tmp_path / "paper"
     assert cli.main(["reproduce", "--paper-only", "--set", "simulation.t_final=0.3", "--out", str(out)]) == 0

@@ -8,6 +8,8 @@ from __future__ import annotations
 import matplotlib.image as mpimg
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hinfnn.report import paper_figures, run_figures
 from hinfnn.report import figures as F
@@ -156,3 +158,42 @@ def test_report_does_not_import_controllers_or_plant():
     names = [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
     names += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
     assert not [n for n in names if "controllers" in n or "plant" in n or "pyplot" in n]
+
+
+@settings(max_examples=60, deadline=None)
+@given(n_samples=st.integers(10, 3000), columns=st.integers(1, 400), seed=st.integers(0, 2**32 - 1),
+       uneven=st.booleans())
+def test_columns_keep_min_and_max_of_every_pixel_column(n_samples, columns, seed, uneven):
+    """The decimation the main panels draw: each pixel column's band spans exactly the smallest
+    and largest sample in that column, so no excursion is lost, and the columns together cover
+    every sample."""
+    rng = np.random.default_rng(seed)
+    steps = rng.uniform(0.1, 2.0, n_samples) if uneven else np.ones(n_samples)
+    t = np.cumsum(steps) - steps[0]
+    y = rng.standard_normal(n_samples) * rng.choice([1e-3, 1.0, 1e4])
+    x0, x1 = 0.0, float(t[-1])
+    cols = F._columns(t, y, x0, x1, columns)
+    if cols is None:  # sparse: every sample is drawn as it is
+        assert not F._dense(t, x0, x1, columns)
+        return
+    tm, lo, hi, _ = cols
+    b = np.clip(((t - x0) / (x1 - x0) * columns).astype(np.int64), 0, columns - 1)
+    used = np.unique(b)
+    assert len(tm) == len(used)
+    for j, col in enumerate(used):
+        assert lo[j] == y[b == col].min() and hi[j] == y[b == col].max()
+    assert lo.min() == y.min() and hi.max() == y.max()
+
+
+def test_png_fast_writes_the_same_pixels(tmp_path):
+    """The png_fast device (hinfnn._devices) changes the file's compression, not the picture."""
+    from hinfnn import _devices
+
+    runs = {"hinf": make_run("hinf", chatter=2.0)}
+    fast = run_figures(runs, tmp_path / "fast", only=["tau"])
+    try:
+        _devices.ENABLED["png_fast"] = False
+        default = run_figures(runs, tmp_path / "default", only=["tau"])
+    finally:
+        _devices.ENABLED["png_fast"] = True
+    assert np.array_equal(mpimg.imread(fast[0]), mpimg.imread(default[0]))

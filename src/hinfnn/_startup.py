@@ -9,6 +9,16 @@ import time
 
 TRACE_ENV = "HINFNN_TRACE_STARTUP"
 
+#: The trace of this process while ``hinfnn run`` traces (None otherwise), for :func:`mark`.
+ACTIVE: StartupTrace | None = None
+
+
+def mark(name: str) -> None:
+    """Record a named point on the active trace (``simulated``, ``files_written``, ...); a no-op
+    when nothing traces."""
+    if ACTIVE is not None:
+        ACTIVE.mark(name)
+
 
 def _process_age() -> float | None:
     """Seconds since this process started (Linux: /proc/self/stat start time against
@@ -55,7 +65,9 @@ class StartupTrace:
     ``lower`` (jaxpr → StableHLO, outside compile) and ``trace`` (Python → jaxpr, outside both),
     with the number of programs (``programs``) and persistent cache hits, and the CPU time of
     the process so far, all threads (``cpu``: tells a slow start from a busy machine). ``done`` adds
-    ``chunk`` (wall time of the second chunk alone: what running a chunk costs once compiled).
+    ``chunk`` (wall time of the second chunk alone: what running a chunk costs once compiled), the
+    points marked after the first chunk (``simulated``, ``files_written``, ``figures_written``:
+    seconds since main, see :func:`mark`) and the CPU time at the end (``cpu``).
     """
 
     _NAMES = {"/jax/core/compile/jaxpr_trace_duration": "trace",
@@ -79,9 +91,14 @@ class StartupTrace:
 
     @classmethod
     def from_env(cls) -> StartupTrace | None:
+        """A trace (and the :data:`ACTIVE` one) when ``HINFNN_TRACE_STARTUP`` asks for it, else None."""
         import os
 
-        return cls() if os.environ.get(TRACE_ENV, "").strip() not in ("", "0") else None
+        global ACTIVE
+        if os.environ.get(TRACE_ENV, "").strip() in ("", "0"):
+            return None
+        ACTIVE = cls()
+        return ACTIVE
 
     def _on_span(self, event, start, end, **_):
         name = self._NAMES.get(event)
@@ -133,13 +150,17 @@ class StartupTrace:
 
         t = self.chunk_times
         info = dict(chunk=(t[1] - t[0]) if len(t) > 1 else None, chunks=len(t),
-                    total_since_main=time.time() - self.t_main)
+                    total_since_main=time.time() - self.t_main, cpu=time.process_time(),
+                    **{k: v for k, v in self.marks.items() if k not in (self.first or {})})
         print(f"hinfnn-startup: done {json.dumps(info)}", file=sys.stderr, flush=True)
 
     def close(self):
         """Stop listening to JAX (matters when :func:`main` is called in-process)."""
         import jax.monitoring as mon
 
+        global ACTIVE
+        if ACTIVE is self:
+            ACTIVE = None
         mon.unregister_event_time_span_listener(self._on_span)
         mon.unregister_event_duration_listener(self._on_duration)
         mon.unregister_event_listener(self._on_event)

@@ -31,16 +31,17 @@ class RunResult:
 
 
 def run_scenario(sc, *, out=None, force: bool = False, fields=None, progress=None, command: str = "",
-                 log=print) -> RunResult:
+                 log=print, figures: bool = True) -> RunResult:
     """Simulate every controller of ``sc`` and write the result folder.
 
     ``out``: the folder (None: ``results/runs/<name>-<UTC time>``), reserved before anything
     runs (:func:`hinfnn.io.reserve_output`; ``force`` as there). ``fields``: what the runs store
     (None: everything; ``"metrics"``; names). Refuses with :class:`hinfnn.resources.ResourceError`
     when the stored samples would not fit in memory; ``log`` gets one line with the estimate
-    before a run longer than a minute and the note when the folder changed.
+    before a run longer than a minute and the note when the folder changed. ``figures=False``:
+    no PNG files (everything else is the same; ``hinfnn plot`` draws them later).
     """
-    from . import resources
+    from . import _startup, resources
     from .controllers import design_summary
     from .io import OutputFolder, atomic_write_bytes, atomic_write_text, dumps_json, reserve_output, \
         trajectory_npz_bytes
@@ -58,6 +59,7 @@ def run_scenario(sc, *, out=None, force: bool = False, fields=None, progress=Non
             log(f"hinfnn: {plan.summary()}")
         with OutputFolder(reservation, kind="run", command=command) as folder:
             trajs = simulate_many(runs, progress=progress, fields=fields)
+            _startup.mark("simulated")
             if progress is not None and hasattr(progress, "done"):
                 progress.done()
             entries = [run_entry(r.name, trajs[r.name], overrides=dict(sc.overrides),
@@ -67,9 +69,12 @@ def run_scenario(sc, *, out=None, force: bool = False, fields=None, progress=Non
             atomic_write_bytes(folder.path / "trajectory.npz",
                                trajectory_npz_bytes(trajs, sc.simulation.output_interval))
             atomic_write_text(folder.path / "scenario.toml", sc.to_toml())
-            from .report import run_figures  # matplotlib (0.5 s): imported once the simulation is done
+            _startup.mark("files_written")
+            if figures:
+                from .report import run_figures  # matplotlib (0.5 s): imported once the simulation is done
 
-            run_figures(trajs, folder.path)
+                run_figures(trajs, folder.path)
+                _startup.mark("figures_written")
     target = folder.moved_to or reservation.target
     note = None
     if folder.moved_to is not None:

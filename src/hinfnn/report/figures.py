@@ -45,6 +45,7 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 from matplotlib.transforms import blended_transform_factory
 
+from .. import _devices
 from ..io import atomic_write
 from ..sim.trajectory import STATUS, Trajectory
 
@@ -569,7 +570,8 @@ def _log_limits(ax, series, t_end: float):
 
 
 def _save(fig: Figure, path: Path) -> Path:
-    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=DPI, facecolor="white"))
+    options = _devices.png_options()
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=DPI, facecolor="white", **options))
     return path
 
 

@@ -29,6 +29,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import LogLocator, MaxNLocator, NullFormatter
 
+from .. import _devices
 from ..io import atomic_write, atomic_write_text
 
 DPI = 130
@@ -43,7 +44,8 @@ _OUTCOMES = [  # (name, colour, label)
 
 
 def _save(fig: Figure, path: Path) -> Path:
-    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=DPI, facecolor="white"))
+    options = _devices.png_options()
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=DPI, facecolor="white", **options))
     return path
 
 
