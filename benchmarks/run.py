@@ -16,6 +16,10 @@ Cases (each runs in a fresh worker process so that its peak memory is its own):
 5. ``latency`` — the sampled controller ``update(t, period, state, measurement)`` called from
    Python as in a 1 kHz robot loop: median and 99th percentile over 10,000 calls
    (benchmarks/latency.py).
+6. ``devices`` — each performance device of ``hinfnn._devices`` off in turn (fresh processes):
+   the adaptive 10-s run and a 100-plant batch.
+7. ``arm_devices`` — ``rolled_rk4`` on and off on the UR5 (ur5-table, H∞ + NN): the first run
+   (compile-dominated, empty cache) and a 0.5-s run.
 
 Baseline: the plain-NumPy closed loop of ``tests/numpy_oracle.py`` (a Python loop over RK4 steps,
 the same equations), timed in the same invocation on a 1-s horizon and scaled to 10 s.
@@ -328,10 +332,38 @@ def case_devices(args) -> dict:
     return out
 
 
+def case_arm_run(args) -> dict:
+    """The UR5 on its table (ur5-table), H∞ + NN: the first 0.05-s run (compile-dominated, empty
+    cache) and a 0.5-s run once compiled, with the devices of ``--disable`` off in this worker."""
+    import hinfnn as H
+
+    sc = H.load_scenario("ur5-table", {"controller.kind": "hinf_nn", "simulation.t_final": 0.05})
+    t0 = time.perf_counter()
+    sc.simulate("hinf_nn")
+    first = time.perf_counter() - t0
+    sc = sc.with_overrides({"simulation.t_final": 0.5})
+    times = []
+    for _ in range(max(1, args.repeats)):
+        t0 = time.perf_counter()
+        sc.simulate("hinf_nn")
+        times.append(time.perf_counter() - t0)
+    return dict(disabled=list(args.disable), first_run_s=first, s_per_half_second=_stats(times))
+
+
+def case_arm_devices(args) -> dict:
+    """``rolled_rk4`` on and off on a 6-joint arm (it is off for the paper's 2-joint arm): the
+    benchmark line that justifies it (compile time)."""
+    out = {}
+    for disabled in ((), ("rolled_rk4",)):
+        sub = argparse.Namespace(**{**vars(args), "disable": list(disabled)})
+        out[",".join(disabled) or "all on"] = run_worker("arm_run", sub)
+    return out
+
+
 CASES = {"single": case_single, "batch": case_batch, "startup": case_startup, "whole": case_whole,
          "latency": case_latency, "latency_sync": case_latency_sync, "devices": case_devices,
-         "device_run": case_device_run}
-DEFAULT_CASES = ["single", "batch", "startup", "whole", "latency", "latency_sync", "devices"]
+         "device_run": case_device_run, "arm_devices": case_arm_devices, "arm_run": case_arm_run}
+DEFAULT_CASES = ["single", "batch", "startup", "whole", "latency", "latency_sync", "devices", "arm_devices"]
 
 
 # --- driver --------------------------------------------------------------------------------------
@@ -449,6 +481,15 @@ def print_report(res: dict) -> None:
             bat = r["batch100_traj_steps_per_s"]
             print(f"{name:<14}{run:>11.3f}{(run / b_run if b_run else float('nan')):>10.2f}{bat:>20,.0f}"
                   f"{(bat / b_batch if b_batch else float('nan')):>10.2f}{fmt((r.get('ops') or {}).get('kernels'), 'd'):>14}")
+    arm = c.get("arm_devices")
+    if arm and "error" not in arm:
+        print("\n7. rolled_rk4 on a 6-joint arm (ur5-table, H∞ + NN): compile-dominated first run, then a 0.5-s run")
+        hdr = f"{'devices off':<14}{'first run s':>12}{'0.5-s run s':>13}"
+        print(hdr)
+        print("-" * len(hdr))
+        for name, r in arm.items():
+            if isinstance(r, dict) and "error" not in r:
+                print(f"{name:<14}{r['first_run_s']:>12.2f}{r['s_per_half_second']['median']:>13.3f}")
     if res.get("targets"):
         print("\nTargets")
         for name, t in res["targets"].items():
@@ -519,6 +560,7 @@ def main(argv=None) -> int:
         import numpy as np
 
         import hinfnn
+        import hinfnn._devices  # `import hinfnn` imports its modules on first use only
 
         for device in args.disable:
             hinfnn._devices.disable(device)

@@ -27,8 +27,17 @@ lines come from ``python benchmarks/run.py --cases whole`` (``benchmarks/whole.p
     Products of tiny matrices written as multiply-and-sum (:func:`mm`), which XLA fuses with the
     neighbouring arithmetic; a ``dot`` of 2 × 2 operands is a kernel of its own (1.9 s vs 2.5 s
     per 100,000 steps of the paper's adaptive run when this was introduced).
+``rolled_rk4``
+    For arms with at least :data:`ROLL_FROM_JOINTS` joints, RK4's stages 2–4 are a loop of three
+    iterations (:func:`~hinfnn.sim.integrate.rk4_step`, ``rolled``), so the compiled step holds
+    the plant and the controller twice instead of four times. This one is for compile time, not
+    run time: the UR5's H∞ + NN chunk compiled in 15.6 s instead of 19.2 s, with the same numbers
+    bit for bit and the same run time (1.63 vs 1.66 s per simulated 0.5 s); its whole first run,
+    tracing and the smaller programs included, 28.6 s instead of 31.0 s (``python
+    benchmarks/run.py --cases arm_devices``). The paper's 2-joint arm keeps the unrolled stages
+    (its results would move by 6e-13 and its step is small).
 ``png_fast``
-    Figures written with zlib level 1 instead of matplotlib's 6 (:data:`PNG_OPTIONS`): the
+    Figures written with zlib level 1 instead of matplotlib's 6 (:func:`png_options`): the
     same pixels, files about 15 % larger; the six PNGs of ``hinfnn run paper`` encode in
     0.41 s instead of 0.81 s.
 ``fast_exit``
@@ -49,7 +58,10 @@ BLOCK = 64
 #: Longest contraction :func:`mm` writes as multiply-and-sum.
 SMALL = 4
 
-ENABLED = {"blocks": True, "sincos": True, "small_mm": True, "png_fast": True, "fast_exit": True}
+ENABLED = {"blocks": True, "sincos": True, "small_mm": True, "rolled_rk4": True, "png_fast": True,
+           "fast_exit": True}
+#: Arms with at least this many joints integrate with RK4's stages 2–4 rolled (``rolled_rk4``).
+ROLL_FROM_JOINTS = 3
 
 
 def disable(*names: str) -> None:
@@ -60,6 +72,11 @@ def disable(*names: str) -> None:
         if name not in ENABLED:
             raise ValueError(f"unknown device {name!r}; devices: {', '.join(ENABLED)}")
         ENABLED[name] = False
+
+
+def rolled_rk4(n_joints: int) -> bool:
+    """Whether a plant with ``n_joints`` joints integrates with RK4's stages rolled."""
+    return ENABLED["rolled_rk4"] and n_joints >= ROLL_FROM_JOINTS
 
 
 # --- blocks --------------------------------------------------------------------------------------

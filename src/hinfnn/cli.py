@@ -127,7 +127,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="what the runs store: all (default), metrics (only what the metrics need: less memory "
                         "for long runs), or field names separated by commas")
     r.add_argument("--no-figures", dest="figures", action="store_false",
-                   help="write no figures (about 2 s less); `hinfnn plot DIR` draws them later from the saved result")
+                   help="write no figures (2.5-3 s less); `hinfnn plot DIR` draws them later from the saved result")
     common(r)
 
     rp = sub.add_parser(

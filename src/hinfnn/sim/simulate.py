@@ -36,6 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _devices as dev
 from .._pytree import all_finite, pytree_dataclass
 from ..errors import ConfigError, SimulationError
 from .integrate import rk4_step
@@ -147,7 +148,8 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
             rates, book = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
             acc = jax.tree.map(lambda a, r: a + dt * r, y.acc, rates)
             return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **book}
-        y_new, aux = rk4_step(lambda tt, yy: _rhs(plant, ctrl, ref, tt, yy, w, held, sampled), t, y, dt)
+        y_new, aux = rk4_step(lambda tt, yy: _rhs(plant, ctrl, ref, tt, yy, w, held, sampled), t, y, dt,
+                              rolled=dev.rolled_rk4(plant.n))
         return SimState(plant=y_new.plant, xc=ctrl.constrain(y_new.xc), acc=y_new.acc), aux
 
     def step(c: Carry, k, first):
