@@ -100,7 +100,7 @@ def test_program_ends_with_its_code_and_all_its_output(tmp_path, args, code):
     import subprocess
     import sys
 
-    env = dict(os.environ, HINFNN_CACHE_DIR=str(tmp_path / "cache"), JAX_PLATFORMS="cpu")
+    env = dict(os.environ, JAX_PLATFORMS="cpu")  # the session's compilation cache (conftest.py)
     proc = subprocess.run([sys.executable, "-c", "import sys; from hinfnn.cli import main; sys.exit(main())",
                            *args, "--out", str(tmp_path / "out")], env=env, capture_output=True, text=True,
                           timeout=300)
