@@ -325,10 +325,15 @@ def case_device_run(args) -> dict:
 def case_devices(args) -> dict:
     """Each performance device of hinfnn._devices turned off in turn (a fresh process each),
     against all on: the benchmark line that justifies each."""
+    return _each_off(args, "device_run", ("blocks", "sincos", "small_mm"))
+
+
+def _each_off(args, worker: str, devices) -> dict:
+    """``worker`` in fresh processes: all devices on, then each of ``devices`` off in turn."""
     out = {}
-    for disabled in ((), ("blocks",), ("sincos",), ("small_mm",)):
+    for disabled in ((), *((d,) for d in devices)):
         sub = argparse.Namespace(**{**vars(args), "disable": list(disabled)})
-        out[",".join(disabled) or "all on"] = run_worker("device_run", sub)
+        out[",".join(disabled) or "all on"] = run_worker(worker, sub)
     return out
 
 
@@ -353,11 +358,7 @@ def case_arm_run(args) -> dict:
 def case_arm_devices(args) -> dict:
     """``rolled_rk4`` on and off on a 6-joint arm (it is off for the paper's 2-joint arm): the
     benchmark line that justifies it (compile time)."""
-    out = {}
-    for disabled in ((), ("rolled_rk4",)):
-        sub = argparse.Namespace(**{**vars(args), "disable": list(disabled)})
-        out[",".join(disabled) or "all on"] = run_worker("arm_run", sub)
-    return out
+    return _each_off(args, "arm_run", ("rolled_rk4",))
 
 
 CASES = {"single": case_single, "batch": case_batch, "startup": case_startup, "whole": case_whole,

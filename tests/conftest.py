@@ -41,9 +41,9 @@ if _COMPILE_REPORT:
 
     import jax.monitoring as _mon
 
-    _spans = {"/jax/core/compile/jaxpr_trace_duration": "trace",
-              "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
-              "/jax/core/compile/backend_compile_duration": "compile"}
+    from hinfnn._startup import StartupTrace
+
+    _spans = StartupTrace._NAMES  # JAX's trace, lower and compile events, named as hinfnn's startup trace does
     _now: dict = {}
 
     def _on_duration(event, seconds, **_):
