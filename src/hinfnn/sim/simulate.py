@@ -17,7 +17,9 @@ loop over chunks (never over steps): the compiled program is the same for every 
 progress is reported and Ctrl-C is honoured between chunks. Inside a chunk, an outer scan takes
 one stored sample every ``save_every`` steps and an inner loop runs the steps between them with
 no output, so that every buffer it touches is small (see :mod:`hinfnn._devices`, ``blocks``).
-What a sample holds is the recorder's business (:mod:`hinfnn.sim.recorder`).
+The same program takes the last sample (t_final) in the chunk that reaches it, so a run
+structure compiles one large program (the final state is read from the last carry by a small
+one). What a sample holds is the recorder's business (:mod:`hinfnn.sim.recorder`).
 
 The plant's held input (the joint disturbance) is evaluated at each step's midpoint; steps land
 on its switching instants when dt divides them (checked by the scenario loader).
@@ -211,34 +213,38 @@ def _record(record_at, c: Carry, t, w, fields):
 
 def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, *, n_records, save_every, sampled,
            fields):
-    """``n_records · save_every`` steps from step ``k0``; a record every ``save_every`` steps.
+    """Records ``r = 0 … n_records − 1`` of a chunk starting at step ``k0``: record r is taken at
+    step k = k0 + r · save_every, then the ``save_every`` steps after it are run.
 
     An outer scan over records, an inner loop over the steps between them with no output: the
-    inner loop body touches only small buffers, so XLA runs its kernels inline."""
+    inner loop body touches only small buffers, so XLA runs its kernels inline. Records past
+    t_final (k > n_steps) are padding, their loops run no step. The record at k = n_steps is the
+    last one (t_final), with the last step's held input; so one program takes every record, the
+    final one included, and the final state is the carry after the last chunk."""
     record_at, sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
 
     def one_record(c, r):
         k = k0 + r * save_every
         c = sample(c, k)
-        c, rec = _record(record_at, c, k * dt, plant.step_input(k * dt, dt), fields)
-        c = jax.lax.fori_loop(0, save_every, lambda i, cc: step(cc, k + i, i == 0), c)
+        w = plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt)  # at t_final: the last step's input
+        c, rec = _record(record_at, c, k * dt, w, fields)
+        n_inner = jnp.clip(n_steps - k, 0, save_every)  # save_every, or 0 from t_final on
+        c = jax.lax.fori_loop(0, n_inner, lambda i, cc: step(cc, k + i, i == 0), c)
         return c, rec
 
     return jax.lax.scan(one_record, carry, jnp.arange(n_records))
 
 
-def _finish(plant, ctrl, ref, limits, carry, n_steps, dt, n_hold, *, sampled, fields):
-    """The record at t_final and the full final state (controller state flat again)."""
-    record_at, _, _ = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
-    t_end = n_steps * dt
-    _, rec = _record(record_at, carry, t_end, plant.step_input(t_end - dt, dt), fields)
+def _final(plant, ctrl, carry):
+    """The full final state (controller state flat again) and why the run stopped, from the
+    carry after the last chunk."""
     y_end = carry.y
     q, qd = plant.joints(y_end.plant)
     xc = ctrl.from_loop(y_end.xc)
     final = dict(q=q, qd=qd, z=xc.z, **xc.parts, J=y_end.acc.J, J_aug=y_end.acc.J_aug, supply=y_end.acc.supply)
     details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts,
                    sigma_min_J=carry.bad_sigma)
-    return rec, carry.status, carry.t_fail, details, final
+    return carry.status, carry.t_fail, details, final
 
 
 def _init_carry(ctrl, y0, n):
@@ -260,47 +266,46 @@ def _init_carry(ctrl, y0, n):
 
 @functools.lru_cache(maxsize=128)
 def _compiled(in_axes, n_records, save_every, sampled, fields):
-    """(chunk, finish, init) compiled for one structure; in_axes=None for a single run.
+    """(chunk, final, init) compiled for one structure; in_axes=None for a single run.
 
     Horizon, dt and the hold period are traced arguments, so a new t_final or dt reuses the
     compiled program."""
     chunk = functools.partial(_chunk, n_records=n_records, save_every=save_every, sampled=sampled,
                               fields=fields)
-    finish = functools.partial(_finish, sampled=sampled, fields=fields)
-    init = _init_carry
+    final, init = _final, _init_carry
     if in_axes is not None:
         p, c, r, lim = in_axes
         chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None))
-        finish = jax.vmap(finish, in_axes=(p, c, r, lim, 0, None, None, None))
+        final = jax.vmap(final, in_axes=(p, c, 0))
         init = jax.vmap(_init_carry, in_axes=(c, 0, None))
-    return jax.jit(chunk), jax.jit(finish), jax.jit(init, static_argnums=2)
+    return jax.jit(chunk), jax.jit(final), jax.jit(init, static_argnums=2)
 
 
 def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold, dt, n_joints,
            fields, progress=None):
-    """Run the chunks from Python; returns the outputs of :func:`_finish` with all records.
+    """Run the chunks from Python; returns (records, status, t_fail, details, final).
 
-    The records are copied chunk by chunk into arrays allocated once (n_records + 1 samples),
-    so memory is what is stored, never proportional to the steps."""
-    n_records = n_steps // save_every
+    The n_records + 1 records (t = 0, …, t_final) are copied chunk by chunk into arrays allocated
+    once, so memory is what is stored, never proportional to the steps."""
+    n_total = n_steps // save_every + 1
     per_chunk = max(1, CHUNK_STEPS // save_every)  # independent of the horizon: one compilation
     sampled = n_hold > 0
-    chunk, finish, init = _compiled(in_axes, per_chunk, save_every, sampled, fields)
+    chunk, final, init = _compiled(in_axes, per_chunk, save_every, sampled, fields)
     carry = init(ctrl, y0, n_joints)
     axis = 0 if in_axes is None else 1  # the time axis of the records
     n_steps_a = jnp.asarray(n_steps, dtype=jnp.int64)
     dt_a = jnp.asarray(dt, dtype=jnp.float64)
     hold_a = jnp.asarray(max(n_hold, 1), dtype=jnp.int64)
     out: dict[str, np.ndarray] = {}
-    n_chunks = -(-n_records // per_chunk)
+    n_chunks = -(-n_total // per_chunk)
 
     def store(c, rec):
         start = c * per_chunk
-        stop = min(start + per_chunk, n_records)
+        stop = min(start + per_chunk, n_total)
         for k, v in rec.items():
             v = np.asarray(v)
             if k not in out:
-                shape = v.shape[:axis] + (n_records + 1,) + v.shape[axis + 1:]
+                shape = v.shape[:axis] + (n_total,) + v.shape[axis + 1:]
                 out[k] = np.empty(shape, v.dtype)
             if axis == 0:
                 out[k][start:stop] = v[:stop - start]
@@ -316,18 +321,9 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold
         if pending is not None:
             store(*pending)
         pending = (c, rec)
-    if pending is not None:
-        store(*pending)
+    store(*pending)  # n_chunks >= 1
     del pending
-    rec_end, status, t_fail, details, final = finish(plant, ctrl, ref, limits, carry, n_steps_a, dt_a, hold_a)
-    for k, v in rec_end.items():
-        if k not in out:  # no chunk (n_records = 0 cannot happen, n_steps >= 1)
-            out[k] = np.empty(np.shape(v)[:axis] + (n_records + 1,) + np.shape(v)[axis:], np.asarray(v).dtype)
-        if axis == 0:
-            out[k][n_records] = np.asarray(v)
-        else:
-            out[k][:, n_records] = np.asarray(v)
-    return out, status, t_fail, details, final
+    return (out, *final(plant, ctrl, carry))
 
 
 def steps(t_final, dt, save_every, control_period, save_interval=None, discrete=False):
