@@ -15,11 +15,13 @@ The simulator knows the plant and the controller only through :mod:`hinfnn.proto
 A run is a jit-compiled program over a chunk of :data:`CHUNK_STEPS` steps, called from a Python
 loop over chunks (never over steps): the compiled program is the same for every horizon and dt,
 progress is reported and Ctrl-C is honoured between chunks. Inside a chunk, an outer scan takes
-one stored sample every ``save_every`` steps and an inner loop runs the steps between them with
-no output, so that every buffer it touches is small (see :mod:`hinfnn._devices`, ``blocks``).
-The same program takes the last sample (t_final) in the chunk that reaches it, so a run
-structure compiles one large program (the final state is read from the last carry by a small
-one). What a sample holds is the recorder's business (:mod:`hinfnn.sim.recorder`).
+one stored sample every ``save_every`` steps and an inner loop runs the steps between them,
+keeping the record of the first (the RK4 step's first stage is the evaluation at the sample
+instant, so the dynamics appear in the program once per RK4 stage, not again for the samples);
+every buffer it touches is small (see :mod:`hinfnn._devices`, ``blocks``). The same program
+takes the last sample (t_final) in the chunk that reaches it, so a run structure compiles one
+large program (the final state is read from the last carry by a small one). What a sample
+holds is the recorder's business (:mod:`hinfnn.sim.recorder`).
 
 The plant's held input (the joint disturbance) is evaluated at each step's midpoint; steps land
 on its switching instants when dt divides them (checked by the scenario loader).
@@ -116,17 +118,10 @@ class Carry:
     maxes: dict
 
 
-def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
-    """(record_at, sample, step): the record at a state, the sampled-mode controller update at
-    step k, and one step k -> k + 1 with failure detection (a no-op for k ≥ n_steps: padding)."""
+def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields):
+    """(sample, step): the sampled-mode controller update at step k, and one step k -> k + 1
+    with failure detection (a no-op for k ≥ n_steps) that also returns the record at step k."""
     discrete = bool(getattr(plant, "discrete", False))
-
-    def record_at(t, y, w, held):
-        if discrete:
-            meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, True)
-            _, book = bookkeeping(ctrl, y.xc, out, meas.qd, jnp.zeros_like(meas.qd), y.acc)
-            return {**record, **book}
-        return _rhs(plant, ctrl, ref, t, y, w, held, sampled)[1]
 
     def sample(c: Carry, k, skip=False):
         """At a sample instant: τ held from now on, controller state advanced by the controller's
@@ -155,14 +150,20 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
         return SimState(plant=y_new.plant, xc=ctrl.constrain(y_new.xc), acc=y_new.acc), aux
 
     def step(c: Carry, k, first):
-        """Step k; ``first``: the record of step k was just taken (its sample update and its τ
-        statistics are already done)."""
+        """Step k, and the record at step k (its start). ``first``: a record is taken at step k
+        (its sample update is already done): the record's τ statistics cover the steps since the
+        previous record, and they restart. At k = n_steps (t_final) the step is a no-op that
+        gives the last record, with the last step's held input."""
         active = k < n_steps
         t = k * dt
         c = sample(c, k, skip=first)
         y_in = c.y
-        y_new, aux = advance(t, y_in, plant.step_input(t, dt), c.held)
+        y_new, aux = advance(t, y_in, plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt), c.held)
         tau = aux["tau"]
+        rec = dict(aux, t=jnp.asarray(t, dtype=float), tau_abs_max=jnp.maximum(c.tau_peak, jnp.abs(tau)),
+                   tau_variation=c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev)),
+                   **{name: c.sums[name] + fn(aux) for name, fn in STEP_SUMS.items()},
+                   **{name: jnp.maximum(c.maxes[name], fn(aux)) for name, fn in STEP_MAXES.items()})
         tau_peak = jnp.max(jnp.abs(tau))
         pen = aux["penetration"]
         finite_parts = (all_finite(y_new.plant), all_finite(y_new.xc), all_finite(y_new.acc))
@@ -176,6 +177,10 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
         status = jnp.where(status == 0, code, status)
         keep_old = (status != 0) | ~active
         count = active & ~first
+
+        def stat(new, old):  # restart at a record, else accumulate over the counted steps
+            return jnp.where(first, jnp.zeros_like(old), jnp.where(count, new, old))
+
         return Carry(
             y=jax.tree.map(lambda a, b: jnp.where(keep_old, a, b), y_in, y_new), held=c.held,
             status=status,
@@ -184,53 +189,42 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled):
             bad_pen=jnp.where(first_fail, pen, c.bad_pen),
             bad_parts=jnp.where(first_fail, parts, c.bad_parts),
             bad_sigma=jnp.where(first_fail, aux.get("sigma_min_J", jnp.nan), c.bad_sigma),
-            tau_peak=jnp.where(count, jnp.maximum(c.tau_peak, jnp.abs(tau)), c.tau_peak),
-            tau_tv=jnp.where(count, c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
+            tau_peak=stat(jnp.maximum(c.tau_peak, jnp.abs(tau)), c.tau_peak),
+            tau_tv=stat(c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
             tau_prev=jnp.where(count | first, tau, c.tau_prev),
-            sums={k: jnp.where(count, c.sums[k] + fn(aux), c.sums[k]) for k, fn in STEP_SUMS.items()},
-            maxes={k: jnp.where(count, jnp.maximum(c.maxes[k], fn(aux)), c.maxes[k])
-                   for k, fn in STEP_MAXES.items()})
+            sums={k: stat(c.sums[k] + fn(aux), c.sums[k]) for k, fn in STEP_SUMS.items()},
+            maxes={k: stat(jnp.maximum(c.maxes[k], fn(aux)), c.maxes[k]) for k, fn in STEP_MAXES.items()}), \
+            pick(rec, fields)
 
-    return record_at, sample, step
-
-
-def _record(record_at, c: Carry, t, w, fields):
-    """The record at t (the state at the start of step k) and the carry with the τ statistics
-    restarted; ``tau_abs_max``/``tau_variation`` cover the steps since the previous record."""
-    aux = record_at(t, c.y, w, c.held)
-    tau = aux["tau"]
-    aux["tau_abs_max"] = jnp.maximum(c.tau_peak, jnp.abs(tau))
-    aux["tau_variation"] = c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev))
-    for k, fn in STEP_SUMS.items():
-        aux[k] = c.sums[k] + fn(aux)
-    for k, fn in STEP_MAXES.items():
-        aux[k] = jnp.maximum(c.maxes[k], fn(aux))
-    c = dataclasses.replace(c, tau_peak=jnp.zeros_like(c.tau_peak), tau_tv=jnp.zeros_like(c.tau_tv),
-                            tau_prev=tau, sums=jax.tree.map(jnp.zeros_like, c.sums),
-                            maxes=jax.tree.map(jnp.zeros_like, c.maxes))
-    return c, pick(aux, fields)
+    return sample, step
 
 
 def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, *, n_records, save_every, sampled,
            fields):
     """Records ``r = 0 … n_records − 1`` of a chunk starting at step ``k0``: record r is taken at
-    step k = k0 + r · save_every, then the ``save_every`` steps after it are run.
+    step k = k0 + r · save_every, as the first of the ``save_every`` steps after it.
 
-    An outer scan over records, an inner loop over the steps between them with no output: the
-    inner loop body touches only small buffers, so XLA runs its kernels inline. Records past
-    t_final (k > n_steps) are padding, their loops run no step. The record at k = n_steps is the
-    last one (t_final), with the last step's held input; so one program takes every record, the
-    final one included, and the final state is the carry after the last chunk."""
-    record_at, sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled)
+    An outer scan over records, an inner loop over the steps between them that keeps the first
+    step's record (every buffer it touches is small, so XLA runs its kernels inline). The
+    record at k = n_steps (t_final) is the last one, given by one no-op step; records past it
+    are padding and run no step. So one program takes every record, the final one included,
+    with the dynamics in it once per RK4 stage and not again for the records, and the final
+    state is the carry after the last chunk."""
+    sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields)
 
     def one_record(c, r):
         k = k0 + r * save_every
         c = sample(c, k)
-        w = plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt)  # at t_final: the last step's input
-        c, rec = _record(record_at, c, k * dt, w, fields)
-        n_inner = jnp.clip(n_steps - k, 0, save_every)  # save_every, or 0 from t_final on
-        c = jax.lax.fori_loop(0, n_inner, lambda i, cc: step(cc, k + i, i == 0), c)
-        return c, rec
+        shapes = jax.eval_shape(lambda cc, kk: step(cc, kk, True)[1], c, k)
+        rec0 = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+        n_inner = jnp.where(k <= n_steps, jnp.clip(n_steps - k, 1, save_every), 0)
+
+        def body(i, state):
+            cc, rec = state
+            cc, new = step(cc, k + i, i == 0)
+            return cc, jax.tree.map(lambda a, b: jnp.where(i == 0, a, b), new, rec)
+
+        return jax.lax.fori_loop(0, n_inner, body, (c, rec0))
 
     return jax.lax.scan(one_record, carry, jnp.arange(n_records))
 
@@ -558,8 +552,8 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
 
     def one(plant, ctrl, ref, lim, y0):
         carry = _init_carry(ctrl, y0, plant.n)
-        record_at, _, _ = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled)
-        return _record(record_at, carry, jnp.zeros((), jnp.float64), plant.step_input(0.0, dt), fields)[1]
+        _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields)
+        return step(carry, jnp.zeros((), jnp.int64), True)[1]
 
     out = jax.eval_shape(one, plant, controller, reference, limits or Limits(), y0)
     return {k: (tuple(v.shape), np.dtype(v.dtype)) for k, v in out.items()}
