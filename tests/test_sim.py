@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
@@ -92,6 +93,32 @@ def test_batch_with_one_diverging_member_finishes_and_marks_only_it(paper_plant,
     ok = H.simulate(paper_plant, ctrls[0], reference, u1_0=U1_0, t_final=0.3, dt=1e-4, save_every=10)
     np.testing.assert_allclose(tr.member(0).q, ok.q, rtol=1e-9)
     assert np.all(np.isfinite(tr.member(1).q))  # frozen at its last good state
+
+
+def test_a_batch_in_groups_equals_the_batch_in_one(paper_plant, nominal_arm, nominal_surface, reference,
+                                                   monkeypatch):
+    """The ``batch_groups`` device (hinfnn._devices): three members in groups of two (the second
+    padded with a copy of its member) give the one-group batch's numbers bit for bit, the
+    diverging member's status included, and the progress runs once to the end."""
+    from hinfnn import _devices
+
+    gains = [H.Gains(), H.Gains(K_p=1e7, K_v=1e3), H.Gains(K_p=20.0)]
+    ctrls = [H.HinfController.design(nominal_arm, nominal_surface, g) for g in gains]
+    run = functools.partial(H.simulate_batch, paper_plant, ctrls, reference, u1_0=U1_0, t_final=0.3, dt=1e-4,
+                            save_every=10)
+    one = run()
+    monkeypatch.setattr(_devices, "BATCH_GROUP", 2)
+    assert [list(g) for g in _devices.batch_groups(3)] == [[0, 1], [2, 2]]
+    seen = []
+    two = run(progress=lambda done, total: seen.append((done, total)))
+    assert seen[-1] == (2 * 3000, 2 * 3000) and [d for d, _ in seen] == sorted(d for d, _ in seen)
+    np.testing.assert_array_equal(two.status, one.status)
+    np.testing.assert_array_equal(two.t_fail, one.t_fail)
+    assert set(two.arrays) == set(one.arrays) and set(two.final) == set(one.final)
+    for name in one.arrays:
+        np.testing.assert_array_equal(two.arrays[name], one.arrays[name], err_msg=name)
+    for name in one.final:
+        np.testing.assert_array_equal(two.final[name], one.final[name], err_msg=name)
 
 
 def test_penetration_limit_stops_a_run(paper_plant, nominal_arm, nominal_surface, reference):

@@ -36,6 +36,14 @@ lines come from ``python benchmarks/run.py --cases whole`` (``benchmarks/whole.p
     tracing and the smaller programs included, 28.6 s instead of 31.0 s (``python
     benchmarks/run.py --cases arm_devices``). The paper's 2-joint arm keeps the unrolled stages
     (its results would move by 6e-13 and its step is small).
+``batch_groups``
+    A batch of more than :data:`BATCH_GROUP` members runs as equal groups of at most that many,
+    one after the other, through one compiled program (the last group is padded with copies of
+    its first member, whose results are dropped). Past a few hundred members the vmapped step's
+    arrays no longer stay in the cache: the paper's adaptive law at B = 1,000 ran 165,000-173,000
+    trajectory-steps/s in one group, and 245,000 at B = 500 (``python benchmarks/run.py
+    --cases batch``; the same numbers bit for bit, each member's run does not depend on the
+    others).
 ``png_fast``
     Figures written with zlib level 1 instead of matplotlib's 6 (:func:`png_options`): the
     same pixels, files about 15 % larger; the six PNGs of ``hinfnn run paper`` encode in
@@ -58,10 +66,12 @@ BLOCK = 64
 #: Longest contraction :func:`mm` writes as multiply-and-sum.
 SMALL = 4
 
-ENABLED = {"blocks": True, "sincos": True, "small_mm": True, "rolled_rk4": True, "png_fast": True,
-           "fast_exit": True}
+ENABLED = {"blocks": True, "sincos": True, "small_mm": True, "rolled_rk4": True, "batch_groups": True,
+           "png_fast": True, "fast_exit": True}
 #: Arms with at least this many joints integrate with RK4's stages 2–4 rolled (``rolled_rk4``).
 ROLL_FROM_JOINTS = 3
+#: Largest group of a batch run at once (``batch_groups``).
+BATCH_GROUP = 500
 
 
 def disable(*names: str) -> None:
@@ -77,6 +87,23 @@ def disable(*names: str) -> None:
 def rolled_rk4(n_joints: int) -> bool:
     """Whether a plant with ``n_joints`` joints integrates with RK4's stages rolled."""
     return ENABLED["rolled_rk4"] and n_joints >= ROLL_FROM_JOINTS
+
+
+def batch_groups(B: int) -> list:
+    """Member indices of the groups a batch of B runs in (``batch_groups``): one group of all
+    when B <= :data:`BATCH_GROUP` or the device is off, else equal groups (numpy index arrays,
+    the last padded with its first member)."""
+    import numpy as np
+
+    if not ENABLED["batch_groups"] or B <= BATCH_GROUP:
+        return [np.arange(B)]
+    n = -(-B // BATCH_GROUP)
+    g = -(-B // n)
+    groups = []
+    for i in range(n):
+        idx = np.arange(i * g, min((i + 1) * g, B))
+        groups.append(np.concatenate([idx, np.full(g - idx.size, idx[0])]))
+    return groups
 
 
 # --- blocks --------------------------------------------------------------------------------------
