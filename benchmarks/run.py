@@ -20,13 +20,14 @@ Cases (each runs in a fresh worker process so that its peak memory is its own):
    the adaptive 10-s run and a 100-plant batch.
 7. ``arm_devices`` — ``rolled_rk4`` on and off on the UR5 (ur5-table, H∞ + NN): the first run
    (compile-dominated, empty cache) and a 0.5-s run.
+8. ``batch_devices`` — ``batch_groups`` on and off: the adaptive law at B = 1,000 (1 s, metrics).
 
 Baseline: the plain-NumPy closed loop of ``tests/numpy_oracle.py`` (a Python loop over RK4 steps,
 the same equations), timed in the same invocation on a 1-s horizon and scaled to 10 s.
 
 Usage::
 
-    python benchmarks/run.py                 # everything (make bench), ~10 min on 2 cores
+    python benchmarks/run.py                 # everything (make bench), ~13 min on 2 cores
     python benchmarks/run.py --cases single latency --repeats 5
     python benchmarks/run.py --quick         # smaller batches and horizons, for a smoke test
 
@@ -362,10 +363,32 @@ def case_arm_devices(args) -> dict:
     return _each_off(args, "arm_run", ("rolled_rk4",))
 
 
+def case_batch_run(args) -> dict:
+    """The adaptive law at B = 1,000 for 1 s (fields="metrics", the program compiled first), with
+    the devices of ``--disable`` off in this worker."""
+    import hinfnn as H
+
+    sc = H.load_scenario("paper", {"controller.kind": "hinf_nn"})
+    ctrl, ref = sc.build_controller("hinf_nn"), sc.build_reference()
+    plants, q0s, _ = draw_plants(1000, seed=args.seed)
+    H.simulate_batch(plants, ctrl, ref, t_final=0.01, dt=DT, q0=q0s, fields="metrics")
+    t0 = time.perf_counter()
+    H.simulate_batch(plants, ctrl, ref, t_final=1.0, dt=DT, q0=q0s, fields="metrics")
+    wall = time.perf_counter() - t0
+    return dict(disabled=list(args.disable), wall_s=wall, traj_steps_per_s=1000 * round(1.0 / DT) / wall)
+
+
+def case_batch_devices(args) -> dict:
+    """``batch_groups`` on and off at B = 1,000: the benchmark line that justifies it."""
+    return _each_off(args, "batch_run", ("batch_groups",))
+
+
 CASES = {"single": case_single, "batch": case_batch, "startup": case_startup, "whole": case_whole,
          "latency": case_latency, "latency_sync": case_latency_sync, "devices": case_devices,
-         "device_run": case_device_run, "arm_devices": case_arm_devices, "arm_run": case_arm_run}
-DEFAULT_CASES = ["single", "batch", "startup", "whole", "latency", "latency_sync", "devices", "arm_devices"]
+         "device_run": case_device_run, "arm_devices": case_arm_devices, "arm_run": case_arm_run,
+         "batch_devices": case_batch_devices, "batch_run": case_batch_run}
+DEFAULT_CASES = ["single", "batch", "startup", "whole", "latency", "latency_sync", "devices", "arm_devices",
+                 "batch_devices"]
 
 
 # --- driver --------------------------------------------------------------------------------------
@@ -492,6 +515,15 @@ def print_report(res: dict) -> None:
         for name, r in arm.items():
             if isinstance(r, dict) and "error" not in r:
                 print(f"{name:<14}{r['first_run_s']:>12.2f}{r['s_per_half_second']['median']:>13.3f}")
+    bd = c.get("batch_devices")
+    if bd and "error" not in bd:
+        print("\n8. batch_groups at B = 1,000 (adaptive law, 1 s, metrics)")
+        hdr = f"{'devices off':<14}{'wall s':>8}{'traj-steps/s':>14}"
+        print(hdr)
+        print("-" * len(hdr))
+        for name, r in bd.items():
+            if isinstance(r, dict) and "error" not in r:
+                print(f"{name:<14}{r['wall_s']:>8.2f}{r['traj_steps_per_s']:>14,.0f}")
     if res.get("targets"):
         print("\nTargets")
         for name, t in res["targets"].items():

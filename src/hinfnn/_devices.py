@@ -40,10 +40,10 @@ lines come from ``python benchmarks/run.py --cases whole`` (``benchmarks/whole.p
     A batch of more than :data:`BATCH_GROUP` members runs as equal groups of at most that many,
     one after the other, through one compiled program (the last group is padded with copies of
     its first member, whose results are dropped). Past a few hundred members the vmapped step's
-    arrays no longer stay in the cache: the paper's adaptive law at B = 1,000 ran 165,000-173,000
-    trajectory-steps/s in one group, and 245,000 at B = 500 (``python benchmarks/run.py
-    --cases batch``; the same numbers bit for bit, each member's run does not depend on the
-    others).
+    arrays no longer stay in the cache: the paper's adaptive law at B = 1,000 (1 s, metrics)
+    runs 260,875 trajectory-steps/s in two groups of 500 and 179,791 in one group (``python
+    benchmarks/run.py --cases batch_devices``), with the same numbers bit for bit (each member's
+    run does not depend on the others).
 ``png_fast``
     Figures written with zlib level 1 instead of matplotlib's 6 (:func:`png_options`): the
     same pixels, files about 15 % larger; the six PNGs of ``hinfnn run paper`` encode in
