@@ -426,6 +426,20 @@ def mark(ok):
     return "met" if ok else "MISSED"
 
 
+def _print_each_off(title: str, case: dict | None, cols: list) -> None:
+    """The table of an :func:`_each_off` case: one row per "devices off" entry, columns
+    ``(header, width, format(row))``."""
+    if not case or "error" in case:
+        return
+    print(title)
+    hdr = f"{'devices off':<14}" + "".join(f"{h:>{w}}" for h, w, _ in cols)
+    print(hdr)
+    print("-" * len(hdr))
+    for name, r in case.items():
+        if isinstance(r, dict) and "error" not in r:
+            print(f"{name:<14}" + "".join(f"{show(r):>{w}}" for _, w, show in cols))
+
+
 def print_report(res: dict) -> None:
     m = res["machine"]
     print(f"\nhinfnn {m['hinfnn']} ({m['commit']}) · {m['cpu']} · {m['usable_cores']} of {m['cores']} cores · "
@@ -506,24 +520,13 @@ def print_report(res: dict) -> None:
             bat = r["batch100_traj_steps_per_s"]
             print(f"{name:<14}{run:>11.3f}{(run / b_run if b_run else float('nan')):>10.2f}{bat:>20,.0f}"
                   f"{(bat / b_batch if b_batch else float('nan')):>10.2f}{fmt((r.get('ops') or {}).get('kernels'), 'd'):>14}")
-    arm = c.get("arm_devices")
-    if arm and "error" not in arm:
-        print("\n7. rolled_rk4 on a 6-joint arm (ur5-table, H∞ + NN): compile-dominated first run, then a 0.5-s run")
-        hdr = f"{'devices off':<14}{'first run s':>12}{'0.5-s run s':>13}"
-        print(hdr)
-        print("-" * len(hdr))
-        for name, r in arm.items():
-            if isinstance(r, dict) and "error" not in r:
-                print(f"{name:<14}{r['first_run_s']:>12.2f}{r['s_per_half_second']['median']:>13.3f}")
-    bd = c.get("batch_devices")
-    if bd and "error" not in bd:
-        print("\n8. batch_groups at B = 1,000 (adaptive law, 1 s, metrics)")
-        hdr = f"{'devices off':<14}{'wall s':>8}{'traj-steps/s':>14}"
-        print(hdr)
-        print("-" * len(hdr))
-        for name, r in bd.items():
-            if isinstance(r, dict) and "error" not in r:
-                print(f"{name:<14}{r['wall_s']:>8.2f}{r['traj_steps_per_s']:>14,.0f}")
+    _print_each_off("\n7. rolled_rk4 on a 6-joint arm (ur5-table, H∞ + NN): compile-dominated first run, then a "
+                    "0.5-s run", c.get("arm_devices"),
+                    [("first run s", 12, lambda r: f"{r['first_run_s']:.2f}"),
+                     ("0.5-s run s", 13, lambda r: f"{r['s_per_half_second']['median']:.3f}")])
+    _print_each_off("\n8. batch_groups at B = 1,000 (adaptive law, 1 s, metrics)", c.get("batch_devices"),
+                    [("wall s", 8, lambda r: f"{r['wall_s']:.2f}"),
+                     ("traj-steps/s", 14, lambda r: f"{r['traj_steps_per_s']:,.0f}")])
     if res.get("targets"):
         print("\nTargets")
         for name, t in res["targets"].items():
