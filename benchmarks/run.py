@@ -57,9 +57,11 @@ RESULTS = HERE / "results"
 DT = 1e-4
 T_RUN = 10.0
 KINDS = ("fl", "hinf", "hinf_nn")
+#: The second speed round's targets (single runs, B = 1,000, whole process) and the earlier ones.
 TARGETS = {
-    "single_s_per_run": 1.0, "single_speedup_vs_numpy": 50.0, "single_compile_s": 10.0,
-    "batch1000_traj_steps_per_s": 300_000.0, "batch1000_memory_gb": 4.0,
+    "single_s_per_run": {"fl": 0.5, "hinf": 0.5, "hinf_nn": 0.8},
+    "single_speedup_vs_numpy": 50.0, "single_compile_s": 10.0,
+    "batch1000_traj_steps_per_s": 450_000.0, "batch1000_memory_gb": 4.0,
     "startup_warm_s": 3.0, "whole_warm_s": 3.0, "whole_cold_s": 6.0,
     "latency_median_us": 30.0, "latency_p99_us": 100.0,
 }
@@ -531,6 +533,8 @@ def print_report(res: dict) -> None:
         print("\nTargets")
         for name, t in res["targets"].items():
             print(f"  {name:<38}{t['measured']:>14,.3f}  target {t['op']} {t['target']:,g}  {mark(t['met'])}")
+        if not all(t["met"] for t in res["targets"].values()):
+            print("  (README.md, Performance: where the time of each missed target goes, with the profiles)")
     for case, r in c.items():
         if "error" in r:
             print(f"\n{case}: {r['error']}")
@@ -549,7 +553,9 @@ def targets(c: dict) -> dict:
         for kind, r in c["single"]["rows"].items():
             if r.get("mode", "continuous") != "continuous":
                 continue
-            add(f"case 1 {kind}: s per 10-s run", r["s_per_10s_run"]["median"], "<=", TARGETS["single_s_per_run"])
+            if kind in TARGETS["single_s_per_run"]:
+                add(f"case 1 {kind}: s per 10-s run", r["s_per_10s_run"]["median"], "<=",
+                    TARGETS["single_s_per_run"][kind])
             add(f"case 1 {kind}: × NumPy oracle", r["speedup_vs_numpy"], ">=", TARGETS["single_speedup_vs_numpy"])
             add(f"case 1 {kind}: compile s", r["compile_s"], "<=", TARGETS["single_compile_s"])
     rows = c.get("batch", {}).get("rows", {})
