@@ -160,7 +160,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields):
         y_in = c.y
         y_new, aux = advance(t, y_in, plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt), c.held)
         tau = aux["tau"]
-        rec = dict(aux, t=jnp.asarray(t, dtype=float), tau_abs_max=jnp.maximum(c.tau_peak, jnp.abs(tau)),
+        rec = dict(aux, tau_abs_max=jnp.maximum(c.tau_peak, jnp.abs(tau)),
                    tau_variation=c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev)),
                    **{name: c.sums[name] + fn(aux) for name, fn in STEP_SUMS.items()},
                    **{name: jnp.maximum(c.maxes[name], fn(aux)) for name, fn in STEP_MAXES.items()})
@@ -189,12 +189,11 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields):
             bad_pen=jnp.where(first_fail, pen, c.bad_pen),
             bad_parts=jnp.where(first_fail, parts, c.bad_parts),
             bad_sigma=jnp.where(first_fail, aux.get("sigma_min_J", jnp.nan), c.bad_sigma),
-            tau_peak=stat(jnp.maximum(c.tau_peak, jnp.abs(tau)), c.tau_peak),
+            tau_peak=stat(rec["tau_abs_max"], c.tau_peak),
             tau_tv=stat(c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
             tau_prev=jnp.where(count | first, tau, c.tau_prev),
-            sums={k: stat(c.sums[k] + fn(aux), c.sums[k]) for k, fn in STEP_SUMS.items()},
-            maxes={k: stat(jnp.maximum(c.maxes[k], fn(aux)), c.maxes[k]) for k, fn in STEP_MAXES.items()}), \
-            pick(rec, fields)
+            sums={name: stat(rec[name], c.sums[name]) for name in STEP_SUMS},
+            maxes={name: stat(rec[name], c.maxes[name]) for name in STEP_MAXES}), pick(rec, fields)
 
     return sample, step
 
