@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 # A compilation cache private to this test session, never the user's ~/.cache: the programs one
 # test process compiles (a pytest-xdist worker, a CLI subprocess) are loaded by the others. The
@@ -70,6 +71,13 @@ if _COMPILE_REPORT:
             f.write(json.dumps({"test": item.nodeid, "wall": round(wall, 3), "pid": os.getpid(),
                                 **{k: round(v, 3) for k, v in _now.items()}}) + "\n")
         _now.clear()
+
+
+@pytest.fixture(scope="session")
+def cache():
+    """The test session's compilation cache (above), for the subprocesses and Ray workers a test
+    starts: they load what the suite compiled instead of compiling it again (6 s per paper run)."""
+    return Path(os.environ["HINFNN_CACHE_DIR"])
 
 
 def pytest_unconfigure(config):

@@ -31,13 +31,6 @@ SRC = Path(H.__file__).resolve().parents[1]  # the hinfnn under test, also in su
 SHORT = ["--set", "simulation.t_final=0.05"]
 
 
-@pytest.fixture(scope="module")
-def cache():
-    """The test session's compilation cache (conftest.py), for this module's subprocesses: each
-    would compile for 6 s otherwise."""
-    return Path(os.environ["HINFNN_CACHE_DIR"])
-
-
 def _env(cache, **extra):
     env = {**os.environ, "PYTHONPATH": str(SRC), "HINFNN_CACHE_DIR": str(cache), "JAX_PLATFORMS": "cpu",
            "PYTHONFAULTHANDLER": "1"}

@@ -59,13 +59,6 @@ def spec_of(text, **kw):
 
 
 @pytest.fixture(scope="module")
-def cache():
-    """The test session's compilation cache (conftest.py), for this module's subprocesses and Ray
-    workers: they load what the suite compiled instead of compiling it again."""
-    return Path(os.environ["HINFNN_CACHE_DIR"])
-
-
-@pytest.fixture(scope="module")
 def small(tmp_path_factory):
     """A small sweep run once with the local backend: (spec, folder, table)."""
     spec = spec_of(SPEC)
