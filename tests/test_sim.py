@@ -255,3 +255,37 @@ def test_rolled_rk4_stages_equal_the_unrolled_ones():
     fine = run(False, 0.05 / 8, 320)
     err = [np.max(np.abs(run(True, dt, n) - fine)) for dt, n in ((0.1, 20), (0.05, 40))]
     assert 12.0 < err[0] / err[1] < 20.0  # 2⁴ = 16
+
+
+_DEFAULT_EMITTERS_RUN = """
+import sys, numpy as np, hinfnn as H
+H.configure()
+traj = H.load_scenario("paper", {"simulation.t_final": 0.3}).simulate("hinf_nn")
+np.savez(sys.argv[1], **traj.arrays)
+"""
+
+
+def test_the_default_xla_emitters_give_the_tested_numbers(tmp_path):
+    """The suite compiles with XLA's older CPU emitters (conftest.py, for compile time); users run
+    XLA's default. The adaptive law (every term of the law) on the paper plant, 0.3 s, in a process
+    with XLA's default options: every stored sample of every field equal to 1e-10 of its scale."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from conftest import TEST_XLA_FLAG
+
+    assert TEST_XLA_FLAG in os.environ["XLA_FLAGS"]
+    env = {**os.environ, "XLA_FLAGS": os.environ["XLA_FLAGS"].replace(TEST_XLA_FLAG, "").strip(),
+           "PYTHONPATH": str(Path(H.__file__).resolve().parents[1])}
+    subprocess.run([sys.executable, "-c", _DEFAULT_EMITTERS_RUN, str(tmp_path / "default.npz")], env=env,
+                   check=True, timeout=600)
+    ours = H.load_scenario("paper", {"simulation.t_final": 0.3}).simulate("hinf_nn").arrays
+    with np.load(tmp_path / "default.npz") as default:
+        assert set(default.files) == set(ours)
+        for name in default.files:
+            a, b = np.asarray(ours[name]), default[name]
+            assert a.shape == b.shape, name
+            scale = max(1.0, float(np.max(np.abs(b)))) if b.size else 1.0
+            assert np.max(np.abs(a - b), initial=0.0) <= 1e-10 * scale, name
