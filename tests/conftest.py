@@ -23,8 +23,8 @@ os.environ["HINFNN_CACHE_DIR"] = os.environ[_SESSION_CACHE]
 # The suite's programs are compiled with XLA's older CPU loop emitters instead of its default
 # fusion emitters: about a third less compile time (the paper's adaptive program 4.9 -> 2.5-3.0 s),
 # the same run time, and results equal to 2e-13 relative (252 arrays of the paper's three laws, a
-# sampled run, a failing run and a batch). The suite is mostly compiling, so it takes 11 min instead
-# of 15-17. Users run XLA's default: test_sim.py's
+# sampled run, a failing run and a batch). The suite is mostly compiling, so it takes 10-11 min instead
+# of 15-17 on this project's machines. Users run XLA's default: test_sim.py's
 # test_the_default_xla_emitters_give_the_tested_numbers checks that it gives the same samples.
 # Set before JAX is imported; subprocesses and Ray workers inherit it.
 TEST_XLA_FLAG = "--xla_cpu_use_fusion_emitters=false"
