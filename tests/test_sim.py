@@ -230,8 +230,9 @@ def test_batch_of_one_equals_a_single_run(paper_plant, nominal_arm, nominal_surf
 
 
 def test_rolled_rk4_stages_equal_the_unrolled_ones():
-    """The rolled_rk4 device (hinfnn._devices): stages 2-4 as a loop give the same step as the
-    four stages written out, on a nonlinear pytree system, and both have order four."""
+    """The rolled_rk4 device (hinfnn._devices): the four stages as a loop give the same step as the
+    four stages written out, bit for bit, on a nonlinear pytree system with a time-dependent
+    force (the stage times matter), the first stage's auxiliary output, and order four."""
     import jax
     import jax.numpy as jnp
 
@@ -243,15 +244,18 @@ def test_rolled_rk4_stages_equal_the_unrolled_ones():
 
     y0 = {"q": jnp.array([0.4, -1.2, 2.0]), "v": jnp.array([0.1, 0.0, -0.5])}
 
-    def run(rolled, dt, n):
+    def run(rolled, dt, n, aux=False):
         step = jax.jit(lambda t, y: rk4_step(f, t, y, dt, rolled=rolled))
-        y = y0
+        y, sums = y0, []
         for k in range(n):
-            y, _ = step(k * dt, y)
-        return np.concatenate([np.asarray(y["q"]), np.asarray(y["v"])])
+            y, s = step(k * dt, y)
+            sums.append(float(s))
+        x = np.concatenate([np.asarray(y["q"]), np.asarray(y["v"])])
+        return (x, sums) if aux else x
 
-    a, b = run(True, 0.05, 40), run(False, 0.05, 40)
-    np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-14)
+    (a, sa), (b, sb) = run(True, 0.05, 40, aux=True), run(False, 0.05, 40, aux=True)
+    np.testing.assert_array_equal(a, b)
+    assert sa == sb and sa[0] == float(jnp.sum(y0["q"]))
     fine = run(False, 0.05 / 8, 320)
     err = [np.max(np.abs(run(True, dt, n) - fine)) for dt, n in ((0.1, 20), (0.05, 40))]
     assert 12.0 < err[0] / err[1] < 20.0  # 2⁴ = 16

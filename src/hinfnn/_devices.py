@@ -28,14 +28,15 @@ lines come from ``python benchmarks/run.py --cases whole`` (``benchmarks/whole.p
     neighbouring arithmetic; a ``dot`` of 2 × 2 operands is a kernel of its own (1.9 s vs 2.5 s
     per 100,000 steps of the paper's adaptive run when this was introduced).
 ``rolled_rk4``
-    For arms with at least :data:`ROLL_FROM_JOINTS` joints, RK4's stages 2–4 are a loop of three
+    For arms with at least :data:`ROLL_FROM_JOINTS` joints, RK4's four stages are a loop of four
     iterations (:func:`~hinfnn.sim.integrate.rk4_step`, ``rolled``), so the compiled step holds
-    the plant and the controller twice instead of four times. This one is for compile time, not
-    run time: the UR5's H∞ + NN chunk compiled in 15.6 s instead of 19.2 s, with the same numbers
-    bit for bit and the same run time (1.63 vs 1.66 s per simulated 0.5 s); its whole first run,
-    tracing and the smaller programs included, 28.6 s instead of 31.0 s (``python
-    benchmarks/run.py --cases arm_devices``). The paper's 2-joint arm keeps the unrolled stages
-    (its results would move by 6e-13 and its step is small).
+    the plant and the controller once instead of four times. This one is for compile time: the
+    UR5's H∞ + NN first run (0.05 s simulated, compile-dominated) takes 14.1 s instead of 24.8 s
+    written out, and its 0.5-s run 1.51 s instead of 2.02 s, with the same numbers bit for bit
+    (``python benchmarks/run.py --cases arm_devices``; ur5-table, ur5-sphere and planar3-drum,
+    three kinds each: 417 arrays equal). Rolling only stages 2–4 (the plant and the controller
+    twice) took 15.3 s and 1.86 s. The paper's 2-joint arm keeps the stages written out: rolled, its
+    adaptive 10-s run took 3.0 s instead of 1.9 s and its results moved by up to 8e-9.
 ``batch_groups``
     A batch of more than :data:`BATCH_GROUP` members runs as equal groups of at most that many,
     one after the other, through one compiled program (the last group is padded with copies of

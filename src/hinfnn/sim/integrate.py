@@ -14,19 +14,27 @@ def rk4_step(f, t, y, dt, *, rolled: bool = False):
     """One RK4 step of ẏ = f(t, y); ``f`` returns ``(dy, aux)``. Returns ``(y_next, aux_1)``,
     aux_1 the auxiliary output of the first stage (the state at the start of the step).
 
-    ``rolled``: stages 2–4 as a loop of three iterations, so a compiled program holds ``f``
-    twice instead of four times (the same operations in the same order; a device for arms with
-    large dynamics, :func:`hinfnn._devices.rolled_rk4`)."""
-    k1, aux = f(t, y)
+    ``rolled``: the four stages as a loop of four iterations, so a compiled program holds ``f``
+    once instead of four times (the same operations in the same order, bit for bit; a device for
+    arms with large dynamics, :func:`hinfnn._devices.rolled_rk4`)."""
     if rolled:
-        def stage(i, state):
-            acc, k = state
-            c = jnp.where(i == 3, 1.0, 0.5)  # stages 2, 3 at t + dt/2 from k1, k2; stage 4 at t + dt
-            ki, _ = f(t + c * dt, _axpy(c * dt, k, y))
-            return jax.tree.map(lambda a, kk: a + jnp.where(i == 3, 1.0, 2.0) * kk, acc, ki), ki
+        def zeros(tree):
+            return jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), tree)
 
-        acc, _ = jax.lax.fori_loop(1, 4, stage, (k1, k1))  # acc = k1 + 2 k2 + 2 k3 + k4
+        def stage(i, state):
+            acc, k, aux = state
+            first = i == 0
+            c = jnp.where(i == 3, 1.0, 0.5)  # stage 1 at (t, y); 2, 3 at t + dt/2 from k1, k2; 4 at t + dt
+            ki, aux_i = f(jnp.where(first, t, t + c * dt),
+                          jax.tree.map(lambda yi, kk: jnp.where(first, yi, yi + c * dt * kk), y, k))
+            w = jnp.where(i == 3, 1.0, 2.0)
+            acc = jax.tree.map(lambda a, kk: jnp.where(first, kk, a + w * kk), acc, ki)  # k1 + 2 k2 + 2 k3 + k4
+            return acc, ki, jax.tree.map(lambda new, old: jnp.where(first, new, old), aux_i, aux)
+
+        k_shape, aux_shape = jax.eval_shape(f, t, y)
+        acc, _, aux = jax.lax.fori_loop(0, 4, stage, (zeros(k_shape), zeros(k_shape), zeros(aux_shape)))
         return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
+    k1, aux = f(t, y)
     k2, _ = f(t + 0.5 * dt, _axpy(0.5 * dt, k1, y))
     k3, _ = f(t + 0.5 * dt, _axpy(0.5 * dt, k2, y))
     k4, _ = f(t + dt, _axpy(dt, k3, y))
