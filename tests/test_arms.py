@@ -25,9 +25,9 @@ from hinfnn.controllers import CoordinateNetwork, TanhNetwork, centres_from
 from hinfnn.model.arm import PlanarPointMassArm
 from hinfnn.model.geometry import Circle, Cylinder, Line, Plane, SineProfile, Sphere, UserSurface
 from hinfnn.model.reduced import reduced_model
-from hinfnn.model.surface import FittedConstraint, TaskConstraint
+from hinfnn.model.surface import TaskConstraint
 from hinfnn.model.taskmap import FittedTaskMap, PlanarTaskMap, PoseTaskMap, so3_exp
-from hinfnn.model.urdf import UrdfArm, _task_derivatives, load_urdf_string, planar_chain
+from hinfnn.model.urdf import UrdfArm, load_urdf_string, planar_chain
 from hinfnn.plant import Friction
 from hinfnn.reference import SmoothCosineReference
 

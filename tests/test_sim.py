@@ -261,6 +261,32 @@ def test_rolled_rk4_stages_equal_the_unrolled_ones():
     assert 12.0 < err[0] / err[1] < 20.0  # 2⁴ = 16
 
 
+@pytest.mark.parametrize("rolled", [False, True])
+def test_a_chunk_traces_the_dynamics_once_per_written_stage(rolled, paper_plant, nominal_arm, nominal_surface,
+                                                            reference, monkeypatch):
+    """Tracing cost (paid by every process, cached program or not): a chunk program traces plant
+    and controller (``_rhs``) once per RK4 stage written out, 4 times, or once when the stages
+    are rolled (rolled_rk4). The record's shapes and the rolled stages' shapes come from those
+    same traces (jax.jit's trace cache), not from second ones: 8 and 4 before."""
+    import importlib
+
+    import jax.numpy as jnp
+
+    from hinfnn import _devices
+
+    S = importlib.import_module("hinfnn.sim.simulate")
+    monkeypatch.setattr(_devices, "ROLL_FROM_JOINTS", 2 if rolled else 3)
+    calls = []
+    rhs = S._rhs
+    monkeypatch.setattr(S, "_rhs", lambda *a: calls.append(1) or rhs(*a))
+    ctrl = H.HinfNNController.design(nominal_arm, nominal_surface, H.Gains())
+    carry = S._init_carry(ctrl, S.initial_state(paper_plant, ctrl, u1_0=U1_0), 2)
+    chunk = S._compiled.__wrapped__(None, 3, 2, False, S.select(None))[0]  # a fresh jit: no trace cached
+    chunk.trace(paper_plant, ctrl, reference, S.Limits(), carry, jnp.asarray(0), jnp.asarray(6),
+                jnp.asarray(1e-4), jnp.asarray(1))
+    assert len(calls) == (1 if rolled else 4)
+
+
 _DEFAULT_EMITTERS_RUN = """
 import sys, numpy as np, hinfnn as H
 H.configure()

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 from .. import _linalg as la
 
 from .._pytree import pytree_dataclass, static_field
-from .arm import Arm
+from .arm import Arm, PlanarPointMassArm
 
 
 @pytree_dataclass
@@ -115,10 +115,8 @@ class TwoLinkArm(Arm):
         q1 = jnp.arctan2(x[1], x[0]) - jnp.arctan2(self.l2 * jnp.sin(q2), self.l1 + self.l2 * jnp.cos(q2))
         return jnp.stack([q1, q2])
 
-    def to_generic(self) -> "PlanarPointMassArm":
+    def to_generic(self) -> PlanarPointMassArm:
         """The same arm as a :class:`PlanarPointMassArm` (the autodiff oracle)."""
-        from .arm import PlanarPointMassArm
-
         return PlanarPointMassArm(
             masses=jnp.stack([jnp.asarray(self.m1, float), jnp.asarray(self.m2, float)]),
             lengths=jnp.stack([jnp.asarray(self.l1, float), jnp.asarray(self.l2, float)]),

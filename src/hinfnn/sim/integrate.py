@@ -18,6 +18,8 @@ def rk4_step(f, t, y, dt, *, rolled: bool = False):
     once instead of four times (the same operations in the same order, bit for bit; a device for
     arms with large dynamics, :func:`hinfnn._devices.rolled_rk4`)."""
     if rolled:
+        f = jax.jit(f, inline=True)  # traced once: for the shapes below and for the loop's body
+
         def zeros(tree):
             return jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), tree)
 
