@@ -287,6 +287,29 @@ def test_a_chunk_traces_the_dynamics_once_per_written_stage(rolled, paper_plant,
     assert len(calls) == (1 if rolled else 4)
 
 
+def test_record_shapes_are_what_a_run_stores_and_are_traced_once_per_structure(paper_plant, nominal_arm,
+                                                                                 nominal_surface, reference,
+                                                                                 monkeypatch):
+    """resources.plan's per-sample sizes (record_shapes) equal the arrays a run stores, for all
+    fields and for ``"metrics"``; asking again for the same structure traces nothing."""
+    import importlib
+
+    S = importlib.import_module("hinfnn.sim.simulate")
+    monkeypatch.setattr(S, "_RECORD_SHAPES", {})
+    calls = []
+    rhs = S._rhs
+    monkeypatch.setattr(S, "_rhs", lambda *a: calls.append(1) or rhs(*a))
+    ctrl = H.HinfController.design(nominal_arm, nominal_surface, H.Gains())
+    q0 = paper_plant.initial_q(U1_0)
+    shapes = S.record_shapes(paper_plant, ctrl, reference, q0=q0)
+    traj = H.simulate(paper_plant, ctrl, reference, q0=q0, t_final=0.002)
+    assert shapes == {k: (v.shape[1:], v.dtype) for k, v in traj.arrays.items()}
+    n = len(calls)
+    assert S.record_shapes(paper_plant, ctrl, reference, q0=q0) == shapes and len(calls) == n
+    metrics = S.record_shapes(paper_plant, ctrl, reference, q0=q0, fields="metrics")  # its own structure
+    assert len(calls) == n + 1 and metrics == {k: v for k, v in shapes.items() if k in S.select("metrics")} != shapes
+
+
 _DEFAULT_EMITTERS_RUN = """
 import sys, numpy as np, hinfnn as H
 H.configure()
