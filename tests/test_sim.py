@@ -281,10 +281,34 @@ def test_a_chunk_traces_the_dynamics_once_per_written_stage(rolled, paper_plant,
     monkeypatch.setattr(S, "_rhs", lambda *a: calls.append(1) or rhs(*a))
     ctrl = H.HinfNNController.design(nominal_arm, nominal_surface, H.Gains())
     carry = S._init_carry(ctrl, S.initial_state(paper_plant, ctrl, u1_0=U1_0), 2)
-    chunk = S._compiled.__wrapped__(None, 3, 2, False, S.select(None))[0]  # a fresh jit: no trace cached
+    chunk = S._compiled.__wrapped__(None, 3, False, S.select(None))[0]  # a fresh jit: no trace cached
     chunk.trace(paper_plant, ctrl, reference, S.Limits(), carry, jnp.asarray(0), jnp.asarray(6),
-                jnp.asarray(1e-4), jnp.asarray(1))
+                jnp.asarray(1e-4), jnp.asarray(1), jnp.asarray(2))
     assert len(calls) == (1 if rolled else 4)
+
+
+def test_output_intervals_share_one_compiled_program(paper_plant, nominal_arm, nominal_surface, reference,
+                                                     monkeypatch):
+    """The steps between stored samples are an argument of the chunk program, not a constant of
+    it: runs storing every 2nd, 5th or 10th step (the same chunk size, records_per_chunk)
+    reuse one program (nothing traced again), and each stores what it should."""
+    import importlib
+
+    S = importlib.import_module("hinfnn.sim.simulate")
+    assert [S.records_per_chunk(e) for e in (1, 2, 10, 11, 100, 101, 10_000)] == [2000, 200, 200, 20, 20, 2, 2]
+    calls = []
+    rhs = S._rhs
+    monkeypatch.setattr(S, "_rhs", lambda *a: calls.append(1) or rhs(*a))
+    ctrl = H.HinfController.design(nominal_arm, nominal_surface, H.Gains())
+    runs = {10: H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.003, save_every=10)}
+    traced = len(calls)  # 4, or 0 when an earlier test of this process compiled the structure
+    for e in (5, 2):
+        runs[e] = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.003, save_every=e)
+    assert len(calls) == traced
+    for e, traj in runs.items():
+        np.testing.assert_allclose(traj.t, np.arange(0, 31, e) * 1e-4, rtol=1e-14, atol=1e-17)
+        for name in ("q", "tau", "lam"):
+            np.testing.assert_array_equal(traj.arrays[name][:: 10 // e], runs[10].arrays[name], err_msg=name)
 
 
 def test_record_shapes_are_what_a_run_stores_and_are_traced_once_per_structure(paper_plant, nominal_arm,

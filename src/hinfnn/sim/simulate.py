@@ -12,9 +12,10 @@ The simulator knows the plant and the controller only through :mod:`hinfnn.proto
   held torque; it always runs in the sampled-data mode, and the accumulators advance by the
   rectangle rule.
 
-A run is a jit-compiled program over a chunk of :data:`CHUNK_STEPS` steps, called from a Python
-loop over chunks (never over steps): the compiled program is the same for every horizon and dt,
-progress is reported and Ctrl-C is honoured between chunks. Inside a chunk, an outer scan takes
+A run is a jit-compiled program over a chunk of a fixed number of stored samples (about
+:data:`CHUNK_STEPS` steps, :func:`records_per_chunk`), called from a Python loop over chunks
+(never over steps): the compiled program is the same for every horizon, dt and output interval
+(within one of four sizes of chunk), progress is reported and Ctrl-C is honoured between chunks. Inside a chunk, an outer scan takes
 one stored sample every ``save_every`` steps and an inner loop runs the steps between them,
 keeping the record of the first (the RK4 step's first stage is the evaluation at the sample
 instant, so the dynamics appear in the program once per RK4 stage, not again for the samples);
@@ -88,9 +89,21 @@ def _rhs(plant, ctrl, ref, t, y: SimState, w, held, sampled):
     return SimState(plant=dplant, xc=dxc, acc=rates), {**record, **book}
 
 
-#: Steps per compiled chunk: a run is a Python loop over chunks of one jit-compiled program
+#: Steps per compiled chunk, about: a run is a Python loop over chunks of one jit-compiled program
 #: (progress, Ctrl-C and one compilation for every horizon), never a loop over time steps.
 CHUNK_STEPS = 2000
+
+
+def records_per_chunk(save_every: int) -> int:
+    """Stored samples per compiled chunk for a sample every ``save_every`` steps: the largest of
+    2000, 200, 20 and 2 whose chunk is at most :data:`CHUNK_STEPS` steps (2 past 1,000 steps
+    between samples). ``save_every`` is a traced argument of the chunk program, so every output
+    interval and dt with the same count shares one program (1 → 2000 records of 1 step; 2–10 →
+    200 records, 400–2,000 steps; 11–100 → 20 records, 220–2,000 steps; more → 2 records)."""
+    for n in (CHUNK_STEPS, CHUNK_STEPS // 10, CHUNK_STEPS // 100):
+        if n * save_every <= CHUNK_STEPS:
+            return n
+    return 2
 
 
 @pytree_dataclass
@@ -200,8 +213,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
     return sample, step
 
 
-def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, *, n_records, save_every, sampled,
-           fields):
+def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every, *, n_records, sampled, fields):
     """Records ``r = 0 … n_records − 1`` of a chunk starting at step ``k0``: record r is taken at
     step k = k0 + r · save_every, as the first of the ``save_every`` steps after it.
 
@@ -268,17 +280,16 @@ def _init_carry(ctrl, y0, n):
 
 
 @functools.lru_cache(maxsize=128)
-def _compiled(in_axes, n_records, save_every, sampled, fields):
+def _compiled(in_axes, n_records, sampled, fields):
     """(chunk, final, init) compiled for one structure; in_axes=None for a single run.
 
-    Horizon, dt and the hold period are traced arguments, so a new t_final or dt reuses the
-    compiled program."""
-    chunk = functools.partial(_chunk, n_records=n_records, save_every=save_every, sampled=sampled,
-                              fields=fields)
+    Horizon, dt, the hold period and the steps between samples are traced arguments, so a new
+    t_final, dt or output interval reuses the compiled program (see :func:`records_per_chunk`)."""
+    chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields)
     final, init = _final, _init_carry
     if in_axes is not None:
         p, c, r, lim = in_axes
-        chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None))
+        chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None, None))
         final = jax.vmap(final, in_axes=(p, c, 0))
         init = jax.vmap(_init_carry, in_axes=(c, 0, None))
     return jax.jit(chunk), jax.jit(final), jax.jit(init, static_argnums=2)
@@ -291,14 +302,15 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold
     The n_records + 1 records (t = 0, …, t_final) are copied chunk by chunk into arrays allocated
     once, so memory is what is stored, never proportional to the steps."""
     n_total = n_steps // save_every + 1
-    per_chunk = max(1, CHUNK_STEPS // save_every)  # independent of the horizon: one compilation
+    per_chunk = records_per_chunk(save_every)  # independent of the horizon: one compilation
     sampled = n_hold > 0
-    chunk, final, init = _compiled(in_axes, per_chunk, save_every, sampled, fields)
+    chunk, final, init = _compiled(in_axes, per_chunk, sampled, fields)
     carry = init(ctrl, y0, n_joints)
     axis = 0 if in_axes is None else 1  # the time axis of the records
     n_steps_a = jnp.asarray(n_steps, dtype=jnp.int64)
     dt_a = jnp.asarray(dt, dtype=jnp.float64)
     hold_a = jnp.asarray(max(n_hold, 1), dtype=jnp.int64)
+    every_a = jnp.asarray(save_every, dtype=jnp.int64)
     out: dict[str, np.ndarray] = {}
     n_chunks = -(-n_total // per_chunk)
 
@@ -320,7 +332,7 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold
     pending = None  # the previous chunk's records, copied while the next chunk runs
     for c in range(n_chunks):
         k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)
-        carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, n_steps_a, dt_a, hold_a)
+        carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, n_steps_a, dt_a, hold_a, every_a)
         if pending is not None:
             store(*pending)
         pending = (c, rec)
