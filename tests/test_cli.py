@@ -112,6 +112,7 @@ def test_program_ends_with_its_code_and_all_its_output(tmp_path, args, code):
         assert proc.stderr.startswith("hinfnn: ConfigError") and "simulation.dt" in proc.stderr
 
 
+@pytest.mark.xdist_group("beyond")  # the study's programs, in memory after test_beyond's reproduce (or before it)
 def test_reproduce_short_horizon_writes_every_file(tmp_path, capsys):
     out = tmp_path / "paper"
     assert cli.main(["reproduce", "--paper-only", "--set", "simulation.t_final=0.3", "--out", str(out)]) == 0

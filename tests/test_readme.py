@@ -7,7 +7,8 @@ scenario's start values when no earlier block defines them.
 
 Every command line of the ```sh blocks runs, in order, with
 ``--set simulation.t_final=0.05`` appended to ``hinfnn run`` / ``hinfnn reproduce`` (and
-``--samples 2`` too to ``hinfnn sweep``); a scenario
+``--samples 2`` too to ``hinfnn sweep``, and ``--no-figures`` to the arm scenarios' ``hinfnn run``:
+``hinfnn gallery`` draws the same arms' figures right after); a scenario
 file a command names that does not exist is created as ``base = "paper"``. Skipped: ``make``
 (the demo and the test suite itself) and usage synopses (lines with placeholders such as
 ``SCENARIO``, ``DIR``, ``KEY=VALUE`` or ``[--option]``). Each must exit 0. The commands fall into
@@ -69,7 +70,9 @@ def runnable(words: list[str]) -> bool:
     return not any(_PLACEHOLDER.search(w) for w in words[1:])
 
 
-def adapt(words: list[str], cwd: Path) -> list[str]:
+def adapt(words: list[str], cwd: Path, figures: bool = True) -> list[str]:
+    if words[0] == "hinfnn" and len(words) > 1 and words[1] == "run" and not figures:
+        words = words + ["--no-figures"]
     if words[0] == "hinfnn" and len(words) > 1 and words[1] in ("run", "reproduce", "gallery"):
         if words[1] == "run" and words[2].endswith(".toml") and not (cwd / words[2]).exists():
             (cwd / words[2]).write_text('base = "paper"\n')
@@ -173,7 +176,7 @@ def test_readme_shell_examples_run(tmp_path, group):
         p = subprocess.run(adapt(first, tmp_path), cwd=tmp_path, capture_output=True, text=True, timeout=300,
                            env=_env())
         assert p.returncode == 0, f"{shlex.join(first)}  ->  exit {p.returncode}: {p.stderr.strip()[-500:]}"
-    argvs = [adapt(words, tmp_path)[1:] for words in cmds]
+    argvs = [adapt(words, tmp_path, figures=group != "arms")[1:] for words in cmds]
     assert all(words[0] == "hinfnn" for words in cmds), cmds
     p = subprocess.run([sys.executable, "-c", _DRIVER, json.dumps(argvs)], cwd=tmp_path, capture_output=True,
                        text=True, timeout=1500, env=_env())
