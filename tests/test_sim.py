@@ -295,7 +295,7 @@ def test_output_intervals_share_one_compiled_program(paper_plant, nominal_arm, n
     import importlib
 
     S = importlib.import_module("hinfnn.sim.simulate")
-    assert [S.records_per_chunk(e) for e in (1, 2, 10, 11, 100, 101, 10_000)] == [2000, 200, 200, 20, 20, 2, 2]
+    assert [S.records_per_chunk(e) for e in (1, 2, 10, 11, 100, 101, 10_000)] == [2000, 200, 200, 20, 20, 20, 20]
     calls = []
     rhs = S._rhs
     monkeypatch.setattr(S, "_rhs", lambda *a: calls.append(1) or rhs(*a))

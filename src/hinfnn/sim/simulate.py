@@ -15,7 +15,7 @@ The simulator knows the plant and the controller only through :mod:`hinfnn.proto
 A run is a jit-compiled program over a chunk of a fixed number of stored samples (about
 :data:`CHUNK_STEPS` steps, :func:`records_per_chunk`), called from a Python loop over chunks
 (never over steps): the compiled program is the same for every horizon, dt and output interval
-(within one of four sizes of chunk), progress is reported and Ctrl-C is honoured between chunks.
+(within one of three sizes of chunk), progress is reported and Ctrl-C is honoured between chunks.
 Inside a chunk, an outer scan takes one stored sample every ``save_every`` steps and an inner
 loop runs the steps between them, keeping the record of the first (the RK4 step's first stage is
 the evaluation at the sample instant, so the dynamics appear in the program once per RK4 stage,
@@ -95,14 +95,14 @@ CHUNK_STEPS = 2000
 
 
 def records_per_chunk(save_every: int) -> int:
-    """Stored samples per compiled chunk for a sample every ``save_every`` steps: the largest of
-    2000, 200 and 20 whose chunk is at most :data:`CHUNK_STEPS` steps, else 2. ``save_every`` is a traced argument of the chunk program, so every output
-    interval and dt with the same count shares one program (1 → 2000 records of 1 step; 2–10 →
-    200 records, 400–2,000 steps; 11–100 → 20 records, 220–2,000 steps; more → 2 records)."""
-    for n in (CHUNK_STEPS, CHUNK_STEPS // 10, CHUNK_STEPS // 100):
-        if n * save_every <= CHUNK_STEPS:
-            return n
-    return 2
+    """Stored samples per compiled chunk for a sample every ``save_every`` steps: 2000 for every
+    step, 200 for 2–10 steps between samples (400–2,000 steps per chunk), 20 beyond (220 steps or
+    more: 20,000 for one sample per 1,000 steps, a few seconds of computing between progress
+    reports). ``save_every`` is a traced argument of the chunk program, so every output interval
+    and dt with the same count shares one program."""
+    if save_every <= 1:
+        return CHUNK_STEPS
+    return CHUNK_STEPS // 10 if save_every <= 10 else CHUNK_STEPS // 100
 
 
 @pytree_dataclass
