@@ -261,50 +261,57 @@ def test_rolled_rk4_stages_equal_the_unrolled_ones():
     assert 12.0 < err[0] / err[1] < 20.0  # 2⁴ = 16
 
 
+@pytest.fixture
+def sim_module():
+    """hinfnn.sim.simulate itself (the package re-exports its ``simulate`` function by that name)."""
+    import importlib
+
+    return importlib.import_module("hinfnn.sim.simulate")
+
+
+@pytest.fixture
+def rhs_traces(sim_module, monkeypatch):
+    """A list that grows by one each time plant and controller (``_rhs``) are traced."""
+    calls = []
+    rhs = sim_module._rhs
+    monkeypatch.setattr(sim_module, "_rhs", lambda *a: calls.append(1) or rhs(*a))
+    return calls
+
+
 @pytest.mark.parametrize("rolled", [False, True])
 def test_a_chunk_traces_the_dynamics_once_per_written_stage(rolled, paper_plant, nominal_arm, nominal_surface,
-                                                            reference, monkeypatch):
+                                                            reference, monkeypatch, sim_module, rhs_traces):
     """Tracing cost (paid by every process, cached program or not): a chunk program traces plant
     and controller (``_rhs``) once per RK4 stage written out, 4 times, or once when the stages
     are rolled (rolled_rk4). The record's shapes and the rolled stages' shapes come from those
     same traces (jax.jit's trace cache), not from second ones: 8 and 4 before."""
-    import importlib
-
     import jax.numpy as jnp
 
     from hinfnn import _devices
 
-    S = importlib.import_module("hinfnn.sim.simulate")
+    S = sim_module
     monkeypatch.setattr(_devices, "ROLL_FROM_JOINTS", 2 if rolled else 3)
-    calls = []
-    rhs = S._rhs
-    monkeypatch.setattr(S, "_rhs", lambda *a: calls.append(1) or rhs(*a))
     ctrl = H.HinfNNController.design(nominal_arm, nominal_surface, H.Gains())
     carry = S._init_carry(ctrl, S.initial_state(paper_plant, ctrl, u1_0=U1_0), 2)
     chunk = S._compiled.__wrapped__(None, 3, False, S.select(None))[0]  # a fresh jit: no trace cached
     chunk.trace(paper_plant, ctrl, reference, S.Limits(), carry, jnp.asarray(0), jnp.asarray(6),
                 jnp.asarray(1e-4), jnp.asarray(1), jnp.asarray(2))
-    assert len(calls) == (1 if rolled else 4)
+    assert len(rhs_traces) == (1 if rolled else 4)
 
 
 def test_output_intervals_share_one_compiled_program(paper_plant, nominal_arm, nominal_surface, reference,
-                                                     monkeypatch):
+                                                     sim_module, rhs_traces):
     """The steps between stored samples are an argument of the chunk program, not a constant of
     it: runs storing every 2nd, 5th or 10th step (the same chunk size, records_per_chunk)
     reuse one program (nothing traced again), and each stores what it should."""
-    import importlib
-
-    S = importlib.import_module("hinfnn.sim.simulate")
-    assert [S.records_per_chunk(e) for e in (1, 2, 10, 11, 100, 101, 10_000)] == [2000, 200, 200, 20, 20, 20, 20]
-    calls = []
-    rhs = S._rhs
-    monkeypatch.setattr(S, "_rhs", lambda *a: calls.append(1) or rhs(*a))
+    records = [sim_module.records_per_chunk(e) for e in (1, 2, 10, 11, 100, 101, 10_000)]
+    assert records == [2000, 200, 200, 20, 20, 20, 20]
     ctrl = H.HinfController.design(nominal_arm, nominal_surface, H.Gains())
     runs = {10: H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.003, save_every=10)}
-    traced = len(calls)  # 4, or 0 when an earlier test of this process compiled the structure
+    traced = len(rhs_traces)  # 4, or 0 when an earlier test of this process compiled the structure
     for e in (5, 2):
         runs[e] = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.003, save_every=e)
-    assert len(calls) == traced
+    assert len(rhs_traces) == traced
     for e, traj in runs.items():
         np.testing.assert_allclose(traj.t, np.arange(0, 31, e) * 1e-4, rtol=1e-14, atol=1e-17)
         for name in ("q", "tau", "lam"):
@@ -313,25 +320,20 @@ def test_output_intervals_share_one_compiled_program(paper_plant, nominal_arm, n
 
 def test_record_shapes_are_what_a_run_stores_and_are_traced_once_per_structure(paper_plant, nominal_arm,
                                                                                  nominal_surface, reference,
-                                                                                 monkeypatch):
+                                                                                 monkeypatch, sim_module, rhs_traces):
     """resources.plan's per-sample sizes (record_shapes) equal the arrays a run stores, for all
     fields and for ``"metrics"``; asking again for the same structure traces nothing."""
-    import importlib
-
-    S = importlib.import_module("hinfnn.sim.simulate")
+    S = sim_module
     monkeypatch.setattr(S, "_RECORD_SHAPES", {})
-    calls = []
-    rhs = S._rhs
-    monkeypatch.setattr(S, "_rhs", lambda *a: calls.append(1) or rhs(*a))
     ctrl = H.HinfController.design(nominal_arm, nominal_surface, H.Gains())
     q0 = paper_plant.initial_q(U1_0)
     shapes = S.record_shapes(paper_plant, ctrl, reference, q0=q0)
     traj = H.simulate(paper_plant, ctrl, reference, q0=q0, t_final=0.002)
     assert shapes == {k: (v.shape[1:], v.dtype) for k, v in traj.arrays.items()}
-    n = len(calls)
-    assert S.record_shapes(paper_plant, ctrl, reference, q0=q0) == shapes and len(calls) == n
+    n = len(rhs_traces)
+    assert S.record_shapes(paper_plant, ctrl, reference, q0=q0) == shapes and len(rhs_traces) == n
     metrics = S.record_shapes(paper_plant, ctrl, reference, q0=q0, fields="metrics")  # its own structure
-    assert len(calls) == n + 1 and metrics == {k: v for k, v in shapes.items() if k in S.select("metrics")} != shapes
+    assert len(rhs_traces) == n + 1 and metrics == {k: v for k, v in shapes.items() if k in S.select("metrics")} != shapes
 
 
 _DEFAULT_EMITTERS_RUN = """

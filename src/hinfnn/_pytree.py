@@ -34,6 +34,16 @@ def all_finite(tree) -> jax.Array:
     return ok
 
 
+def structure_key(tree) -> tuple:
+    """What decides a compiled program's inputs: the pytree structure (as text, so always
+    hashable) and every leaf's shape and dtype (two networks of different sizes have the same
+    structure but not the same program)."""
+    import numpy as np
+
+    leaves, treedef = jax.tree.flatten(tree)
+    return str(treedef), tuple((tuple(np.shape(x)), str(getattr(x, "dtype", type(x).__name__))) for x in leaves)
+
+
 def replace(obj: T, **changes: Any) -> T:
     """``dataclasses.replace`` for pytree dataclasses (returns a new object)."""
     return dataclasses.replace(obj, **changes)

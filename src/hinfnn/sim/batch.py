@@ -5,9 +5,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-import jax
-import numpy as np
-
+from .._pytree import structure_key
 from .simulate import Limits, simulate, simulate_batch
 from .trajectory import RunInfo, Trajectory
 
@@ -36,9 +34,8 @@ class Run:
         """Runs with equal keys share one compiled program (and run as one batch): the pytree
         structure AND every leaf's shape and dtype (two networks of different sizes have the same
         structure but cannot be stacked), and the simulation settings."""
-        leaves, treedef = jax.tree.flatten((self.plant, self.controller, self.reference, self.limits))
-        shapes = tuple((tuple(np.shape(x)), str(getattr(x, "dtype", type(x).__name__))) for x in leaves)
-        return (str(treedef), shapes, self.t_final, self.dt, self.control_period, self.save_interval)
+        return (*structure_key((self.plant, self.controller, self.reference, self.limits)), self.t_final, self.dt,
+                self.control_period, self.save_interval)
 
 
 def simulate_many(runs: list[Run], *, progress=None, save_every: int | None = None,

@@ -20,9 +20,6 @@ def rk4_step(f, t, y, dt, *, rolled: bool = False):
     if rolled:
         f = jax.jit(f, inline=True)  # traced once: for the shapes below and for the loop's body
 
-        def zeros(tree):
-            return jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), tree)
-
         def stage(i, state):
             acc, k, aux = state
             first = i == 0
@@ -33,8 +30,8 @@ def rk4_step(f, t, y, dt, *, rolled: bool = False):
             acc = jax.tree.map(lambda a, kk: jnp.where(first, kk, a + w * kk), acc, ki)  # k1 + 2 k2 + 2 k3 + k4
             return acc, ki, jax.tree.map(lambda new, old: jnp.where(first, new, old), aux_i, aux)
 
-        k_shape, aux_shape = jax.eval_shape(f, t, y)
-        acc, _, aux = jax.lax.fori_loop(0, 4, stage, (zeros(k_shape), zeros(k_shape), zeros(aux_shape)))
+        k0, aux0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(f, t, y))
+        acc, _, aux = jax.lax.fori_loop(0, 4, stage, (k0, k0, aux0))
         return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
     k1, aux = f(t, y)
     k2, _ = f(t + 0.5 * dt, _axpy(0.5 * dt, k1, y))

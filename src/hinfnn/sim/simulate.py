@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _devices as dev
-from .._pytree import all_finite, pytree_dataclass
+from .._pytree import all_finite, pytree_dataclass, structure_key
 from ..errors import ConfigError, SimulationError
 from .integrate import rk4_step
 from .recorder import STEP_MAXES, STEP_SUMS, Accumulators, bookkeeping, pick, select
@@ -235,8 +235,7 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
     def one_record(c, r):
         k = k0 + r * save_every
         c = sample(c, k)
-        shapes = jax.eval_shape(step, c, k, jnp.asarray(True))[1]
-        rec0 = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+        rec0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(step, c, k, jnp.asarray(True))[1])
         n_inner = jnp.where(k <= n_steps, jnp.clip(n_steps - k, 1, save_every), 0)
 
         def body(i, state):
@@ -597,15 +596,9 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
     sampled = control_period is not None or bool(getattr(plant, "discrete", False))
     y0 = initial_state(plant, controller, q0=q0)
     args = (plant, controller, reference, limits or Limits(), y0)
-    leaves, tree = jax.tree.flatten(args)
-    key = (tree, tuple((np.shape(x), str(getattr(x, "dtype", type(x).__name__))) for x in leaves), float(dt),
-           sampled, fields)
-    try:
+    key = (*structure_key(args), float(dt), sampled, fields)
+    if key in _RECORD_SHAPES:
         return dict(_RECORD_SHAPES[key])
-    except TypeError:  # a pytree whose static data cannot be hashed: no reuse
-        key = None
-    except KeyError:
-        pass
 
     def one(plant, ctrl, ref, lim, y0):
         carry = _init_carry(ctrl, y0, plant.n)
@@ -614,7 +607,7 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
 
     out = jax.eval_shape(one, *args)
     shapes = {k: (tuple(v.shape), np.dtype(v.dtype)) for k, v in out.items()}
-    if key is not None and len(_RECORD_SHAPES) < 256:
+    if len(_RECORD_SHAPES) < 256:
         _RECORD_SHAPES[key] = shapes
     return dict(shapes)
 

@@ -109,11 +109,10 @@ def scenario_of(base: dict, source: str, values: dict, kinds):
 def compile_key(run) -> str:
     """What decides the compiled program of a run: pytree structure and leaf shapes/dtypes of
     plant, controller, reference and limits, and the simulation settings (a short hash)."""
-    import jax
+    from .._pytree import structure_key
 
-    leaves, treedef = jax.tree.flatten((run.plant, run.controller, run.reference, run.limits))
-    shapes = [(tuple(np.shape(x)), str(getattr(x, "dtype", type(x).__name__))) for x in leaves]
-    text = repr((str(treedef), shapes, run.t_final, run.dt, run.control_period, run.save_interval))
+    treedef, shapes = structure_key((run.plant, run.controller, run.reference, run.limits))
+    text = repr((treedef, list(shapes), run.t_final, run.dt, run.control_period, run.save_interval))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
