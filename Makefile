@@ -5,6 +5,9 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+# The installer: uv (pinned) installs the pinned dependencies in about 30 s where pip takes 70 s on
+# this project's machines (both compile the .pyc files); pip when uv cannot be had.
+UV     := uv==0.13.9
 
 .PHONY: demo test venv bench clean
 
@@ -13,8 +16,10 @@ venv: $(STAMP)
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "hinfnn needs Python >= 3.11, found " + sys.version.split()[0]'
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet $(UV) && $(BIN)/python -m uv pip install --quiet --native-tls \
+	    --compile-bytecode --python $(BIN)/python -e '.[test]' \
+	  || { echo "uv failed: installing with pip"; $(BIN)/python -m pip install --quiet --upgrade pip \
+	       && $(BIN)/python -m pip install --quiet -e '.[test]'; }
 	@touch $(STAMP)
 
 demo: $(STAMP)

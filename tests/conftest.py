@@ -84,6 +84,27 @@ if _COMPILE_REPORT:
         _now.clear()
 
 
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config, items):
+    """The xdist_group marks must reach pytest-xdist's ``--dist loadgroup``: it appends the group to
+    each marked test's node id, and sends the tests of one group to one worker. pytest 9.2 builds
+    node ids another way, so pytest-xdist 3.8's suffix was silently lost and the groups were split
+    over both workers (the paper study's 14-s fixture ran twice). If that happens again, every
+    grouped test fails and says why (an error raised here would be swallowed by pytest-xdist)."""
+    if not config.getoption("loadgroup", default=False):
+        return
+    for item in items:
+        if any(True for _ in item.iter_markers("xdist_group")) and "@" not in item.nodeid:
+            item.add_marker(pytest.mark.xdist_group_lost)
+
+
+def pytest_runtest_setup(item):
+    if item.get_closest_marker("xdist_group_lost"):
+        pytest.fail(f"pytest-xdist's --dist loadgroup does not see this test's xdist_group mark (pytest "
+                    f"{pytest.__version__}): its group is split over the workers; pin a pytest it supports",
+                    pytrace=False)
+
+
 @pytest.fixture(scope="session")
 def cache():
     """The test session's compilation cache (above), for the subprocesses and Ray workers a test

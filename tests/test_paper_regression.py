@@ -18,8 +18,9 @@ import hinfnn as H
 from hinfnn.report.claims import evaluate
 from hinfnn.study import run_study
 
-#: one xdist worker runs this module: its tests share compiled programs and expensive fixtures
-pytestmark = pytest.mark.xdist_group("paper_study")
+#: the worker that runs test_beyond.py's `hinfnn reproduce` runs this module too: the study's batched
+#: programs are compiled once, for both
+pytestmark = pytest.mark.xdist_group("beyond")
 
 RECORDED = {
     "fl": {
