@@ -82,8 +82,9 @@ def test_default_cache_dir_reads_only_the_environment(tmp_path):
 # --- a second process reuses the compiled programs ------------------------------------------
 
 
-# one controller kind: the test runs three processes with cold caches
-RUN = ["run", "paper", "--set", "controller.kind=fl", "--set", "simulation.t_final=0.02", "--quiet", "--out"]
+# one controller kind and no figures: the test runs three processes with cold caches
+RUN = ["run", "paper", "--set", "controller.kind=fl", "--set", "simulation.t_final=0.02", "--quiet", "--no-figures",
+       "--out"]
 
 
 def _run(out: Path, env: dict) -> subprocess.CompletedProcess:

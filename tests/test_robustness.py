@@ -914,7 +914,7 @@ def test_all_options_scenario_saves_loads_and_repeats_bit_for_bit(tmp_path):
 def test_repeat_from_scenario_toml_in_a_new_process_is_bit_identical(tmp_path, paper_result):
     again = tmp_path / "again"
     proc = subprocess.run([str(HINFNN), "run", str(paper_result / "scenario.toml"), "--out", str(again),
-                           "--quiet"], capture_output=True, text=True, timeout=300)
+                           "--quiet", "--no-figures"], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     _assert_same_arrays(_npz_arrays(paper_result / "trajectory.npz"), _npz_arrays(again / "trajectory.npz"))
     res = H.load(paper_result)
