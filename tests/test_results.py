@@ -1,8 +1,9 @@
-"""Results a user can trust (issue 15), through the ``hinfnn`` command as a subprocess where the
-issue says so: --force never destroys what hinfnn did not write, concurrent runs never overwrite
-each other, paths stay where the user asked, signals at any moment (import included), default
-folders that do not collide, the memory guard, reproduce's overrides, the design and stopped runs
-in ``show`` (which needs only metrics.json), ``plot`` and ``export`` round trips, one-line warnings.
+"""Results a user can trust (issue 15), through the ``hinfnn`` command: as a subprocess where the
+issue says so, in this process (``cli.main`` in the test's folder) where only the folder logic is
+checked. --force never destroys what hinfnn did not write, concurrent runs never overwrite each
+other, paths stay where the user asked, signals at any moment (import included), default folders
+that do not collide, the memory guard, reproduce's overrides, the design and stopped runs in
+``show`` (which needs only metrics.json), ``plot`` and ``export`` round trips, one-line warnings.
 """
 
 from __future__ import annotations
@@ -42,6 +43,18 @@ def hinfnn(args, cwd, cache, timeout=300, **env) -> subprocess.CompletedProcess:
     """``hinfnn ARGS`` as a subprocess in ``cwd``."""
     return subprocess.run([str(HINFNN), *map(str, args)], cwd=cwd, capture_output=True, text=True,
                           timeout=timeout, env=_env(cache, **env))
+
+
+def hinfnn_here(args, cwd, monkeypatch, capsys) -> subprocess.CompletedProcess:
+    """``hinfnn ARGS`` in this process (``cli.main``) with ``cwd`` as the current folder: for the
+    tests of where results go, which need the command's folder logic, not a process of its own
+    (a subprocess would trace and load the run's programs again, 3 s each time)."""
+    capsys.readouterr()
+    with monkeypatch.context() as m:
+        m.chdir(cwd)
+        code = cli.main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return subprocess.CompletedProcess(args, code, out, err)
 
 
 def _popen(args, cwd, cache, **env):
@@ -166,11 +179,11 @@ def test_safe_names():
 
 
 @pytest.mark.parametrize("name", ["../../escaped", "/etc/passwd", "x" * 5000, "a\nb", ".hidden", "..", ""])
-def test_hostile_scenario_name_stays_under_results(tmp_path, cache, name):
+def test_hostile_scenario_name_stays_under_results(tmp_path, monkeypatch, capsys, name):
     work = tmp_path / "deep" / "work"
     work.mkdir(parents=True)
     (work / "evil.toml").write_text(f'base = "paper"\nname = {json.dumps(name)}\n')
-    p = hinfnn(["run", "evil.toml", *SHORT, "--quiet", "--no-figures"], work, cache)  # the folder is the point
+    p = hinfnn_here(["run", "evil.toml", *SHORT, "--quiet", "--no-figures"], work, monkeypatch, capsys)
     assert p.returncode == 0, p.stderr
     made = list((work / "results" / "runs").iterdir())
     assert len(made) == 1 and _complete(made[0], figures=False)
@@ -287,10 +300,11 @@ def test_exit_codes_are_documented(capsys):
 # --- default folders ------------------------------------------------------------------------------------
 
 
-def test_default_folders_do_not_collide(tmp_path, cache):
+def test_default_folders_do_not_collide(tmp_path, monkeypatch, capsys):
     (tmp_path / "my_arm.toml").write_text('base = "paper"\n')
-    assert hinfnn(["run", "paper", *SHORT, "--quiet", "--no-figures"], tmp_path, cache).returncode == 0
-    p = hinfnn(["run", "my_arm.toml", *SHORT, "--no-figures"], tmp_path, cache)
+    first = hinfnn_here(["run", "paper", *SHORT, "--quiet", "--no-figures"], tmp_path, monkeypatch, capsys)
+    assert first.returncode == 0, first.stderr
+    p = hinfnn_here(["run", "my_arm.toml", *SHORT, "--no-figures"], tmp_path, monkeypatch, capsys)
     assert p.returncode == 0, p.stderr
     runs = sorted(x.name for x in (tmp_path / "results" / "runs").iterdir())
     assert [re.sub(r"\d{8}T\d{6}Z", "T", n) for n in runs] == ["my_arm-T", "paper-T"]
