@@ -21,6 +21,8 @@ Cases (each runs in a fresh worker process so that its peak memory is its own):
 7. ``arm_devices`` — ``rolled_rk4`` on and off on the UR5 (ur5-table, H∞ + NN): the first run
    (compile-dominated, empty cache) and a 0.5-s run.
 8. ``batch_devices`` — ``batch_groups`` on and off: the adaptive law at B = 1,000 (1 s, metrics).
+9. ``program_gc`` — the ``program_gc`` device on and off: ``hinfnn run paper --no-figures`` (0.05 s
+   simulated, warm cache) in fresh processes, alternating; wall and CPU time.
 
 Baseline: the plain-NumPy closed loop of ``tests/numpy_oracle.py`` (a Python loop over RK4 steps,
 the same equations), timed in the same invocation on a 1-s horizon and scaled to 10 s.
@@ -388,12 +390,33 @@ def case_batch_devices(args) -> dict:
     return _each_off(args, "batch_run", ("batch_groups",))
 
 
+def case_program_gc(args) -> dict:
+    """``program_gc`` (hinfnn._devices) on and off, in alternating fresh processes: the short warm
+    ``hinfnn run paper --no-figures``, where tracing and loading the programs are most of the time.
+    Off: ``HINFNN_DEFAULT_GC=1``."""
+    sys.path.insert(0, str(HERE))
+    from startup import hinfnn_command, launch
+
+    runs: dict = {"on": [], "off": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {**os.environ, "HINFNN_CACHE_DIR": str(Path(tmp) / "cache"), "HINFNN_TRACE_STARTUP": "1"}
+        cmd = hinfnn_command() + ["run", "paper", "--set", "simulation.t_final=0.05", "--no-figures", "--quiet",
+                                  "--force", "--out", str(Path(tmp) / "out")]
+        launch(cmd, env)  # fills the cache
+        for i in range(4 * max(args.repeats, 2)):
+            name = ("on", "off", "off", "on")[i % 4]
+            r = launch(cmd, {**env, "HINFNN_DEFAULT_GC": "1"} if name == "off" else env)
+            runs[name].append((r["total"], r["cpu_total"]))
+    return {k: {"wall_s": statistics.median(w for w, _ in v), "cpu_s": statistics.median(c for _, c in v),
+                "n": len(v)} for k, v in runs.items()}
+
+
 CASES = {"single": case_single, "batch": case_batch, "startup": case_startup, "whole": case_whole,
          "latency": case_latency, "latency_sync": case_latency_sync, "devices": case_devices,
          "device_run": case_device_run, "arm_devices": case_arm_devices, "arm_run": case_arm_run,
-         "batch_devices": case_batch_devices, "batch_run": case_batch_run}
+         "batch_devices": case_batch_devices, "batch_run": case_batch_run, "program_gc": case_program_gc}
 DEFAULT_CASES = ["single", "batch", "startup", "whole", "latency", "latency_sync", "devices", "arm_devices",
-                 "batch_devices"]
+                 "batch_devices", "program_gc"]
 
 
 # --- driver --------------------------------------------------------------------------------------
@@ -532,6 +555,12 @@ def print_report(res: dict) -> None:
     _print_each_off("\n8. batch_groups at B = 1,000 (adaptive law, 1 s, metrics)", c.get("batch_devices"),
                     [("wall s", 8, lambda r: f"{r['wall_s']:.2f}"),
                      ("traj-steps/s", 14, lambda r: f"{r['traj_steps_per_s']:,.0f}")])
+    g = c.get("program_gc", {})
+    if "on" in g:
+        print("\n9. program_gc: `hinfnn run paper --no-figures` (0.05 s, warm), medians of fresh processes")
+        for k, label in (("on", "device on"), ("off", "Python's default")):
+            print(f"{label:<18} wall {g[k]['wall_s']:.2f} s   CPU {g[k]['cpu_s']:.2f} s   ({g[k]['n']} launches)")
+        print(f"on / off: wall {g['on']['wall_s'] / g['off']['wall_s']:.2f}, CPU {g['on']['cpu_s'] / g['off']['cpu_s']:.2f}")
     if res.get("targets"):
         print("\nTargets")
         for name, t in res["targets"].items():

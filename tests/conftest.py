@@ -31,14 +31,20 @@ TEST_XLA_FLAG = "--xla_cpu_use_fusion_emitters=false"
 if TEST_XLA_FLAG not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {TEST_XLA_FLAG}".strip()
 
+import gc  # noqa: E402
+
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from hypothesis import settings  # noqa: E402
 
 import hinfnn as H  # noqa: E402
+from hinfnn import _devices  # noqa: E402
 
 H.configure()
+# The garbage-collector thresholds of the hinfnn program (the program_gc device): the suite's
+# processes trace hundreds of programs, each allocating millions of short-lived objects.
+gc.set_threshold(*_devices.PROGRAM_GC_THRESHOLD)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
 

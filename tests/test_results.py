@@ -286,6 +286,32 @@ def test_import_hinfnn_loads_no_jax():
     subprocess.run([sys.executable, "-c", code], check=True, env={**os.environ, "PYTHONPATH": str(SRC)})
 
 
+def test_the_program_collects_garbage_less_often_and_a_library_call_changes_nothing():
+    """The program_gc device (hinfnn._devices): the ``hinfnn`` program sets Python's garbage-collector
+    thresholds before it imports JAX; ``cli.main([...])`` called from Python leaves the caller's
+    process as it was; ``HINFNN_DEFAULT_GC=1`` keeps the default."""
+    from hinfnn import _devices
+
+    code = "\n".join([
+        "import contextlib, gc, io, json, sys",
+        "default = gc.get_threshold()",
+        "from hinfnn.cli import main",
+        "with contextlib.redirect_stdout(io.StringIO()):",
+        "    assert main(['keys']) == 0",  # from Python
+        "library = gc.get_threshold()",
+        "import atexit",  # the program may end with os._exit, after the atexit handlers (fast_exit)
+        "atexit.register(lambda: print(json.dumps([default, library, gc.get_threshold()]), file=sys.stderr))",
+        "sys.argv = ['hinfnn', 'keys']",
+        "with contextlib.redirect_stdout(io.StringIO()):",
+        "    main()"])  # the program
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    for extra, program in (({}, list(_devices.PROGRAM_GC_THRESHOLD)), ({"HINFNN_DEFAULT_GC": "1"}, [700, 10, 10])):
+        p = subprocess.run([sys.executable, "-c", code], env={**env, **extra}, capture_output=True, text=True,
+                           timeout=120)
+        assert p.returncode == 0, p.stderr
+        assert json.loads(p.stderr.strip().splitlines()[-1]) == [[700, 10, 10], [700, 10, 10], program], extra
+
+
 def test_exit_codes_are_documented(capsys):
     with pytest.raises(SystemExit):
         cli.main(["--help"])

@@ -5,8 +5,9 @@ Each loop device changes how XLA's CPU runtime executes the loop, never what it 
 agree to rounding), and each has the benchmark line that justifies it: ``python
 benchmarks/run.py --devices`` runs the paper's 10-s adaptive run with each device turned off in
 turn, in a fresh process, and prints the ratio against all devices on. The process devices
-(``png_fast``, ``fast_exit``, below the loop devices) change no number either; their
-lines come from ``python benchmarks/run.py --cases whole`` (``benchmarks/whole.py``).
+(``png_fast``, ``program_gc``, ``fast_exit``, below the loop devices) change no number either;
+their lines come from ``python benchmarks/run.py --cases whole`` (``benchmarks/whole.py``) and
+``--cases program_gc``.
 
 ``blocks``
     Large controller-state arrays (the networks' weights Θ̂, 40 and 120 values) are carried
@@ -49,6 +50,17 @@ lines come from ``python benchmarks/run.py --cases whole`` (``benchmarks/whole.p
     Figures written with zlib level 1 instead of matplotlib's 6 (:func:`png_options`): the
     same pixels, files about 15 % larger; the six PNGs of ``hinfnn run paper`` encode in
     0.41 s instead of 0.81 s.
+``program_gc``
+    The ``hinfnn`` program (not :func:`hinfnn.cli.main` called from Python) runs Python's cyclic
+    garbage collector less often (:func:`program_gc`, before anything else is imported): a
+    collection of the youngest objects every 100,000 allocations instead of 700. Importing JAX
+    and tracing a program allocate millions of short-lived objects, and each collection walks
+    them. ``python benchmarks/run.py --cases program_gc`` (``hinfnn run paper --no-figures``, 0.05 s
+    simulated, warm cache, fresh processes alternating with ``HINFNN_DEFAULT_GC=1``): 3.97 s
+    instead of 4.58 s, CPU 4.02 s instead of 4.45 s (medians of 6, ``bench-20261130T103213Z.json``).
+    The full 10-s run with figures: 10.0 s against 9.9 s (medians of 6), no difference within this
+    machine's noise. The test suite's processes use the same thresholds (``tests/conftest.py``):
+    ``test_sim.py`` with ``test_controllers.py`` took 110–119 s instead of 121–124 s.
 ``fast_exit``
     The ``hinfnn`` program ends with ``os._exit`` once its output is flushed and the ``atexit``
     handlers have run (:func:`fast_exit`), skipping the interpreter's teardown of JAX, XLA and
@@ -60,7 +72,8 @@ compiled: the switches are read when a program is traced).
 
 from __future__ import annotations
 
-import jax.numpy as jnp  # the loop devices; the process devices import what they need when used
+# JAX is imported by the loop devices' functions when they are traced, not here: the ``hinfnn``
+# program calls :func:`program_gc` before anything else is imported.
 
 #: Largest number of float64 values kept in one array of the loop carry (512 bytes).
 BLOCK = 64
@@ -68,7 +81,7 @@ BLOCK = 64
 SMALL = 4
 
 ENABLED = {"blocks": True, "sincos": True, "small_mm": True, "rolled_rk4": True, "batch_groups": True,
-           "png_fast": True, "fast_exit": True}
+           "png_fast": True, "fast_exit": True, "program_gc": True}
 #: Arms with at least this many joints integrate with RK4's stages 2–4 rolled (``rolled_rk4``).
 ROLL_FROM_JOINTS = 3
 #: Largest group of a batch run at once (``batch_groups``).
@@ -127,6 +140,8 @@ def split(x, groups: int = 1) -> tuple:
 
 def join(blocks: tuple):
     """Inverse of :func:`split`."""
+    import jax.numpy as jnp
+
     return jnp.concatenate(blocks, axis=-1)
 
 
@@ -135,6 +150,8 @@ def join(blocks: tuple):
 
 def sincos(x):
     """(sin x, cos x) of a vector of angles, computed once and shared (see the module docstring)."""
+    import jax.numpy as jnp
+
     s, c = jnp.sin(x), jnp.cos(x)
     if not ENABLED["sincos"]:
         return s, c
@@ -149,6 +166,8 @@ def sincos(x):
 def mm(a, b, limit: int = SMALL):
     """``a @ b`` for vectors and matrices; contractions over at most ``limit`` (default
     :data:`SMALL`) terms are written as multiply-and-sum (see the module docstring)."""
+    import jax.numpy as jnp
+
     if (not ENABLED["small_mm"] or a.ndim > 2 or b.ndim > 2 or a.shape[-1] != b.shape[0]
             or a.shape[-1] > limit):
         return a @ b
@@ -167,6 +186,23 @@ def mm(a, b, limit: int = SMALL):
 def png_options() -> dict:
     """``savefig`` keywords of every PNG hinfnn writes (``png_fast``: zlib level 1)."""
     return {"pil_kwargs": {"compress_level": 1}} if ENABLED["png_fast"] else {}
+
+
+# --- the process ---------------------------------------------------------------------------------
+
+#: Python's garbage-collector thresholds in the ``hinfnn`` program (``program_gc``); the default is
+#: (700, 10, 10).
+PROGRAM_GC_THRESHOLD = (100_000, 50, 100)
+
+
+def program_gc() -> None:
+    """Set :data:`PROGRAM_GC_THRESHOLD` (``program_gc``); the ``hinfnn`` program calls it first,
+    and ``HINFNN_DEFAULT_GC=1`` keeps Python's default (for the benchmark's A/B)."""
+    import gc
+    import os
+
+    if ENABLED["program_gc"] and os.environ.get("HINFNN_DEFAULT_GC") != "1":
+        gc.set_threshold(*PROGRAM_GC_THRESHOLD)
 
 
 # --- the end of the process ----------------------------------------------------------------------

@@ -825,6 +825,9 @@ def main(argv=None) -> int:
     warnings.showwarning = _one_line_warning
     if argv is None:  # a program: a signal held too long during an import ends it at once
         _signals.on_hard_exit = _hard_exit
+        from . import _devices
+
+        _devices.program_gc()
     box: dict = {}
     try:
         code = _main(argv, box)
