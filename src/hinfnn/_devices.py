@@ -52,7 +52,7 @@ their lines come from ``python benchmarks/run.py --cases whole`` (``benchmarks/w
     0.41 s instead of 0.81 s.
 ``program_gc``
     The ``hinfnn`` program (not :func:`hinfnn.cli.main` called from Python) runs Python's cyclic
-    garbage collector less often (:func:`program_gc`, before anything else is imported): a
+    garbage collector less often (:func:`program_gc`, before JAX is imported): a
     collection of the youngest objects every 100,000 allocations instead of 700. Importing JAX
     and tracing a program allocate millions of short-lived objects, and each collection walks
     them. ``python benchmarks/run.py --cases program_gc`` (``hinfnn run paper --no-figures``, 0.05 s
@@ -73,7 +73,7 @@ compiled: the switches are read when a program is traced).
 from __future__ import annotations
 
 # JAX is imported by the loop devices' functions when they are traced, not here: the ``hinfnn``
-# program calls :func:`program_gc` before anything else is imported.
+# program calls :func:`program_gc` before JAX is imported.
 
 #: Largest number of float64 values kept in one array of the loop carry (512 bytes).
 BLOCK = 64
