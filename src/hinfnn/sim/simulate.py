@@ -19,9 +19,10 @@ A run is a jit-compiled program over a chunk of a fixed number of stored samples
 Inside a chunk, an outer scan takes one stored sample every ``save_every`` steps and an inner
 loop runs the steps between them, keeping the record of the first (the RK4 step's first stage is
 the evaluation at the sample instant, so the dynamics appear in the program once per RK4 stage,
-not again for the samples); every buffer it touches is small (see :mod:`hinfnn._devices`, ``blocks``). The same program
-takes the last sample (t_final) in the chunk that reaches it, so a run structure compiles one
-large program (the final state is read from the last carry by a small one). What a sample
+not again for the samples); every buffer it touches is small (see :mod:`hinfnn._devices`,
+``blocks``). The same program takes the last sample (t_final) in the chunk that reaches it, so a
+run structure compiles one large program (the final state is read from the last carry by a
+small one). What a sample
 holds is the recorder's business (:mod:`hinfnn.sim.recorder`).
 
 The plant's held input (the joint disturbance) is evaluated at each step's midpoint; steps land

@@ -107,12 +107,11 @@ def scenario_of(base: dict, source: str, values: dict, kinds):
 
 
 def compile_key(run) -> str:
-    """What decides the compiled program of a run: pytree structure and leaf shapes/dtypes of
-    plant, controller, reference and limits, and the simulation settings (a short hash)."""
-    from .._pytree import structure_key
-
-    treedef, shapes = structure_key((run.plant, run.controller, run.reference, run.limits))
-    text = repr((treedef, list(shapes), run.t_final, run.dt, run.control_period, run.save_interval))
+    """What decides the compiled program of a run (:meth:`hinfnn.sim.batch.Run.group_key`: pytree
+    structure and leaf shapes/dtypes of plant, controller, reference and limits, and the simulation
+    settings) as a short hash, of the same text as before the key was shared."""
+    treedef, shapes, *settings = run.group_key()
+    text = repr((treedef, list(shapes), *settings))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
