@@ -357,10 +357,7 @@ def test_sec6_arm_from_urdf_gives_the_paper_study_numbers():
             urdf_runs.append(dataclasses.replace(r, name="u" + r.name, plant=plant, controller=ctrl))
     # One by one, not batched (simulate_many would vmap each pair): the point is the arm model,
     # and the closed-form arm's single-run program is one that other tests compile too.
-    trajs = {r.name: H.simulate(r.plant, r.controller, r.reference, q0=r.q0, t_final=r.t_final, dt=r.dt,
-                                control_period=r.control_period, save_interval=r.save_interval, limits=r.limits,
-                                raise_on_failure=False)
-             for r in runs + urdf_runs}
+    trajs = {r.name: H.simulate_many([r])[r.name] for r in runs + urdf_runs}  # a group of one: no vmap
     for r in runs:
         a, b = trajs[r.name], trajs["u" + r.name]
         assert int(a.status) == int(b.status) == 0
