@@ -117,10 +117,10 @@ def step_profile(plant, ctrl, ref) -> dict:
 
     S = importlib.import_module("hinfnn.sim.simulate")
     y0 = S.initial_state(plant, ctrl, u1_0=1.6902)
-    chunk, _, init = S._compiled(None, S.records_per_chunk(10), False, None)
+    chunk, _, init = S._compiled(None, S.chunk_records(10, batched=False)[0], False, None)
     carry = init(ctrl, y0, plant.n)
     args = (plant, ctrl, ref, S.Limits(), carry, jnp.asarray(0, jnp.int64), jnp.asarray(10, jnp.int64),
-            jnp.asarray(DT), jnp.asarray(1, jnp.int64), jnp.asarray(10, jnp.int64))
+            jnp.asarray(DT), jnp.asarray(1, jnp.int64), jnp.asarray(10, jnp.int64), jnp.asarray(1, jnp.int64))
     txt = chunk.lower(*args).compile().as_text()
     loops = re.findall(r"while\(%[\w.\-]+\), condition=%[\w.\-]+, body=%([\w.\-]+)", txt)
     out = dict(kernels=None, transcendentals=None)

@@ -295,27 +295,35 @@ def test_a_chunk_traces_the_dynamics_once_per_written_stage(rolled, paper_plant,
     carry = S._init_carry(ctrl, S.initial_state(paper_plant, ctrl, u1_0=U1_0), 2)
     chunk = S._compiled.__wrapped__(None, 3, False, S.select(None))[0]  # a fresh jit: no trace cached
     chunk.trace(paper_plant, ctrl, reference, S.Limits(), carry, jnp.asarray(0), jnp.asarray(6),
-                jnp.asarray(1e-4), jnp.asarray(1), jnp.asarray(2))
+                jnp.asarray(1e-4), jnp.asarray(1), jnp.asarray(2), jnp.asarray(3))
     assert len(rhs_traces) == (1 if rolled else 4)
 
 
-def test_output_intervals_share_one_compiled_program(paper_plant, nominal_arm, nominal_surface, reference,
-                                                     sim_module, rhs_traces):
-    """The steps between stored samples are an argument of the chunk program, not a constant of
-    it: runs storing every 2nd, 5th or 10th step (the same chunk size, records_per_chunk)
-    reuse one program (nothing traced again), and each stores what it should."""
+def test_output_intervals_and_fields_share_one_compiled_program(paper_plant, nominal_arm, nominal_surface,
+                                                                reference, sim_module, rhs_traces):
+    """The steps between stored samples and the samples a chunk takes are arguments of the chunk
+    program, not constants of it: single runs storing every step, every 2nd, 5th, 10th or 30th
+    step, with every field or only some, reuse one program (nothing traced again), in chunks of
+    several sizes (the every-step run is 4 chunks of 200 samples, the 30-step one a chunk of 21 of its 67), and each stores what it
+    should. A batch keeps one program per chunk size (records_per_chunk)."""
     records = [sim_module.records_per_chunk(e) for e in (1, 2, 10, 11, 100, 101, 10_000)]
     assert records == [2000, 200, 200, 20, 20, 20, 20]
+    single = [sim_module.chunk_records(e, batched=False) for e in (1, 2, 10, 11, 100, 1999, 2000, 10_000)]
+    assert single == [(200, 200), (200, 200), (200, 200), (200, 182), (200, 20), (200, 2), (200, 1), (200, 1)]
     ctrl = H.HinfController.design(nominal_arm, nominal_surface, H.Gains())
-    runs = {10: H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.003, save_every=10)}
+    runs = {10: H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.06, save_every=10)}
     traced = len(rhs_traces)  # 4, or 0 when an earlier test of this process compiled the structure
-    for e in (5, 2):
-        runs[e] = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.003, save_every=e)
+    for e in (5, 2, 1, 30):
+        runs[e] = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.06, save_every=e)
+    some = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.06, save_every=1, fields=("lam", "tau"))
     assert len(rhs_traces) == traced
+    assert {"lam", "tau"} <= set(some.arrays) and "q" not in some.arrays
     for e, traj in runs.items():
-        np.testing.assert_allclose(traj.t, np.arange(0, 31, e) * 1e-4, rtol=1e-14, atol=1e-17)
+        np.testing.assert_allclose(traj.t, np.arange(0, 601, e) * 1e-4, rtol=1e-14, atol=1e-17)
         for name in ("q", "tau", "lam"):
-            np.testing.assert_array_equal(traj.arrays[name][:: 10 // e], runs[10].arrays[name], err_msg=name)
+            np.testing.assert_array_equal(traj.arrays[name], runs[1].arrays[name][::e], err_msg=f"{name} {e}")
+    for name in ("lam", "tau"):
+        np.testing.assert_array_equal(some.arrays[name], runs[1].arrays[name], err_msg=name)
 
 
 def test_record_shapes_are_what_a_run_stores_and_are_traced_once_per_structure(paper_plant, nominal_arm,

@@ -12,10 +12,11 @@ The simulator knows the plant and the controller only through :mod:`hinfnn.proto
   held torque; it always runs in the sampled-data mode, and the accumulators advance by the
   rectangle rule.
 
-A run is a jit-compiled program over a chunk of a fixed number of stored samples (about
-:data:`CHUNK_STEPS` steps, :func:`records_per_chunk`), called from a Python loop over chunks
-(never over steps): the compiled program is the same for every horizon, dt and output interval
-(within one of three sizes of chunk), progress is reported and Ctrl-C is honoured between chunks.
+A run is a jit-compiled program over a chunk of stored samples (about :data:`CHUNK_STEPS`
+steps, :func:`chunk_records`), called from a Python loop over chunks (never over steps): a single
+run's compiled program is the same for every horizon, dt, output interval and choice of stored
+fields (a batch's, within one of three sizes of chunk), progress is reported and Ctrl-C is
+honoured between chunks.
 Inside a chunk, an outer scan takes one stored sample every ``save_every`` steps and an inner
 loop runs the steps between them, keeping the record of the first (the RK4 step's first stage is
 the evaluation at the sample instant, so the dynamics appear in the program once per RK4 stage,
@@ -93,17 +94,36 @@ def _rhs(plant, ctrl, ref, t, y: SimState, w, held, sampled):
 #: Steps per compiled chunk, about: a run is a Python loop over chunks of one jit-compiled program
 #: (progress, Ctrl-C and one compilation for every horizon), never a loop over time steps.
 CHUNK_STEPS = 2000
+#: Record slots of a single run's chunk program (:func:`chunk_records`).
+SINGLE_RECORDS = 200
 
 
 def records_per_chunk(save_every: int) -> int:
-    """Stored samples per compiled chunk for a sample every ``save_every`` steps: 2000 for every
-    step, 200 for 2–10 steps between samples (400–2,000 steps per chunk), 20 beyond (220 steps or
-    more: 20,000 for one sample per 1,000 steps, a few seconds of computing between progress
-    reports). ``save_every`` is a traced argument of the chunk program, so every output interval
-    and dt with the same count shares one program."""
+    """Stored samples per compiled chunk of a BATCH for a sample every ``save_every`` steps: 2000
+    for every step, 200 for 2–10 steps between samples (400–2,000 steps per chunk), 20 beyond
+    (220 steps or more: 20,000 for one sample per 1,000 steps, a few seconds of computing between
+    progress reports). ``save_every`` is a traced argument of the chunk program, so every output
+    interval and dt with the same count shares one program."""
     if save_every <= 1:
         return CHUNK_STEPS
     return CHUNK_STEPS // 10 if save_every <= 10 else CHUNK_STEPS // 100
+
+
+def chunk_records(save_every: int, batched: bool) -> tuple[int, int]:
+    """(record slots of the compiled chunk program, samples a chunk takes) for a sample every
+    ``save_every`` steps.
+
+    A single run has one program whatever it stores and however often: :data:`SINGLE_RECORDS`
+    slots, of which a chunk fills about :data:`CHUNK_STEPS` steps' worth (200 for 1–10 steps
+    between samples, 182 for 11, 20 for 100, 1 from 2,000 on); the slots it leaves run no step.
+    The count is a traced argument, so a new output interval, dt, horizon or ``fields`` reuses the
+    compiled program (the unused slots cost under 2 % of a chunk's time from 100 steps between
+    samples on). A batch keeps a program per chunk size and per ``fields`` (:func:`records_per_chunk`):
+    its records are B times larger, and its slots are all used."""
+    if batched:
+        n = records_per_chunk(save_every)
+        return n, n
+    return SINGLE_RECORDS, max(1, min(SINGLE_RECORDS, -(-CHUNK_STEPS // save_every)))
 
 
 @pytree_dataclass
@@ -213,9 +233,11 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
     return sample, step
 
 
-def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every, *, n_records, sampled, fields):
+def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every, n_take, *, n_records, sampled,
+           fields):
     """Records ``r = 0 … n_records − 1`` of a chunk starting at step ``k0``: record r is taken at
-    step k = k0 + r · save_every, as the first of the ``save_every`` steps after it.
+    step k = k0 + r · save_every, as the first of the ``save_every`` steps after it. Only the
+    first ``n_take`` (traced) are taken; the other slots run no step and hold zeros.
 
     An outer scan over records, an inner loop over the steps between them that keeps the first
     step's record (every buffer it touches is small, so XLA runs its kernels inline). The
@@ -235,9 +257,10 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
 
     def one_record(c, r):
         k = k0 + r * save_every
-        c = sample(c, k)
+        taken = r < n_take
+        c = sample(c, k, skip=~taken)
         rec0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(step, c, k, jnp.asarray(True))[1])
-        n_inner = jnp.where(k <= n_steps, jnp.clip(n_steps - k, 1, save_every), 0)
+        n_inner = jnp.where(taken & (k <= n_steps), jnp.clip(n_steps - k, 1, save_every), 0)
 
         def body(i, state):
             cc, rec = state
@@ -282,13 +305,14 @@ def _init_carry(ctrl, y0, n):
 def _compiled(in_axes, n_records, sampled, fields):
     """(chunk, final, init) compiled for one structure; in_axes=None for a single run.
 
-    Horizon, dt, the hold period and the steps between samples are traced arguments, so a new
-    t_final, dt or output interval reuses the compiled program (see :func:`records_per_chunk`)."""
+    Horizon, dt, the hold period, the steps between samples and the samples a chunk takes are
+    traced arguments, so a new t_final, dt or output interval reuses the compiled program (see
+    :func:`chunk_records`)."""
     chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields)
     final, init = _final, _init_carry
     if in_axes is not None:
         p, c, r, lim = in_axes
-        chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None, None))
+        chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None, None, None))
         final = jax.vmap(final, in_axes=(p, c, 0))
         init = jax.vmap(_init_carry, in_axes=(c, 0, None))
     return jax.jit(chunk), jax.jit(final), jax.jit(init, static_argnums=2)
@@ -301,23 +325,28 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold
     The n_records + 1 records (t = 0, …, t_final) are copied chunk by chunk into arrays allocated
     once, so memory is what is stored, never proportional to the steps."""
     n_total = n_steps // save_every + 1
-    per_chunk = records_per_chunk(save_every)  # independent of the horizon: one compilation
+    slots, per_chunk = chunk_records(save_every, batched=in_axes is not None)  # independent of the horizon
     sampled = n_hold > 0
-    chunk, final, init = _compiled(in_axes, per_chunk, sampled, fields)
+    # a single run's program stores every field; the driver keeps those asked for (one program)
+    chunk, final, init = _compiled(in_axes, slots, sampled, fields if in_axes is not None else None)
     carry = init(ctrl, y0, n_joints)
     axis = 0 if in_axes is None else 1  # the time axis of the records
     n_steps_a = jnp.asarray(n_steps, dtype=jnp.int64)
     dt_a = jnp.asarray(dt, dtype=jnp.float64)
     hold_a = jnp.asarray(max(n_hold, 1), dtype=jnp.int64)
     every_a = jnp.asarray(save_every, dtype=jnp.int64)
+    take_a = jnp.asarray(per_chunk, dtype=jnp.int64)
     out: dict[str, np.ndarray] = {}
+    keep: list[str] = []
     n_chunks = -(-n_total // per_chunk)
 
     def store(c, rec):
         start = c * per_chunk
         stop = min(start + per_chunk, n_total)
-        for k, v in rec.items():
-            v = np.asarray(v)
+        if not keep:
+            keep.extend(pick(rec, fields))
+        for k in keep:
+            v = np.asarray(rec[k])
             if k not in out:
                 shape = v.shape[:axis] + (n_total,) + v.shape[axis + 1:]
                 out[k] = np.empty(shape, v.dtype)
@@ -331,7 +360,7 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold
     pending = None  # the previous chunk's records, copied while the next chunk runs
     for c in range(n_chunks):
         k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)
-        carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, n_steps_a, dt_a, hold_a, every_a)
+        carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, n_steps_a, dt_a, hold_a, every_a, take_a)
         if pending is not None:
             store(*pending)
         pending = (c, rec)
