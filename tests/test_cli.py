@@ -195,7 +195,7 @@ def test_every_key_override_through_the_cli_shows_in_scenario_toml(tmp_path):
     out = tmp_path / "o"
     code = cli.main(["run", "paper", "--set", "simulation.t_final=0.01", "--set", "controller.kind=hinf",
                      "--set", "plant.contact.damping=200", "--set", "reference.lam_offset=55",
-                     "--out", str(out), "--quiet"])
+                     "--out", str(out), "--quiet", "--no-figures"])
     assert code == 0
     sc = tomllib.loads((out / "scenario.toml").read_text())
     assert sc["plant"]["contact"]["damping"] == 200.0 and sc["reference"]["lam_offset"] == 55.0

@@ -105,14 +105,14 @@ def test_force_replaces_a_hinfnn_folder_but_not_one_a_user_added_to(tmp_path, re
     shutil.copytree(result, out)
     assert read_marker(out)["files"] and foreign_files(out) == []
     code = cli.main(["run", "paper", "--set", "simulation.t_final=0.02", "--set", "controller.kind=hinf",
-                     "--out", str(out), "--force", "--quiet"])
+                     "--out", str(out), "--force", "--quiet", "--no-figures"])
     assert code == 0
     assert H.load(out).scenario.simulation.t_final == 0.02 and set(H.load(out).trajectories) == {"hinf"}
     (out / "notes.txt").write_text("mine")
     with pytest.raises(H.ConfigError, match="notes.txt"):
         reserve_output(out, force=True)
     assert cli.main(["run", "paper", "--set", "simulation.t_final=0.02", "--out", str(out), "--force",
-                     "--quiet"]) == 2
+                     "--quiet", "--no-figures"]) == 2
     assert (out / "notes.txt").read_text() == "mine"
     assert sorted(x.name for x in tmp_path.iterdir()) == ["r"]
 
@@ -129,7 +129,7 @@ def test_result_folder_written_before_markers_is_still_replaceable(tmp_path, res
 def test_two_concurrent_runs_to_one_out_never_overwrite_each_other(tmp_path, cache):
     """Two real processes started together with the same --out: two complete results, or one
     complete result and an exit 2; never one silently replacing the other."""
-    args = ["run", "paper", *SHORT, "--out", "same"]
+    args = ["run", "paper", *SHORT, "--out", "same", "--no-figures"]
     a = _popen(args + ["--set", "reference.lam_offset=50"], tmp_path, cache)
     b = _popen(args + ["--set", "reference.lam_offset=55"], tmp_path, cache)
     outs = [p.communicate(timeout=300) for p in (a, b)]
@@ -145,7 +145,7 @@ def test_two_concurrent_runs_to_one_out_never_overwrite_each_other(tmp_path, cac
         assert any("being written by another hinfnn process" in o[1] or "is not empty" in o[1] for o in outs)
     else:
         assert sorted(codes) == [0, 2] and folders == ["same"]
-    assert all(_complete(tmp_path / f) for f in folders)
+    assert all(_complete(tmp_path / f, figures=False) for f in folders)
 
 
 def test_stale_lock_of_a_killed_process_does_not_block(tmp_path):
@@ -449,7 +449,7 @@ def test_show_needs_only_metrics_json_and_prints_the_design(tmp_path, result, ca
 def test_show_of_a_diverged_run_prints_why_and_partial_metrics(tmp_path, capsys):
     out = tmp_path / "d"
     code = cli.main(["run", "paper", "--set", "simulation.t_final=0.05", "--set", "controller.gains.gamma_2=1e6",
-                     "--out", str(out), "--quiet"])
+                     "--out", str(out), "--quiet", "--no-figures"])
     assert code == 1
     capsys.readouterr()
     assert cli.main(["show", str(out)]) == 0
@@ -562,7 +562,7 @@ def test_export_to_stdout_and_errors(tmp_path, result, capsys):
 def test_export_of_a_diverged_run_stops_at_t_fail(tmp_path, capsys):
     out = tmp_path / "d"
     assert cli.main(["run", "paper", "--set", "simulation.t_final=0.05", "--set", "controller.gains.gamma_2=1e6",
-                     "--out", str(out), "--quiet"]) == 1
+                     "--out", str(out), "--quiet", "--no-figures"]) == 1
     df = H.load(out).to_pandas()
     t_fail = json.loads((out / "metrics.json").read_text())["runs"][0]["t_fail"]
     assert df["t [s]"].max() <= t_fail + 1e-12 and len(df) >= 1
@@ -593,7 +593,7 @@ def test_force_replacement_without_atomic_exchange(tmp_path, result, monkeypatch
     out = tmp_path / "r"
     shutil.copytree(result, out)
     assert cli.main(["run", "paper", "--set", "simulation.t_final=0.02", "--set", "controller.kind=fl",
-                     "--out", str(out), "--force", "--quiet"]) == 0
+                     "--out", str(out), "--force", "--quiet", "--no-figures"]) == 0
     assert set(H.load(out).trajectories) == {"fl"} and foreign_files(out) == []
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
 

@@ -744,7 +744,7 @@ def test_kill_mid_write_leaves_previous_result_intact(tmp_path, paper_result):
 
 def test_non_empty_output_folder_needs_force(tmp_path):
     out = tmp_path / "r"
-    args = ["run", "paper", "--set", "simulation.t_final=0.01", "--set", "controller.kind=hinf"]
+    args = ["run", "paper", "--set", "simulation.t_final=0.01", "--set", "controller.kind=hinf", "--no-figures"]
     assert _run_cli(args + ["--out", out])[0] == 0
     first = (out / "metrics.json").read_bytes()
     code, stdout, stderr = _run_cli(args + ["--set", "reference.lam_offset=50", "--out", out])
