@@ -473,8 +473,8 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     Raises :class:`~hinfnn.errors.SimulationError` with the time and the offending quantities
     if the state becomes non-finite or a limit is passed (unless ``raise_on_failure=False``;
     the trajectory is then frozen at its last good state from the failing step on).
-    ``progress(steps_done, steps_total)``, if given, is called after each compiled chunk of
-    :data:`CHUNK_STEPS` steps.
+    ``progress(steps_done, steps_total)``, if given, is called after each compiled chunk (about
+    :data:`CHUNK_STEPS` steps; 200 when every step is stored).
     """
     from .._config import require_x64
 
