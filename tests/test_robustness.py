@@ -662,7 +662,13 @@ def _popen(args, cwd):
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONFAULTHANDLER": "1",
            "PYTHONPATH": str(Path(H.__file__).resolve().parents[1])}
     return subprocess.Popen([str(HINFNN), *map(str, args)], cwd=cwd, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, env=env, text=True)
+                            stderr=subprocess.PIPE, env=env, text=True, preexec_fn=_interruptible)
+
+
+def _interruptible():
+    """In the child: Ctrl-C at its default, as a terminal starts a command (a suite started in the
+    background without job control hands its children SIGINT ignored, and hinfnn keeps that)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 class _StderrReader:
