@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from children import interruptible
 
 import hinfnn as H
 from hinfnn import cli
@@ -57,16 +58,10 @@ def hinfnn_here(args, cwd, monkeypatch, capsys) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(args, code, out, err)
 
 
-def _interruptible():
-    """In the child: Ctrl-C at its default, as a terminal starts a command. A suite started in the
-    background without job control (``(make test &)``) hands its children SIGINT ignored, and
-    hinfnn keeps an inherited "ignore", as background jobs should."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 def _popen(args, cwd, cache, **env):
-    return subprocess.Popen([str(HINFNN), *map(str, args)], cwd=cwd, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=_env(cache, **env), preexec_fn=_interruptible)
+    with interruptible():
+        return subprocess.Popen([str(HINFNN), *map(str, args)], cwd=cwd, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env=_env(cache, **env))
 
 
 def _one_line(text: str) -> str:

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from children import interruptible
 import tomli_w
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -661,14 +662,9 @@ def _popen(args, cwd):
     # a crash shows on stderr; PYTHONPATH: the hinfnn under test, whatever the subprocess's cwd
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONFAULTHANDLER": "1",
            "PYTHONPATH": str(Path(H.__file__).resolve().parents[1])}
-    return subprocess.Popen([str(HINFNN), *map(str, args)], cwd=cwd, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, env=env, text=True, preexec_fn=_interruptible)
-
-
-def _interruptible():
-    """In the child: Ctrl-C at its default, as a terminal starts a command (a suite started in the
-    background without job control hands its children SIGINT ignored, and hinfnn keeps that)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    with interruptible():
+        return subprocess.Popen([str(HINFNN), *map(str, args)], cwd=cwd, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, env=env, text=True)
 
 
 class _StderrReader:
