@@ -304,8 +304,9 @@ def test_output_intervals_and_fields_share_one_compiled_program(paper_plant, nom
     """The steps between stored samples and the samples a chunk takes are arguments of the chunk
     program, not constants of it: single runs storing every step, every 2nd, 5th, 10th or 30th
     step, with every field or only some, reuse one program (nothing traced again), in chunks of
-    several sizes (the every-step run is 4 chunks of 200 samples, the 30-step one a chunk of 21 of its 67), and each stores what it
-    should. A batch keeps one program per chunk size (records_per_chunk)."""
+    several sizes (the every-step run is 4 chunks of 200 samples; the 30-step run is one chunk,
+    21 of its 67 samples), and each stores what it should. A batch keeps one program per chunk
+    size (records_per_chunk)."""
     records = [sim_module.records_per_chunk(e) for e in (1, 2, 10, 11, 100, 101, 10_000)]
     assert records == [2000, 200, 200, 20, 20, 20, 20]
     single = [sim_module.chunk_records(e, batched=False) for e in (1, 2, 10, 11, 100, 1999, 2000, 10_000)]
