@@ -23,8 +23,7 @@ the evaluation at the sample instant, so the dynamics appear in the program once
 not again for the samples); every buffer it touches is small (see :mod:`hinfnn._devices`,
 ``blocks``). The same program takes the last sample (t_final) in the chunk that reaches it, so a
 run structure compiles one large program (the final state is read from the last carry by a
-small one). What a sample
-holds is the recorder's business (:mod:`hinfnn.sim.recorder`).
+small one). What a sample holds is the recorder's business (:mod:`hinfnn.sim.recorder`).
 
 The plant's held input (the joint disturbance) is evaluated at each step's midpoint; steps land
 on its switching instants when dt divides them (checked by the scenario loader).
@@ -339,16 +338,13 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold
     every_a = jnp.asarray(save_every, dtype=jnp.int64)
     take_a = jnp.asarray(per_chunk, dtype=jnp.int64)
     out: dict[str, np.ndarray] = {}
-    keep: list[str] = []
     n_chunks = -(-n_total // per_chunk)
 
     def store(c, rec):
         start = c * per_chunk
         stop = min(start + per_chunk, n_total)
-        if not keep:
-            keep.extend(pick(rec, fields))
-        for k in keep:
-            v = np.asarray(rec[k])
+        for k, v in pick(rec, fields).items():  # the fields asked for (a single run's program has all)
+            v = np.asarray(v)
             if k not in out:
                 shape = v.shape[:axis] + (n_total,) + v.shape[axis + 1:]
                 out[k] = np.empty(shape, v.dtype)
