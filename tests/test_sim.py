@@ -52,7 +52,9 @@ def _member_params(i):
     rng = np.random.default_rng(100 + i)
     arm = H.TwoLinkArm(m1=1.2 * rng.uniform(0.8, 1.2), m2=1.1 * rng.uniform(0.8, 1.2),
                        l1=1.02724 * rng.uniform(0.98, 1.02), l2=0.98041 * rng.uniform(0.98, 1.02))
-    surface = H.InclinedLine(delta=np.deg2rad(45.5 + rng.uniform(-1, 1)), d_G=0.8)
+    # a Python float, as the scenario loader gives it: the single runs then share the program of
+    # every other paper H∞ + NN run (a NumPy scalar is another argument type, so another program)
+    surface = H.InclinedLine(delta=float(np.deg2rad(45.5 + rng.uniform(-1, 1))), d_G=0.8)
     plant = H.RigidBodyPlant(arm, surface, H.PenaltyContact(1e5 * rng.uniform(0.5, 2), 200 * rng.uniform(0.5, 2)),
                     H.SquareWave(amplitude=np.full(2, rng.uniform(0, 4)), period=1.0, phase=0.0))
     gains = H.Gains(K_p=18 * rng.uniform(0.7, 1.3), K_v=9 * rng.uniform(0.7, 1.3))
@@ -343,6 +345,28 @@ def test_record_shapes_are_what_a_run_stores_and_are_traced_once_per_structure(p
     assert S.record_shapes(paper_plant, ctrl, reference, q0=q0) == shapes and len(rhs_traces) == n
     metrics = S.record_shapes(paper_plant, ctrl, reference, q0=q0, fields="metrics")  # its own structure
     assert len(rhs_traces) == n + 1 and metrics == {k: v for k, v in shapes.items() if k in S.select("metrics")} != shapes
+
+
+def test_a_single_run_s_memory_plan_is_the_trace_its_run_uses(paper_plant, nominal_arm, nominal_surface,
+                                                               reference, monkeypatch, sim_module, rhs_traces):
+    """record_shapes(single=True) traces the single-run chunk program itself (four RK4 stages
+    written out), and the run that follows traces nothing: jax.jit keeps the trace. The shapes are
+    the stored arrays', and another choice of fields is read off the same trace. (Fresh jit
+    objects for this test, so that no earlier test's trace is reused.)"""
+    import functools
+
+    S = sim_module
+    monkeypatch.setattr(S, "_RECORD_SHAPES", {})
+    monkeypatch.setattr(S, "_compiled", functools.lru_cache(maxsize=8)(S._compiled.__wrapped__))
+    ctrl = H.HinfController.design(nominal_arm, nominal_surface, H.Gains())
+    q0 = paper_plant.initial_q(U1_0)
+    shapes = S.record_shapes(paper_plant, ctrl, reference, q0=q0, single=True)
+    assert len(rhs_traces) == 4
+    traj = H.simulate(paper_plant, ctrl, reference, q0=q0, t_final=0.002)
+    assert len(rhs_traces) == 4
+    assert shapes == {k: (v.shape[1:], v.dtype) for k, v in traj.arrays.items()}
+    metrics = S.record_shapes(paper_plant, ctrl, reference, q0=q0, fields="metrics", single=True)
+    assert len(rhs_traces) == 4 and metrics == {k: v for k, v in shapes.items() if k in S.select("metrics")}
 
 
 _DEFAULT_EMITTERS_RUN = """

@@ -139,7 +139,8 @@ def plan(runs, *, fields=None, save_every: int | None = None, copies: float = 2.
         n_steps, _, every = steps(r.t_final, r.dt, save_every, r.control_period, r.save_interval,
                                   bool(getattr(r.plant, "discrete", False)))
         shapes = record_shapes(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt,
-                               control_period=r.control_period, fields=fields, limits=r.limits)
+                               control_period=r.control_period, fields=fields, limits=r.limits,
+                               single=len(items) == 1)  # a group of one runs the single-run program
         per_sample = sum(math.prod(shape) * dtype.itemsize for shape, dtype in shapes.values())
         n_samples = n_steps // every + 1
         stored += per_sample * n_samples * len(items)

@@ -332,11 +332,7 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold
     chunk, final, init = _compiled(in_axes, slots, sampled, fields if in_axes is not None else None)
     carry = init(ctrl, y0, n_joints)
     axis = 0 if in_axes is None else 1  # the time axis of the records
-    n_steps_a = jnp.asarray(n_steps, dtype=jnp.int64)
-    dt_a = jnp.asarray(dt, dtype=jnp.float64)
-    hold_a = jnp.asarray(max(n_hold, 1), dtype=jnp.int64)
-    every_a = jnp.asarray(save_every, dtype=jnp.int64)
-    take_a = jnp.asarray(per_chunk, dtype=jnp.int64)
+    n_steps_a, dt_a, hold_a, every_a, take_a = _chunk_scalars(n_steps, dt, n_hold, save_every, per_chunk)
     out: dict[str, np.ndarray] = {}
     n_chunks = -(-n_total // per_chunk)
 
@@ -357,7 +353,7 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold
 
     pending = None  # the previous chunk's records, copied while the next chunk runs
     for c in range(n_chunks):
-        k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)
+        k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)  # typed as _chunk_scalars
         carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, n_steps_a, dt_a, hold_a, every_a, take_a)
         if pending is not None:
             store(*pending)
@@ -365,6 +361,14 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold
     store(*pending)  # n_chunks >= 1
     del pending
     return (out, *final(plant, ctrl, carry))
+
+
+def _chunk_scalars(n_steps, dt, n_hold, save_every, per_chunk):
+    """The chunk program's traced scalars as :func:`_drive` passes them (their types are part of
+    the program's signature: :func:`record_shapes` traces the same one)."""
+    i64 = functools.partial(jnp.asarray, dtype=jnp.int64)
+    return (i64(n_steps), jnp.asarray(dt, dtype=jnp.float64), i64(max(n_hold, 1)), i64(save_every),
+            i64(per_chunk))
 
 
 def steps(t_final, dt, save_every, control_period, save_interval=None, discrete=False):
@@ -611,15 +615,19 @@ def _group_progress(progress, i, n_groups, done, total):
 
 
 def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
-                  fields=None, limits: Limits | None = None) -> dict:
-    """``{field: (shape, dtype)}`` of one stored sample of a run, found by tracing one record
-    (``jax.eval_shape``: nothing is compiled or run). What a run stores is this times its number
-    of samples; :mod:`hinfnn.resources` uses it to estimate memory before a run.
+                  fields=None, limits: Limits | None = None, single: bool = False) -> dict:
+    """``{field: (shape, dtype)}`` of one stored sample of a run, found by tracing (``eval_shape``:
+    nothing is compiled or run). What a run stores is this times its number of samples;
+    :mod:`hinfnn.resources` uses it to estimate memory before a run.
 
-    The trace is the step's with RK4's stages rolled (plant and controller traced once, not four
-    times: the shapes are the same), and it is kept for the process's later runs of the same
-    structure (the same pytree structure and array types): the paper's H∞ + NN law 0.52 s → 0.15 s
-    the first time, nothing after."""
+    ``single``: the run is simulated alone (:func:`simulate`, or a group of one in
+    :func:`~hinfnn.sim.simulate_many`), and its own chunk program is what is traced: ``jax.jit``
+    keeps that trace, so the run's first chunk does not trace it again (the memory plan costs no
+    trace; it cost 0.15 s before the paper's H∞ + NN run, 0.3-0.5 s before a UR5 run). Otherwise
+    (members of a batch, whose program is another) it is one step with RK4's stages rolled (plant
+    and controller traced once, not four times: the shapes are the same). Either way the result is
+    kept for the process's later runs of the same structure (the same pytree structure and array
+    types)."""
     fields = select(fields)
     sampled = control_period is not None or bool(getattr(plant, "discrete", False))
     y0 = initial_state(plant, controller, q0=q0)
@@ -633,7 +641,14 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
         _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True)
         return step(carry, jnp.zeros((), jnp.int64), True)[1]
 
-    out = jax.eval_shape(one, *args)
+    if single:  # the arguments _drive gives the single-run program (their values do not matter)
+        chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None)
+        carry = init.eval_shape(controller, y0, plant.n)
+        k0 = jnp.zeros((), jnp.int64)
+        records = chunk.eval_shape(*args[:4], carry, k0, *_chunk_scalars(1, dt, 1, 1, 1))[1]
+        out = {k: jax.ShapeDtypeStruct(v.shape[1:], v.dtype) for k, v in pick(records, fields).items()}
+    else:
+        out = jax.eval_shape(one, *args)
     shapes = {k: (tuple(v.shape), np.dtype(v.dtype)) for k, v in out.items()}
     if len(_RECORD_SHAPES) < 256:
         _RECORD_SHAPES[key] = shapes
