@@ -31,6 +31,12 @@ TEST_XLA_FLAG = "--xla_cpu_use_fusion_emitters=false"
 if TEST_XLA_FLAG not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {TEST_XLA_FLAG}".strip()
 
+# One OpenBLAS thread (NumPy's and SciPy's): hinfnn's linear algebra is design-time work on
+# matrices of a few rows, and each process's idle BLAS threads cost about 0.1 s of CPU that the
+# other pytest-xdist worker needs (a warm `hinfnn run paper`, 0.05 s: 2.0-2.2 s of CPU against
+# 2.1-2.3 s). Subprocesses inherit it.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import gc  # noqa: E402
 
 import jax  # noqa: E402
@@ -90,13 +96,28 @@ if _COMPILE_REPORT:
         _now.clear()
 
 
+#: Modules whose tests take longest, in descending total time (seconds on this project's 2-core
+#: machines, one suite run): collected first, so that pytest-xdist hands the longest tests out
+#: first and both workers finish together. The xdist groups (``xdist_group`` marks) are scheduled
+#: before any of these whatever the order (pytest-xdist's --loadscope-reorder: the scopes with
+#: most tests first); within a module the order is the file's.
+LONGEST_FIRST = ("test_readme.py",  # 142 s: the README's arm commands alone 85 s (nine UR5 and 3-link programs)
+                 "test_arms.py",  # 104 s
+                 "test_robustness.py",  # 58 s
+                 "test_sim.py", "test_results.py", "test_sweep.py", "test_cli.py")
+
+
 @pytest.hookimpl(trylast=True)
 def pytest_collection_modifyitems(config, items):
-    """The xdist_group marks must reach pytest-xdist's ``--dist loadgroup``: it appends the group to
+    """The modules of :data:`LONGEST_FIRST` first (a stable sort: the others keep their order).
+
+    The xdist_group marks must reach pytest-xdist's ``--dist loadgroup``: it appends the group to
     each marked test's node id, and sends the tests of one group to one worker. pytest 9.2 builds
     node ids another way, so pytest-xdist 3.8's suffix was silently lost and the groups were split
     over both workers (the paper study's 14-s fixture ran twice). If that happens again, every
     grouped test fails and says why (an error raised here would be swallowed by pytest-xdist)."""
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
     if not config.getoption("loadgroup", default=False):
         return
     for item in items:
