@@ -182,21 +182,20 @@ def test_stabilised_laws_meet_the_targets_on_the_undamped_paper_plant(stable):
         assert m["dissipation_holds_for_all_t"] is True
 
 
-def test_reproduce_writes_the_beyond_part(tmp_path, monkeypatch):
-    """`hinfnn reproduce` (short horizon, one stiffness to keep it quick): metrics.json's "beyond"
-    part names every case with its run, beyond.npz holds their fields, the figures and the
-    report's section exist, and the override the comparison cannot honour is refused."""
+def test_reproduce_writes_the_beyond_part(tmp_path, reproduced):
+    """`hinfnn reproduce` (short horizon, one stiffness to keep it quick: the ``reproduced``
+    fixture of conftest.py): metrics.json's "beyond" part names every case with its run,
+    beyond.npz holds their fields, the figures and the report's section exist, and the override
+    the comparison cannot honour is refused."""
     import json
 
     from hinfnn import study
 
-    monkeypatch.setattr(study, "BEYOND_STIFFNESS", (1e5,))
     with pytest.raises(H.ConfigError) as err:
         study.reproduce(tmp_path / "refused", base=H.load_scenario("paper", [("plant.contact.stiffness", 2e5)]))
     assert err.value.key == "plant.contact.stiffness" and "--paper-only" in str(err.value)
     assert not (tmp_path / "refused").exists()
-    out = tmp_path / "paper"
-    assert cli.main(["reproduce", "--set", "simulation.t_final=0.05", "--out", str(out), "--quiet"]) == 0
+    out, _ = reproduced
     doc = json.loads((out / "metrics.json").read_text())
     beyond = doc["beyond"]
     names = {c["name"] for c in beyond["cases"]}

@@ -112,10 +112,9 @@ def test_program_ends_with_its_code_and_all_its_output(tmp_path, args, code):
         assert proc.stderr.startswith("hinfnn: ConfigError") and "simulation.dt" in proc.stderr
 
 
-@pytest.mark.xdist_group("beyond")  # the study's programs, in memory after test_beyond's reproduce (or before it)
-def test_reproduce_short_horizon_writes_every_file(tmp_path, capsys):
-    out = tmp_path / "paper"
-    assert cli.main(["reproduce", "--paper-only", "--set", "simulation.t_final=0.3", "--out", str(out)]) == 0
+@pytest.mark.xdist_group("beyond")  # the reproduced fixture and the study's programs, shared with test_beyond
+def test_reproduce_short_horizon_writes_every_file(reproduced, capsys):
+    out, command = reproduced  # `hinfnn reproduce --set simulation.t_final=0.3` (conftest.py)
     names = ["fl", "hinf", "hinf_nn", "hinf_nn_printed", "hinf_exact"]
     _check_metrics_json(out / "metrics.json", names + [n + "_damped" for n in names])
     for stem in PAPER_FIGURES:
@@ -123,16 +122,20 @@ def test_reproduce_short_horizon_writes_every_file(tmp_path, capsys):
         _check_png(out / f"{stem}_damped.png")
     report = (out / "report.md").read_text()
     for needle in ("## Claims", "held", "paper-conventions.md", "fig5_u1.png", "### Summary", "10 runs, each 0.3 s",
-                   f"Command: `hinfnn reproduce --paper-only --set simulation.t_final=0.3 --out {out}`"):
+                   f"Command: `{command}`"):
         assert needle in report
     doc = json.loads((out / "metrics.json").read_text())
-    assert doc["command"] == f"hinfnn reproduce --paper-only --set simulation.t_final=0.3 --out {out}"
-    assert "beyond" not in doc and not (out / "beyond.npz").exists()
+    assert doc["command"] == command
     assert (out / ".hinfnn-result").exists()
     assert (out / "scenario.toml").exists() and (out / "trajectory.npz").exists()
-    # writing again without --force picks a new numbered folder and says so
-    assert cli.main(["reproduce", "--paper-only", "--set", "simulation.t_final=0.02", "--out", str(out), "--quiet"]) == 0
-    assert (tmp_path / "paper-2" / "report.md").exists()
+    # writing again without --force picks a new numbered folder and says so; --paper-only: no beyond part
+    assert cli.main(["reproduce", "--paper-only", "--set", "simulation.t_final=0.02", "--out", str(out)]) == 0
+    assert f"{out.name}-2" in capsys.readouterr().err
+    again = out.parent / f"{out.name}-2"
+    assert (again / "report.md").exists() and (again / "fig5_u1.png").exists()
+    doc = json.loads((again / "metrics.json").read_text())
+    assert "beyond" not in doc and not (again / "beyond.npz").exists() and not list(again.glob("beyond_*.png"))
+    assert "Beyond the paper" not in (again / "report.md").read_text()
 
 
 def _alternative(key, tp, meta, value):
