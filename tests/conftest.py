@@ -141,13 +141,13 @@ def cache():
 
 @pytest.fixture(scope="session")
 def reproduced(tmp_path_factory):
-    """`hinfnn reproduce --set simulation.t_final=0.3 --quiet` once ("Beyond the paper" at 1e5
+    """`hinfnn reproduce --set simulation.t_final=0.05 --quiet` once ("Beyond the paper" at 1e5
     N/m only, to keep it quick): (folder, command line). test_cli checks the paper study's files,
     test_beyond the comparison's; both modules run in the "beyond" xdist group, so on one worker."""
     from hinfnn import cli, study
 
     out = tmp_path_factory.mktemp("reproduce") / "paper"
-    argv = ["reproduce", "--set", "simulation.t_final=0.3", "--out", str(out), "--quiet"]
+    argv = ["reproduce", "--set", "simulation.t_final=0.05", "--out", str(out), "--quiet"]
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(study, "BEYOND_STIFFNESS", (1e5,))
         assert cli.main(argv) == 0

@@ -114,14 +114,14 @@ def test_program_ends_with_its_code_and_all_its_output(tmp_path, args, code):
 
 @pytest.mark.xdist_group("beyond")  # the reproduced fixture and the study's programs, shared with test_beyond
 def test_reproduce_short_horizon_writes_every_file(reproduced, capsys):
-    out, command = reproduced  # `hinfnn reproduce --set simulation.t_final=0.3` (conftest.py)
+    out, command = reproduced  # `hinfnn reproduce --set simulation.t_final=0.05` (conftest.py)
     names = ["fl", "hinf", "hinf_nn", "hinf_nn_printed", "hinf_exact"]
     _check_metrics_json(out / "metrics.json", names + [n + "_damped" for n in names])
     for stem in PAPER_FIGURES:
         _check_png(out / f"{stem}.png")
         _check_png(out / f"{stem}_damped.png")
     report = (out / "report.md").read_text()
-    for needle in ("## Claims", "held", "paper-conventions.md", "fig5_u1.png", "### Summary", "10 runs, each 0.3 s",
+    for needle in ("## Claims", "held", "paper-conventions.md", "fig5_u1.png", "### Summary", "10 runs, each 0.05 s",
                    f"Command: `{command}`"):
         assert needle in report
     doc = json.loads((out / "metrics.json").read_text())
