@@ -88,12 +88,12 @@ def result(tmp_path_factory, cache):
 # --- never destroy what hinfnn did not write ---------------------------------------------------------
 
 
-def test_force_onto_a_folder_with_a_foreign_file_keeps_it(tmp_path, cache):
+def test_force_onto_a_folder_with_a_foreign_file_keeps_it(tmp_path, monkeypatch, capsys):
     work = tmp_path / "mywork"
     work.mkdir()
     (work / "thesis.tex").write_text("precious")
     (work / "data").mkdir()
-    p = hinfnn(["run", "paper", *SHORT, "--out", work, "--force"], tmp_path, cache)
+    p = hinfnn_here(["run", "paper", *SHORT, "--out", work, "--force"], tmp_path, monkeypatch, capsys)
     assert p.returncode == 2
     line = _one_line(p.stderr)
     assert line.startswith("hinfnn: ConfigError: --out: ") and "thesis.tex" in line and "data/" in line
@@ -346,8 +346,9 @@ def test_default_folders_do_not_collide(tmp_path, monkeypatch, capsys):
 # --- honest guards ----------------------------------------------------------------------------------------
 
 
-def test_memory_guard_refuses_and_says_how_to_store_less(tmp_path, cache):
-    p = hinfnn(["run", "paper", "--set", "simulation.t_final=1000"], tmp_path, cache, HINFNN_MAX_MEMORY="1GB")
+def test_memory_guard_refuses_and_says_how_to_store_less(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("HINFNN_MAX_MEMORY", "1GB")
+    p = hinfnn_here(["run", "paper", "--set", "simulation.t_final=1000"], tmp_path, monkeypatch, capsys)
     assert p.returncode == 2
     line = _one_line(p.stderr)
     from hinfnn import resources
@@ -367,10 +368,11 @@ def test_memory_guard_refuses_and_says_how_to_store_less(tmp_path, cache):
     assert resources.plan([Scenario.load("paper", ["simulation.t_final=1000"]).run()], fields="metrics").peak <= 1e9
 
 
-def test_the_issue_s_long_run_is_refused_on_this_machine(tmp_path, cache):
+def test_the_issue_s_long_run_is_refused_on_this_machine(tmp_path, monkeypatch, capsys):
     """simulation.t_final = 100000 stores 38 GB: more than this machine has (capped at 16 GB so
     that the test never starts a 4-hour run on a larger machine)."""
-    p = hinfnn(["run", "paper", "--set", "simulation.t_final=100000"], tmp_path, cache, HINFNN_MAX_MEMORY="16GB")
+    monkeypatch.setenv("HINFNN_MAX_MEMORY", "16GB")
+    p = hinfnn_here(["run", "paper", "--set", "simulation.t_final=100000"], tmp_path, monkeypatch, capsys)
     assert p.returncode == 2 and "ResourceError" in _one_line(p.stderr)
     assert "--set simulation.output_interval=" in p.stderr
 
