@@ -101,9 +101,9 @@ if _COMPILE_REPORT:
 #: first and both workers finish together. The xdist groups (``xdist_group`` marks) are scheduled
 #: before any of these whatever the order (pytest-xdist's --loadscope-reorder: the scopes with
 #: most tests first); within a module the order is the file's.
-LONGEST_FIRST = ("test_readme.py",  # 142 s: the README's arm commands alone 85 s (nine UR5 and 3-link programs)
-                 "test_arms.py",  # 104 s
-                 "test_robustness.py",  # 58 s
+LONGEST_FIRST = ("test_readme.py",  # 158 s: the README's arm commands alone 98 s (nine UR5 and 3-link programs)
+                 "test_arms.py",  # 76 s
+                 "test_robustness.py",  # 64 s
                  "test_sim.py", "test_results.py", "test_sweep.py", "test_cli.py")
 
 
