@@ -23,6 +23,12 @@ class RefSample:
     lam_d: jax.Array
 
 
+@jax.jit
+def lam_d_at(ref, t):
+    """λd of reference ``ref`` at the times ``t`` (an array), as one compiled program."""
+    return jax.vmap(lambda ti: ref(ti).lam_d)(t)
+
+
 @pytree_dataclass
 class CosineReference:
     """u1d(t) = a_u + b_u cos(ω_u t + φ_u),  λd(t) = a_λ + b_λ cos(ω_λ t + φ_λ).

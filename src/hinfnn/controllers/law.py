@@ -380,6 +380,13 @@ def sigma_min(J):
 
 
 @jax.jit
+def nominal_sigma_min(arm, q):
+    """σ_min(Ĵ(q)) as one compiled program (the scenario check of the path against the
+    singularity guard evaluates it along the reference)."""
+    return sigma_min(arm.J(q))
+
+
+@jax.jit
 def _nominal_jacobian_det(arm, q):
     """det Ĵ(q) as one compiled program (a new process lowers each eager operation separately)."""
     return jnp.linalg.det(arm.J(q))

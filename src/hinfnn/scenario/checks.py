@@ -6,7 +6,6 @@ the dotted key, the value and what is allowed.
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
@@ -94,27 +93,16 @@ def check(sc) -> None:
     _check_step_against_contact(sc, plant, q0)
 
 
-@functools.cache
-def _sigma_min_J():
-    """σ_min(Ĵ(q)), one compiled program for every check of the process (a jit made in each
-    check traced and lowered it again each time)."""
-    import jax
-
-    from ..controllers.law import sigma_min
-
-    return jax.jit(lambda arm, q: sigma_min(arm.J(q)))
-
-
 def _check_path_against_singularity(sc, q0) -> None:
     """With the singularity guard on, the reference's path must keep σ_min(Ĵ) above the stop on
     the NOMINAL model (else the run would stop by design): a DesignError naming the reference."""
     from ..controllers.force_rate import path_poses
+    from ..controllers.law import nominal_sigma_min
     from ..errors import DesignError
 
     arm, surface = sc.nominal.arm.build(), sc.nominal.surface.build()
-    sig = _sigma_min_J()
     lo, hi = sc.reference.u1_range()
-    worst = min(((float(sig(arm, q)), u1) for u1, q in path_poses(arm, surface, (lo, hi), q0)), key=lambda p: p[0])
+    worst = min(((float(nominal_sigma_min(arm, q)), u1) for u1, q in path_poses(arm, surface, (lo, hi), q0)), key=lambda p: p[0])
     stop = sc.controller.singularity_stop
     if not worst[0] > stop:
         raise DesignError(f"the reference reaches u1 = {worst[1]:.4g} m, where the nominal Jacobian's smallest singular "
@@ -229,14 +217,8 @@ def _force_scale(sc) -> float:
     """The largest |λd| over the run (sampled), a scale for the normal force."""
     import jax.numpy as jnp
 
+    from ..reference import lam_d_at
+
     t = jnp.linspace(0.0, sc.simulation.t_final, 201)
-    lam = np.asarray(_lam_d_at()(sc.build_reference(), t))
+    lam = np.asarray(lam_d_at(sc.build_reference(), t))
     return float(np.max(np.abs(lam))) if lam.size else 0.0
-
-
-@functools.cache
-def _lam_d_at():
-    """λd of a reference at stacked times, one compiled program for every check of the process."""
-    import jax
-
-    return jax.jit(jax.vmap(lambda ref, t: ref(t).lam_d, in_axes=(None, 0)))
