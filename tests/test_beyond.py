@@ -76,6 +76,27 @@ def test_kappa_rule_on_two_stiffnesses(paper):
     assert d["force_rate"]["m_n_min"] <= c["m_n"] <= d["force_rate"]["m_n_max"]
 
 
+def test_path_poses_are_solved_once_per_model_and_path(paper, monkeypatch):
+    """The design's path (kept per process): the same arm, surface, range and start give the poses
+    solved the first time, without solving again; another arm (a value, not the object) or
+    another range is solved anew."""
+    from hinfnn.controllers import force_rate as fr
+
+    calls = []
+    solve = fr._solve_path
+    monkeypatch.setattr(fr, "_solve_path", lambda *a: calls.append(a) or solve(*a))
+    monkeypatch.setattr(fr, "_PATHS", {})
+    arm, surface = paper.nominal.arm.build(), paper.nominal.surface.build()
+    q0 = np.asarray(paper.initial_q())
+    first = fr.path_poses(arm, surface, (1.4, 1.6), q0)
+    again = fr.path_poses(paper.nominal.arm.build(), paper.nominal.surface.build(), (1.4, 1.6), q0.copy())
+    assert len(calls) == 1 and [u for u, _ in again] == [u for u, _ in first]
+    assert all(a is b for (_, a), (_, b) in zip(first, again))
+    longer = fr.path_poses(H.TwoLinkArm(m1=1.5, m2=1.0, l1=1.0, l2=1.01), surface, (1.4, 1.6), q0)
+    fr.path_poses(arm, surface, (1.4, 1.55), q0)
+    assert len(calls) == 3 and not np.array_equal(longer[-1][1], first[-1][1])
+
+
 def test_sampled_design_window_and_refusal(paper):
     sc = paper.with_overrides({**STABLE, "controller.kind": "hinf", "simulation.control": "sampled",
                                "controller.force_rate.stiffness_max": 1e5})

@@ -64,9 +64,31 @@ def normal_mass(arm, surface, q):
     return (A @ A.T)[0, 0] / (AJ @ jnp.linalg.solve(t.M, AJ.T))[0, 0]
 
 
+#: :func:`path_poses` kept per process, by value: a scenario's check and its force-rate design solve
+#: the same path, and `hinfnn reproduce` loads the same nominal model in 35 scenarios.
+_PATHS: dict = {}
+_PATHS_MAX = 64
+
+
+def _value_key(*trees):
+    """A hashable key of pytrees by structure (static fields included) and leaf values."""
+    leaves, treedef = jax.tree.flatten(trees)
+    return treedef, tuple((a.dtype.str, a.shape, a.tobytes()) for a in map(np.asarray, leaves))
+
+
 def path_poses(arm, surface, u1_range, q_start, n: int = 41):
     """Nominal poses with the end-effector on the nominal surface at u1 across ``u1_range``
-    (inverse kinematics, continued from ``q_start``)."""
+    (inverse kinematics, continued from ``q_start``): [(u1, q)], solved once per process for the
+    same arm, surface, range, start and count."""
+    key = _value_key(arm, surface, (float(u1_range[0]), float(u1_range[1])), np.asarray(q_start, dtype=float), n)
+    if key not in _PATHS:
+        if len(_PATHS) >= _PATHS_MAX:
+            _PATHS.pop(next(iter(_PATHS)))
+        _PATHS[key] = tuple(_solve_path(arm, surface, u1_range, q_start, n))
+    return list(_PATHS[key])
+
+
+def _solve_path(arm, surface, u1_range, q_start, n):
     lo, hi = u1_range
     poses = []
     q = jnp.asarray(q_start, dtype=float)
