@@ -404,8 +404,9 @@ def test_ray_backend_gives_the_same_table_and_retries_a_lost_worker(small, tmp_p
         warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
         # one CPU: one task at a time, so two worker processes in all (the one the fault kills and
         # its replacement) instead of three; each imports hinfnn and traces the batch's program
-        # before loading it from the cache (about 3.5 s of CPU), which the other pytest-xdist
-        # worker needs. The retry and the table do not depend on tasks running side by side.
+        # before loading it from the cache. The test kept the machine busy for 20-22 core-seconds
+        # instead of 28, which the other pytest-xdist worker needs; the retry and the table do not
+        # depend on tasks running side by side.
         ray.init(num_cpus=1, include_dashboard=False, logging_level="error")
     try:
         res = run_sweep(spec, tmp_path / "ray", backend="ray", max_batch=2)

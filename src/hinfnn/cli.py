@@ -97,7 +97,7 @@ exit codes:
 def _parser() -> argparse.ArgumentParser:
     """The command line's parser, built once per process: it holds only constants (parsing does
     not change it; ``--set``'s list default is copied, not appended to), and building its 13
-    subcommands takes about 10 ms, which every ``main()`` called from Python (a test, a notebook)
+    subcommands takes about 5 ms, which every ``main()`` called from Python (a test, a notebook)
     paid again."""
     from . import __version__
 
