@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._pytree import value_key
 from ..errors import DesignError
 
 
@@ -70,17 +71,11 @@ _PATHS: dict = {}
 _PATHS_MAX = 64
 
 
-def _value_key(*trees):
-    """A hashable key of pytrees by structure (static fields included) and leaf values."""
-    leaves, treedef = jax.tree.flatten(trees)
-    return treedef, tuple((a.dtype.str, a.shape, a.tobytes()) for a in map(np.asarray, leaves))
-
-
 def path_poses(arm, surface, u1_range, q_start, n: int = 41):
     """Nominal poses with the end-effector on the nominal surface at u1 across ``u1_range``
     (inverse kinematics, continued from ``q_start``): [(u1, q)], solved once per process for the
     same arm, surface, range, start and count."""
-    key = _value_key(arm, surface, (float(u1_range[0]), float(u1_range[1])), np.asarray(q_start, dtype=float), n)
+    key = value_key((arm, surface, (float(u1_range[0]), float(u1_range[1])), np.asarray(q_start, dtype=float), n))
     if key not in _PATHS:
         if len(_PATHS) >= _PATHS_MAX:
             _PATHS.pop(next(iter(_PATHS)))
