@@ -45,12 +45,12 @@ import pytest  # noqa: E402
 from hypothesis import settings  # noqa: E402
 
 import hinfnn as H  # noqa: E402
-from hinfnn import _devices  # noqa: E402
+from hinfnn.cli import PROGRAM_GC_THRESHOLD  # noqa: E402
 
 H.configure()
 # The garbage-collector thresholds of the hinfnn program (the program_gc device): the suite's
 # processes trace hundreds of programs, each allocating millions of short-lived objects.
-gc.set_threshold(*_devices.PROGRAM_GC_THRESHOLD)
+gc.set_threshold(*PROGRAM_GC_THRESHOLD)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
 
@@ -144,12 +144,13 @@ def reproduced(tmp_path_factory):
     """`hinfnn reproduce --set simulation.t_final=0.05 --quiet` once ("Beyond the paper" at 1e5
     N/m only, to keep it quick): (folder, command line). test_cli checks the paper study's files,
     test_beyond the comparison's; both modules run in the "beyond" xdist group, so on one worker."""
-    from hinfnn import cli, study
+    from hinfnn import cli
+    from hinfnn.workflows import paper
 
     out = tmp_path_factory.mktemp("reproduce") / "paper"
     argv = ["reproduce", "--set", "simulation.t_final=0.05", "--out", str(out), "--quiet"]
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(study, "BEYOND_STIFFNESS", (1e5,))
+        mp.setattr(paper, "BEYOND_STIFFNESS", (1e5,))
         assert cli.main(argv) == 0
     return out, "hinfnn " + " ".join(argv)
 
@@ -161,38 +162,41 @@ def pytest_unconfigure(config):
 settings.register_profile("ci", deadline=None, derandomize=True, print_blob=True)
 settings.load_profile("ci")
 
-DELTA_TRUE = 91.0 / 360.0 * np.pi
-DELTA_NOM = np.pi / 4
+#: The paper's Sec. VI scenario as shipped (src/hinfnn/scenario/files/paper.toml): the tests read the
+#: paper's parameters from it (the models it builds), never retype them.
+PAPER = H.load_scenario("paper", check=False)
+PAPER_SETUP = PAPER.build()
 
 
 @pytest.fixture(scope="session")
 def true_arm():
-    return H.TwoLinkArm(m1=1.2, m2=1.1, l1=1.02724, l2=0.98041)
+    return PAPER_SETUP.plant.arm
 
 
 @pytest.fixture(scope="session")
 def nominal_arm():
-    return H.TwoLinkArm(m1=1.5, m2=1.0, l1=1.0, l2=1.0)
+    return PAPER_SETUP.nominal_arm
 
 
 @pytest.fixture(scope="session")
 def true_surface():
-    return H.InclinedLine(delta=DELTA_TRUE, d_G=0.8)
+    return PAPER_SETUP.plant.surface
 
 
 @pytest.fixture(scope="session")
 def nominal_surface():
-    return H.InclinedLine(delta=DELTA_NOM, d_G=0.8)
+    return PAPER_SETUP.constraint
 
 
 @pytest.fixture(scope="session")
 def reference():
-    return H.CosineReference.paper()
+    return PAPER_SETUP.reference
 
 
 def make_plant(true_arm, true_surface, damping=0.0, disturbance=True):
-    dist = H.SquareWave.paper() if disturbance else H.SquareWave.none()
-    return H.RigidBodyPlant(true_arm, true_surface, H.PenaltyContact(1e5, damping), dist)
+    """The paper's plant with the given arm and surface, contact damping and disturbance on or off."""
+    dist = PAPER_SETUP.plant.disturbance if disturbance else H.SquareWave.none()
+    return H.RigidBodyPlant(true_arm, true_surface, H.PenaltyContact(PAPER.plant.contact.stiffness, damping), dist)
 
 
 @pytest.fixture(scope="session")
@@ -201,4 +205,4 @@ def paper_plant(true_arm, true_surface):
 
 
 #: The paper's start: u1(0) on the true surface (docs/paper-conventions.md, Initial state).
-U1_0 = 1.6902
+U1_0 = float(PAPER.initial.u1)

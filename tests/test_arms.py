@@ -29,7 +29,7 @@ from hinfnn.model.surface import TaskConstraint
 from hinfnn.model.taskmap import FittedTaskMap, PlanarTaskMap, PoseTaskMap, so3_exp
 from hinfnn.model.urdf import UrdfArm, load_urdf_string, planar_chain
 from hinfnn.plant import Friction
-from hinfnn.reference import SmoothCosineReference
+from hinfnn.reference import CosineReference
 
 SHIPPED = ["planar3-drum", "ur5-table", "ur5-sphere"]
 
@@ -239,14 +239,13 @@ def _pair(name):
     test, not at collection: a start pose on a Cartesian surface is a compiled Newton solve (1-5 s
     each), which every pytest-xdist worker would pay while collecting."""
     if name in ("paper", *SHIPPED):
-        sc = H.load_scenario(name, check=False)
-        arm = sc.build_arm("nominal")
-        return arm, sc.build_constraint(arm), np.asarray(sc.initial_q())
+        setup = H.load_scenario(name, check=False).build()
+        return setup.nominal_arm, setup.constraint, setup.q0
     if name == "ur5 pose-plane":
         sc = H.load_scenario("ur5-table", check=False)
         pose = PoseTaskMap(R_ref=so3_exp(jnp.array([np.pi, 0.0, 0.0])), order=(0, 1, 3, 4, 5, 2))
         plane = Plane.build((0.5, 0.1, 0.05), (0.04, 0.03, 1.0))
-        return (UrdfArm(sc.build_arm("nominal").chain, pose), TaskConstraint(geometry=plane, task=pose, m=5),
+        return (UrdfArm(sc.build().nominal_arm.chain, pose), TaskConstraint(geometry=plane, task=pose, m=5),
                 np.asarray(sc.initial_q()))
     # x = (a, b): the floor constrains b, the last coordinate (with the tool angle φ last, as
     # (a, b, φ) would put it, Π = ∂θ/∂φ = 0 and (A3) fails: the scenario check refuses that)
@@ -291,8 +290,8 @@ def test_closed_form_two_link_law_equals_its_product_path(nominal_arm, nominal_s
     every other arm uses) gives the same torque to round-off."""
     ctrl = H.HinfNNController.design(nominal_arm, nominal_surface)
     q, qd = jnp.array([0.7, -0.9]), jnp.array([0.3, -0.2])
-    meas = H.Measurement(q=q, qd=qd, F=jnp.array([10.0, -8.0]))
-    xc = ctrl.to_loop(ctrl.init(theta_f=0.01 * jnp.arange(120.0)))
+    meas = H.Measurement(q=q, qd=qd, force=jnp.array([10.0, -8.0]))
+    xc = ctrl.init(theta_f=0.01 * jnp.arange(120.0))
 
     @pytree_dataclass
     class _Generic(H.TwoLinkArm):  # the same arm without its closed-form flag: the product path
@@ -388,7 +387,7 @@ def test_friction_off_gives_the_frictionless_result(drum_plant):
         st = p.initial_state(q, qd)
         meas, cache = p.sense(0.0, st)
         d, qdd = p.derivative(0.0, st, jnp.ones(3), jnp.zeros(3), cache)
-        return meas.F, qdd, cache.F_contact, cache.friction, la_v(p, q, qd)
+        return meas.force, qdd, cache.F, cache.friction, la_v(p, q, qd)
 
     def la_v(p, q, qd):
         t = p.arm.plant_terms(q, qd)
@@ -406,23 +405,27 @@ def test_friction_off_gives_the_frictionless_result(drum_plant):
             assert float(np.dot(Ft, v)) >= 0.0
 
 
-def test_measured_force_is_the_task_space_force(drum_plant):
-    """Jᵀ F equals the contact's joint torque J_pᵀ F_c; with fitted coordinates λ = F_n is the
-    normal force (N)."""
+def test_the_force_sensor_reads_the_tool_force_and_the_controller_maps_it(drum_plant):
+    """The plant's force sensor reads the contact force at the tool point (Cartesian, base frame):
+    its joint torque J_pᵀ f is the contact's. The controller maps it into its task coordinates with
+    its NOMINAL kinematics (Ĵᵀ F = Ĵ_pᵀ f); with fitted coordinates λ is then close to the normal
+    force (N), up to the nominal model's error."""
     sc, plant, q0 = drum_plant
 
     @jax.jit
     def f(p, q, qd):
         meas, cache = p.sense(0.0, p.initial_state(q, qd))
-        t = cache.terms
-        return t.J.T @ meas.F, t.J_p.T @ cache.F_contact, meas.F, cache.normal_force
+        return meas.force, cache.tau_c, cache.terms.J_p.T @ meas.force, cache.normal_force
 
     t = plant.arm.plant_terms(jnp.asarray(q0), jnp.zeros(3))  # 1 mm into the drum along its normal
     q = jnp.asarray(q0) + jnp.linalg.pinv(t.J_p) @ (1e-3 * plant.surface.normal(t.p))
-    a, b, F, fn = f(plant, q, jnp.zeros(3))
-    np.testing.assert_allclose(a, b, atol=1e-10)
-    assert float(fn) > 0
+    force, tau_c, tau_f, fn = f(plant, q, jnp.zeros(3))
+    assert force.shape == (2,) and float(fn) > 0
+    np.testing.assert_allclose(tau_f, tau_c, atol=1e-12)
     ctrl = sc.build_controller("hinf")
+    nt = ctrl.arm.law_terms(q, jnp.zeros(3))
+    F = H.controllers.measured_force(nt.J, nt.J_p, force)
+    np.testing.assert_allclose(nt.J.T @ F, nt.J_p.T @ force, atol=1e-10)
     lam = H.controllers.force_multiplier(ctrl.surface.A_hat(ctrl.arm.h(q)), F)
     # the nominal depth differs from the true one (model error), but λ is close to the normal force
     assert abs(float(lam[0]) - float(fn)) < 0.05 * float(fn)
@@ -451,7 +454,7 @@ def test_coordinate_network_is_one_tanh_network_per_coordinate():
 
 
 def test_smooth_cosine_reference_derivatives():
-    ref = SmoothCosineReference(u1_offset=jnp.array([0.1, 0.0]), u1_amplitude=jnp.array([0.1, 0.1]),
+    ref = CosineReference(u1_offset=jnp.array([0.1, 0.0]), u1_amplitude=jnp.array([0.1, 0.1]),
                                 u1_omega=jnp.array([1.5, 1.5]), u1_phase=jnp.array([0.0, -np.pi / 2]),
                                 lam_offset=jnp.array([20.0]), lam_amplitude=jnp.array([5.0]),
                                 lam_omega=jnp.array([3.0]), lam_phase=jnp.array([0.0]),

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import hinfnn as H
+from hinfnn.status import RunStatus
 from hinfnn import cli
 from hinfnn.analysis import contact_modes, force_loop_polynomial, loop_constants
 from hinfnn.controllers import SampledController
@@ -157,10 +158,10 @@ def test_singularity_guard_stops_a_run_driven_into_q2_zero(paper):
     arm, surf = sc.nominal.arm.build(), sc.nominal.surface.build()
     guarded = H.controllers.design("hinf", arm, surf, sc.controller.gains.build(), singularity_stop=0.1)
     tr = H.simulate(plant, guarded, ref, q0=sc.initial_q(plant), t_final=1.0, dt=1e-4, raise_on_failure=False)
-    assert int(tr.status) == 4, H.sim.STATUS.get(int(tr.status))
+    assert tr.run_status is RunStatus.CONTROLLER_FAULT, tr.reason
     t_fail = float(tr.t_fail)
     assert 0.1 < t_fail < 1.0
-    assert float(tr.fail_details["sigma_min_J"]) < 0.1
+    assert float(tr.fail_details["fault_value"]) < 0.1 and "σ_min(Ĵ)" in tr.reason
     before = tr.t <= t_fail
     assert np.max(tr.tau_abs_max[before]) < 2e3 and np.min(tr.sigma_min_J[before][:-1]) >= 0.1 - 0.02
     with pytest.raises(H.SimulationError, match="singularity guard"):
@@ -169,7 +170,7 @@ def test_singularity_guard_stops_a_run_driven_into_q2_zero(paper):
     x = jnp.array([1.755, float(surf.Omega(jnp.array([1.755]))[0])])
     q = arm.inverse_kinematics_closed(x, elbow_up=True)
     tau, _ = SampledController(guarded, ref).update(0.0, 1e-3, guarded.init(),
-                                                     Measurement(q=q, qd=jnp.zeros(2), F=jnp.zeros(2)))
+                                                     Measurement(q=q, qd=jnp.zeros(2), force=jnp.zeros(2)))
     assert np.all(np.isnan(np.asarray(tau)))
 
 
@@ -210,7 +211,7 @@ def test_reproduce_writes_the_beyond_part(tmp_path, reproduced):
     the comparison cannot honour is refused."""
     import json
 
-    from hinfnn import study
+    from hinfnn.workflows import paper as study
 
     with pytest.raises(H.ConfigError) as err:
         study.reproduce(tmp_path / "refused", base=H.load_scenario("paper", [("plant.contact.stiffness", 2e5)]))

@@ -150,7 +150,7 @@ def test_controller_is_a_pytree_that_vmaps(nominal_arm, nominal_surface, referen
     """Controllers with different gains stack and evaluate under vmap like single ones."""
     ctrls = [H.HinfNNController.design(nominal_arm, nominal_surface, H.Gains(K_p=k)) for k in (10.0, 18.0)]
     stacked = jax.tree.map(lambda *x: jnp.stack(x), *ctrls)
-    q = paper_plant.initial_q(1.6902)
+    q = paper_plant.initial_q(U1_0)
     meas = paper_plant.measure(q, jnp.array([0.1, -0.2]))
     xc = ctrls[0].init()
     taus = jax.vmap(lambda c: c.torque(0.3, xc, meas, reference))(stacked)

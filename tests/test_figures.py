@@ -13,8 +13,7 @@ from hypothesis import strategies as st
 
 from hinfnn.report import paper_figures, run_figures
 from hinfnn.report import figures as F
-from hinfnn.controllers import KINDS
-from hinfnn.scenario import Scenario
+from hinfnn.scenario import Scenario, describe
 from hinfnn.sim.trajectory import RunInfo, Trajectory
 
 PAPER_FILES = ["fig3_u1_fl", "fig4_lambda_fl", "fig5_u1", "fig6_lambda", "fig7_tau1",
@@ -48,7 +47,9 @@ def make_run(kind="hinf", preset="paper-likely", *, t_final=1.0, dt=1e-4, chatte
                 a[k:] = a[k - 1]
     sc = Scenario.load("paper", {"plant.contact.damping": damping, "nominal.surface.scaling": scaling,
                                  "controller.kind": kind, "controller.network_f.preset": preset}, check=False)
-    info = RunInfo(name=kind, kind=kind, label=KINDS[kind].label, color=KINDS[kind].color, scenario=sc)
+    tags = {**describe(sc), "contact": "damped" if damping else "undamped",
+            "figures": "figs3-4" if kind == "fl" else "figs5-9"}
+    info = RunInfo(name=kind, kind=kind, label=tags["label"], color=tags["color"], tags=tags, scenario=sc)
     return Trajectory(arrays=arrays, status=np.array(status), t_fail=np.array(t_fail),
                       fail_details={}, info=info, dt=dt, save_every=1)
 
@@ -93,17 +94,21 @@ def test_diverged_run_is_cut_at_t_fail_and_labelled():
 
 
 def test_suffix_and_missing_runs(tmp_path, study):
-    # suffixed keys are picked for a suffixed set; runs that are absent are skipped
-    runs = {"hinf": study["hinf"], "hinf_damped": make_run("hinf", damping=200.0)}
-    paths = paper_figures(runs, tmp_path / "a", suffix="_damped")
+    """The runs given are one contact model's; each run's ``figures`` tag says where it is drawn
+    (never its name); the suffix goes on every file; a figure none of whose runs is given is not
+    written, and a run without the tag is not drawn."""
+    import dataclasses
+
+    paths = paper_figures({"any name": make_run("hinf", damping=200.0)}, tmp_path / "a", suffix="_damped")
     check_pngs(tmp_path / "a", paths, [f"{n}_damped.png" for n in PAPER_FILES[2:]])
-    # plain keys with a suffix (no key carries it): files are still suffixed
     paths = paper_figures({"fl": make_run("fl", damping=200.0)}, tmp_path / "b", suffix="_damped")
     check_pngs(tmp_path / "b", paths, ["fig3_u1_fl_damped.png", "fig4_lambda_fl_damped.png",
                                        "fig9_J_damped.png"])
     assert paper_figures({}, tmp_path / "c") == []
     assert list((tmp_path / "c").iterdir()) == []
-    assert paper_figures({"other": study["hinf"]}, tmp_path / "d") == []
+    hinf = study["hinf"]
+    untagged = dataclasses.replace(hinf, info=dataclasses.replace(hinf.info, tags={**hinf.info.tags, "figures": None}))
+    assert paper_figures({"hinf": untagged}, tmp_path / "d") == []
 
 
 def test_run_figures(tmp_path, study):
@@ -185,15 +190,13 @@ def test_columns_keep_min_and_max_of_every_pixel_column(n_samples, columns, seed
     assert lo.min() == y.min() and hi.max() == y.max()
 
 
-def test_png_fast_writes_the_same_pixels(tmp_path):
-    """The png_fast device (hinfnn._devices) changes the file's compression, not the picture."""
-    from hinfnn import _devices
+def test_png_fast_writes_the_same_pixels(tmp_path, monkeypatch):
+    """The PNG compression of every figure (hinfnn.report.figures.PNG_OPTIONS, zlib level 1)
+    changes the file's size, not the picture."""
+    from hinfnn.report import figures
 
     runs = {"hinf": make_run("hinf", chatter=2.0)}
     fast = run_figures(runs, tmp_path / "fast", only=["tau"])
-    try:
-        _devices.ENABLED["png_fast"] = False
-        default = run_figures(runs, tmp_path / "default", only=["tau"])
-    finally:
-        _devices.ENABLED["png_fast"] = True
+    monkeypatch.setattr(figures, "PNG_OPTIONS", {})
+    default = run_figures(runs, tmp_path / "default", only=["tau"])
     assert np.array_equal(mpimg.imread(fast[0]), mpimg.imread(default[0]))

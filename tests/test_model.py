@@ -10,6 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import hinfnn as H
+from conftest import PAPER_SETUP
 from hinfnn.model import reduced_model
 
 
@@ -186,7 +187,7 @@ def _reduced_identity_residual(arm, surface, q, qd, tau, lam):
 def test_reduced_order_identity_on_exact_model(surface_kind, s, tau, lam):
     """Eq. (9) with docs/paper-conventions.md's corrections: M̄ü + C̄u̇ + Ḡ + SᵀÂᵀλ = B̄τ, and SᵀÂᵀ = [0; Πᵀ]."""
     q, qd = s
-    arm = H.TwoLinkArm(m1=1.2, m2=1.1, l1=1.02724, l2=0.98041)
+    arm = PAPER_SETUP.plant.arm  # the paper's true arm
     if surface_kind == "circle":
         surface = circle_surface()
     else:
@@ -213,7 +214,7 @@ def test_reduced_order_identity_on_exact_model(surface_kind, s, tau, lam):
 
 def test_printed_reduced_model_fails_identity():
     """The printed M̄ = SᵀĴ⁻ᵀM̂Ĵ⁻ᵀS and Ḡ = SᵀĴ⁻¹Ĝ do not satisfy eq. (9): the test above catches them."""
-    arm = H.TwoLinkArm(m1=1.2, m2=1.1, l1=1.02724, l2=0.98041)
+    arm = PAPER_SETUP.plant.arm
     surface = H.InclinedLine(delta=0.79, d_G=0.8)
     q, qd = jnp.array([0.7, -0.9]), jnp.array([0.3, -0.2])
     tau, lam = jnp.array([10.0, -4.0]), jnp.array([30.0])

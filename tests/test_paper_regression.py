@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 import hinfnn as H
-from hinfnn.report.claims import evaluate
-from hinfnn.study import run_study
+from hinfnn.experiment import simulate_cases
+from hinfnn.workflows.paper import study_cases
+from hinfnn.workflows.paper_report import evaluate
 
 #: the worker that runs test_beyond.py's `hinfnn reproduce` runs this module too: the study's batched
 #: programs are compiled once, for both
@@ -152,8 +153,10 @@ VERDICTS = {
 
 @pytest.fixture(scope="session")
 def study():
-    runs, trajs, metrics, designs, seconds = run_study(H.load_scenario("paper"))
-    return trajs, metrics
+    outcome = simulate_cases(study_cases(H.load_scenario("paper")), save_every=1)
+    metrics = {c.name: {**outcome.metrics[c.name], "status": outcome.trajectories[c.name].run_status.outcome}
+               for c in outcome.cases}
+    return outcome.trajectories, metrics
 
 
 @pytest.mark.slow

@@ -7,32 +7,33 @@ import numpy as np
 import pytest
 
 import hinfnn as H
+from conftest import U1_0
 
 
 def test_initial_pose_puts_both_end_effectors_on_their_surfaces(paper_plant, nominal_arm, nominal_surface):
     """docs/paper-conventions.md: u1(0) = 1.6902, true end-effector on the true surface, elbow up: q ≈ (π/4, −0.60127),
     and the nominal end-effector then lies on the nominal surface too."""
-    q0 = np.asarray(paper_plant.initial_q(1.6902))
+    q0 = np.asarray(paper_plant.initial_q(U1_0))
     np.testing.assert_allclose(q0, [np.pi / 4, -0.60127], atol=2e-5)
     x_true = paper_plant.arm.h(q0)
     assert abs(float(paper_plant.surface.signed_distance(x_true))) < 1e-12
-    assert float(x_true[0]) == pytest.approx(1.6902, abs=1e-12)
+    assert float(x_true[0]) == pytest.approx(U1_0, abs=1e-12)
     x_nom = nominal_arm.h(q0)
     assert abs(float(nominal_surface.theta(x_nom)[0])) < 1e-5
-    assert float(x_nom[0]) == pytest.approx(1.6902, abs=1e-5)
+    assert float(x_nom[0]) == pytest.approx(U1_0, abs=1e-5)
     F, f_n, p = paper_plant.contact_state(q0, jnp.zeros(2))
     assert float(f_n) == 0.0
 
 
 def test_lambda_positive_when_pushed_1mm_into_the_surface(paper_plant, nominal_arm, nominal_surface):
     ctrl = H.HinfController.design(nominal_arm, nominal_surface)
-    x = paper_plant.arm.h(paper_plant.initial_q(1.6902))
+    x = paper_plant.arm.h(paper_plant.initial_q(U1_0))
     n = paper_plant.surface.inward_normal(x)
     q1 = paper_plant.arm.inverse_kinematics_closed(x + 1e-3 * n)
     F, f_n, p = paper_plant.contact_state(q1, jnp.zeros(2))
     assert float(p) == pytest.approx(1e-3, rel=1e-9)
     assert float(f_n) == pytest.approx(100.0, rel=1e-9)  # k p = 1e5 · 1e-3
-    _, _, lam = ctrl.observe(H.Measurement(q=q1, qd=jnp.zeros(2), F=F))
+    _, _, lam = ctrl.observe(H.Measurement(q=q1, qd=jnp.zeros(2), force=F))
     assert float(lam[0]) > 0
     # with the paper's scaling λ = Â F/(ÂÂᵀ) is the normal force times cos δ̂ (up to the 0.5° tilt)
     assert float(lam[0]) == pytest.approx(100.0 * np.cos(np.pi / 4), rel=1e-2)

@@ -129,7 +129,7 @@ def _sh_commands():
 #: in one fresh Python process that calls the CLI's ``main`` once per command, as the shell would:
 #: a program one command compiled is reused by the next one in memory (``hinfnn gallery`` after
 #: ``hinfnn run ur5-table``), not traced, lowered and loaded again. The process sets the garbage
-#: collector's thresholds as the ``hinfnn`` program does (``program_gc`` in hinfnn/_devices.py; the
+#: collector's thresholds as the ``hinfnn`` program does (``program_gc`` in hinfnn/cli.py; the
 #: cli and sweep groups, pytest included, took 55.0 and 56.9 user-s instead of 57.4 and 59.2 with
 #: Python's default).
 #: The first command of the README runs as a real ``hinfnn`` process, so the console script is
@@ -148,8 +148,8 @@ def _groups() -> dict[str, list[list[str]]]:
 
 _DRIVER = """
 import contextlib, io, json, os, sys
-from hinfnn import _devices
-_devices.program_gc()  # as the hinfnn program does first (main(argv) called from Python does not)
+from hinfnn.cli import program_gc
+program_gc()  # as the hinfnn program does first (main(argv) called from Python does not)
 from hinfnn.cli import main
 failures = []
 for argv in json.loads(sys.argv[1]):

@@ -289,10 +289,10 @@ def test_import_hinfnn_loads_no_jax():
 
 
 def test_the_program_collects_garbage_less_often_and_a_library_call_changes_nothing():
-    """The program_gc device (hinfnn._devices): the ``hinfnn`` program sets Python's garbage-collector
+    """The ``hinfnn`` program (hinfnn.cli.program_gc) sets Python's garbage-collector
     thresholds before it imports JAX; ``cli.main([...])`` called from Python leaves the caller's
     process as it was; ``HINFNN_DEFAULT_GC=1`` keeps the default."""
-    from hinfnn import _devices
+    from hinfnn.cli import PROGRAM_GC_THRESHOLD
 
     code = "\n".join([
         "import contextlib, gc, io, json, sys",
@@ -307,7 +307,7 @@ def test_the_program_collects_garbage_less_often_and_a_library_call_changes_noth
         "with contextlib.redirect_stdout(io.StringIO()):",
         "    main()"])  # the program
     env = {**os.environ, "PYTHONPATH": str(SRC)}
-    for extra, program in (({}, list(_devices.PROGRAM_GC_THRESHOLD)), ({"HINFNN_DEFAULT_GC": "1"}, [700, 10, 10])):
+    for extra, program in (({}, list(PROGRAM_GC_THRESHOLD)), ({"HINFNN_DEFAULT_GC": "1"}, [700, 10, 10])):
         p = subprocess.run([sys.executable, "-c", code], env={**env, **extra}, capture_output=True, text=True,
                            timeout=120)
         assert p.returncode == 0, p.stderr
@@ -401,11 +401,9 @@ def test_warnings_are_one_line(capsys):
         warnings.warn("something odd\n  over two lines", UserWarning)
         return 0
 
-    cli.COMMANDS["scenarios"], old = cmd, cli.COMMANDS["scenarios"]
-    try:
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(cli, "_command", lambda name: cmd)
         assert cli.main(["scenarios"]) == 0
-    finally:
-        cli.COMMANDS["scenarios"] = old
     assert capsys.readouterr().err == "hinfnn: warning: something odd over two lines\n"
 
 
@@ -593,7 +591,7 @@ def test_sampled_loop_rejects_a_wrong_force_shape():
 def test_force_replacement_without_atomic_exchange(tmp_path, result, monkeypatch):
     """Where the file system cannot swap two folders atomically, the old result is moved aside,
     the new one renamed in, the old one deleted: same outcome, no leftovers."""
-    monkeypatch.setattr("hinfnn.io._exchange", lambda a, b: False)
+    monkeypatch.setattr("hinfnn.io.folders._exchange", lambda a, b: False)
     out = tmp_path / "r"
     shutil.copytree(result, out)
     assert cli.main(["run", "paper", "--set", "simulation.t_final=0.02", "--set", "controller.kind=fl",
@@ -606,7 +604,7 @@ def test_files_added_during_a_run_are_kept(tmp_path, result, monkeypatch):
     """A file dropped into the target while the result is computed: the result goes to the next
     free name and the command says so; nothing of the user's is deleted."""
     import hinfnn.io as hio
-    from hinfnn import runner
+    from hinfnn.workflows import run as runner
 
     out = tmp_path / "r"
     shutil.copytree(result, out)

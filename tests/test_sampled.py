@@ -44,7 +44,7 @@ def replay(request):
 
 
 def _meas(a, k):
-    return Measurement(q=a["q"][k], qd=a["qd"][k], F=a["F"][k])
+    return Measurement(q=a["q"][k], qd=a["qd"][k], force=a["F"][k])
 
 
 def _assert_state_close(state, final, scale_floor=1e-300):
@@ -119,7 +119,7 @@ def test_update_compiles_once_and_never_sees_the_plant(replay):
 def test_torque_and_signals_match_update():
     sc = _scenario("hinf_nn")
     sampled = H.SampledController(sc.build_controller("hinf_nn"), sc.build_reference())
-    meas = Measurement(q=np.asarray(sc.initial_q()), qd=np.array([0.01, -0.02]), F=np.array([30.0, -30.0]))
+    meas = Measurement(q=np.asarray(sc.initial_q()), qd=np.array([0.01, -0.02]), force=np.array([30.0, -30.0]))
     state = sampled.init()
     tau, sig = sampled.torque_and_signals(0.01, state, meas)
     tau_u, _ = sampled.update(0.01, PERIOD, state, meas)
@@ -142,7 +142,7 @@ def test_vmap_update_equals_single_calls(replay):
         _, state = sc.update(float(a["t"][k]), PERIOD, state, _meas(a, k))
     ts = jnp.asarray([a["t"][k] for k in ks])
     periods = jnp.asarray([PERIOD, 2e-3, 5e-4, PERIOD])
-    meas = Measurement(q=jnp.asarray(a["q"][ks]), qd=jnp.asarray(a["qd"][ks]), F=jnp.asarray(a["F"][ks]))
+    meas = Measurement(q=jnp.asarray(a["q"][ks]), qd=jnp.asarray(a["qd"][ks]), force=jnp.asarray(a["F"][ks]))
     batch = jax.tree.map(lambda *xs: jnp.stack(xs), *states)
     taus, news = jax.vmap(sc.update)(ts, periods, batch, meas)
     assert taus.shape == (len(ks), 2)
@@ -164,7 +164,7 @@ def test_vmap_update_equals_single_calls(replay):
 def _raw_law(sc, t, state, meas):
     """The controller's law without the wrapper's guard (compiled: faster than op by op)."""
     ctrl = sc.controller
-    out = jax.jit(lambda x, m: ctrl.evaluate(t, ctrl.to_loop(x), m, sc.reference))(state, meas)
+    out = jax.jit(lambda x, m: ctrl.evaluate(t, x, m, sc.reference))(state, meas)
     return out.tau, out.dstate
 
 
@@ -174,20 +174,20 @@ def sampled_fl():
     return H.SampledController(sc.build_controller("fl"), sc.build_reference()), np.asarray(sc.initial_q())
 
 
-@pytest.mark.parametrize("bad", ["q", "qd", "F", "t", "period", "inf_F", "negative_period"])
+@pytest.mark.parametrize("bad", ["q", "qd", "force", "t", "period", "inf_F", "negative_period"])
 def test_nonfinite_sample_gives_nan_torque(sampled_fl, bad):
     sc, q0 = sampled_fl
-    good = Measurement(q=q0, qd=np.array([0.01, -0.02]), F=np.array([30.0, -30.0]))
+    good = Measurement(q=q0, qd=np.array([0.01, -0.02]), force=np.array([30.0, -30.0]))
     state = sc.init()
     _, state = sc.update(0.0, PERIOD, state, good)  # a non-zero state to keep
     kept = jax.tree.map(np.array, state)
     t, period, meas = 0.001, PERIOD, good
-    if bad in ("q", "qd", "F"):
+    if bad in ("q", "qd", "force"):
         v = np.array(getattr(good, bad), dtype=float)
         v[1] = np.nan
         meas = Measurement(**{**good.__dict__, bad: v})
     elif bad == "inf_F":
-        meas = Measurement(q=good.q, qd=good.qd, F=np.array([np.inf, -30.0]))
+        meas = Measurement(q=good.q, qd=good.qd, force=np.array([np.inf, -30.0]))
     elif bad == "t":
         t = float("nan")
     elif bad == "period":
@@ -205,11 +205,11 @@ def test_nonfinite_sample_gives_nan_torque(sampled_fl, bad):
     assert np.all(np.isnan(tau_p))
     # the loop drops the sample: its state does not move, and it counts the rejection
     loop = sc.loop(state)
-    tau_l = loop.update(t, period, meas.q, meas.qd, meas.F)
+    tau_l = loop.update(t, period, meas.q, meas.qd, meas.force)
     assert np.all(np.isnan(tau_l)) and loop.rejected == 1
     np.testing.assert_array_equal(sc.state_vector(loop.state), sc.state_vector(kept))
     # the checked entry point names the culprit
-    key = {"inf_F": "measurement.F", "negative_period": "period", "t": "t", "period": "period"}.get(
+    key = {"inf_F": "measurement.force", "negative_period": "period", "t": "t", "period": "period"}.get(
         bad, f"measurement.{bad}")
     with pytest.raises(MeasurementError) as err:
         sc.update_checked(t, period, state, meas)
@@ -221,9 +221,9 @@ def test_nonfinite_sample_gives_nan_torque(sampled_fl, bad):
 def test_nan_state_kept_by_mistake_latches(sampled_fl):
     """Keeping the state returned with a NaN τ never yields a finite torque afterwards."""
     sc, q0 = sampled_fl
-    good = Measurement(q=q0, qd=np.zeros(2), F=np.array([30.0, -30.0]))
+    good = Measurement(q=q0, qd=np.zeros(2), force=np.array([30.0, -30.0]))
     tau, bad_state = sc.update(0.0, PERIOD, sc.init(), Measurement(q=q0, qd=np.zeros(2),
-                                                                    F=np.array([np.nan, 0.0])))
+                                                                    force=np.array([np.nan, 0.0])))
     assert not sc.is_valid(tau)
     for k in range(1, 4):
         tau, bad_state = sc.update(k * PERIOD, PERIOD, bad_state, good)
@@ -234,7 +234,7 @@ def test_nan_force_would_otherwise_pass_silently_through_fl(sampled_fl):
     """The FL-like law's τ does not depend on λ (only ż does): without the guard a NaN force
     reading would give a finite, plausible torque and a NaN state one sample later."""
     sc, q0 = sampled_fl
-    meas = Measurement(q=q0, qd=np.zeros(2), F=np.array([np.nan, np.nan]))
+    meas = Measurement(q=q0, qd=np.zeros(2), force=np.array([np.nan, np.nan]))
     raw_tau, raw_dxc = _raw_law(sc, 0.0, sc.init(), meas)
     assert np.all(np.isfinite(np.asarray(raw_tau))) and not np.all(np.isfinite(np.asarray(raw_dxc.z)))
     tau, _ = sc.update(0.0, PERIOD, sc.init(), meas)
@@ -245,7 +245,7 @@ def test_overflowing_law_gives_nan_not_inf(sampled_fl):
     """A finite but absurd measurement (q̇ = 1e200 rad/s: the Coriolis terms overflow) yields no
     usable torque either: the guard covers the law's output, not only its inputs."""
     sc, q0 = sampled_fl
-    meas = Measurement(q=q0, qd=np.array([1e200, 0.0]), F=np.zeros(2))
+    meas = Measurement(q=q0, qd=np.array([1e200, 0.0]), force=np.zeros(2))
     state = sc.init()
     raw_tau, _ = _raw_law(sc, 0.0, state, meas)
     assert not np.all(np.isfinite(np.asarray(raw_tau)))
@@ -260,19 +260,19 @@ def test_checked_rejects_wrong_shapes(sampled_fl):
     sc, q0 = sampled_fl
     state = sc.init()
     with pytest.raises(MeasurementError, match="measurement.qd"):
-        sc.update_checked(0.0, PERIOD, state, Measurement(q=q0, qd=np.zeros(3), F=np.zeros(2)))
+        sc.update_checked(0.0, PERIOD, state, Measurement(q=q0, qd=np.zeros(3), force=np.zeros(2)))
     with pytest.raises(MeasurementError, match="state.z"):
         sc.update_checked(0.0, PERIOD, state.__class__(z=np.zeros(2), parts=state.parts),
-                          Measurement(q=q0, qd=np.zeros(2), F=np.zeros(2)))
+                          Measurement(q=q0, qd=np.zeros(2), force=np.zeros(2)))
     # the robot loop names a wrong shape instead of broadcasting it
     loop = sc.loop()
-    with pytest.raises(MeasurementError, match="measurement.F.*task-space force"):
+    with pytest.raises(MeasurementError, match="measurement.force.*contact force at the tool point"):
         loop.update(0.0, PERIOD, q0, np.zeros(2), 30.0)
     with pytest.raises(MeasurementError, match="measurement.q"):
         loop.update(0.0, PERIOD, q0[:1], np.zeros(2), np.zeros(2))
     assert loop.rejected == 0 and np.all(loop.state.z == 0)
     with pytest.raises(MeasurementError, match="period"):
-        sc.update_checked(0.0, 0.0, state, Measurement(q=q0, qd=np.zeros(2), F=np.zeros(2)))
+        sc.update_checked(0.0, 0.0, state, Measurement(q=q0, qd=np.zeros(2), force=np.zeros(2)))
 
 
 def test_wrong_parts_are_rejected():
@@ -291,7 +291,7 @@ def test_projection_keeps_weights_in_ball():
     sampled = H.SampledController(sc.build_controller("hinf_nn"), sc.build_reference())
     q0 = np.asarray(sc.initial_q())
     # the arm off the surface (F = 0: e_λ = −λd) and away from u1d: both networks are driven
-    meas = Measurement(q=q0 + np.array([0.02, -0.01]), qd=np.array([0.05, 0.0]), F=np.zeros(2))
+    meas = Measurement(q=q0 + np.array([0.02, -0.01]), qd=np.array([0.05, 0.0]), force=np.zeros(2))
     state = sampled.init()
     norms_p, norms_f = [], []
     for k in range(300):
@@ -306,5 +306,5 @@ def test_projection_keeps_weights_in_ball():
     # without it, the same samples take the weights out of the ball
     free = H.SampledController(_scenario("hinf_nn").build_controller("hinf_nn"), sampled.reference).loop()
     for k in range(300):
-        free.update(k * PERIOD, PERIOD, meas.q, meas.qd, meas.F)
+        free.update(k * PERIOD, PERIOD, meas.q, meas.qd, meas.force)
     assert np.linalg.norm(free.state.theta_f) > 2 * d_f

@@ -20,11 +20,12 @@ import numpy as np
 import pytest
 
 import hinfnn as H
+from conftest import U1_0
 from hinfnn import cli
 from hinfnn._pytree import pytree_dataclass
 from hinfnn.controllers import Composition, RobustForce, RobustPosition, Term, register, unregister
 from hinfnn.model import Surface
-from hinfnn.protocols import Measurement
+from hinfnn.protocols import ContinuousPlant, Measurement
 from hinfnn.scenario import PLANTS, SURFACES, SurfaceConfig, param, section
 from hinfnn.scenario.sections import RigidPlantConfig
 from hinfnn._pytree import static_field
@@ -77,13 +78,12 @@ class RaisedLineConfig(SurfaceConfig):
 
 
 @pytree_dataclass
-class OffsetSensorPlant:
+class OffsetSensorPlant(ContinuousPlant):
     """The built-in plant whose force sensor reads F + offset (a protocol implementation that
     delegates the physics)."""
 
     inner: H.RigidBodyPlant
     offset: jax.Array
-    discrete: ClassVar[bool] = False
 
     @property
     def n(self):
@@ -100,13 +100,13 @@ class OffsetSensorPlant:
 
     def sense(self, t, state):
         meas, cache = self.inner.sense(t, state)
-        return Measurement(q=meas.q, qd=meas.qd, F=meas.F + self.offset), cache
+        return Measurement(q=meas.q, qd=meas.qd, force=meas.force + self.offset), cache
 
     def derivative(self, t, state, tau, w, cache):
         return self.inner.derivative(t, state, tau, w, cache)
 
-    def diagnostics(self, state, w, cache):
-        return self.inner.diagnostics(state, w, cache)
+    def record(self, state, w, cache):
+        return self.inner.record(state, w, cache)
 
     def initial_q(self, u1_0, elbow_up=True):
         return self.inner.initial_q(u1_0, elbow_up)
@@ -123,7 +123,7 @@ class OffsetSensorPlantConfig(RigidPlantConfig):
 @pytest.fixture
 def toys():
     """Register the toys for one test, and remove them afterwards (the registries are global)."""
-    register(Composition("hinf_bias", "H∞-only + bias", "#444444",
+    register(Composition("hinf_bias", "H∞-only + bias",
                          lambda o: (RobustPosition(), RobustForce(), ForceBias(b=jnp.asarray(2.0)))))
     SURFACES.register("raised_line", RaisedLineConfig)
     PLANTS.register("offset_sensor", OffsetSensorPlantConfig)
@@ -162,7 +162,7 @@ def test_toy_term_surface_and_plant_run_through_simulate(toys, nominal_arm, true
     plant = OffsetSensorPlant(inner=H.RigidBodyPlant(true_arm, surface_true, H.PenaltyContact(1e5, 200.0),
                                                      H.SquareWave.paper()), offset=jnp.array([0.5, -0.5]))
     ctrl = H.controllers.design("hinf_bias", nominal_arm, surface_nom)
-    tr = H.simulate(plant, ctrl, H.CosineReference.paper(), u1_0=1.6902, t_final=0.05, dt=1e-4)
+    tr = H.simulate(plant, ctrl, H.CosineReference.paper(), u1_0=U1_0, t_final=0.05, dt=1e-4)
     assert int(tr.status) == 0
     np.testing.assert_array_equal(tr.bias_lam, 2.0)  # the term's declared signal is recorded ...
     assert tr.units["bias_lam"] == "λ units"  # ... with its unit
@@ -172,7 +172,7 @@ def test_toy_term_surface_and_plant_run_through_simulate(toys, nominal_arm, true
     assert abs(float(tr.penetration[0])) < 1e-12
     # and the bias acts: the same run without it differs
     plain = H.simulate(plant, H.HinfController.design(nominal_arm, surface_nom), H.CosineReference.paper(),
-                       u1_0=1.6902, t_final=0.05, dt=1e-4)
+                       u1_0=U1_0, t_final=0.05, dt=1e-4)
     assert np.abs(plain.tau - tr.tau).max() > 1e-3
 
 
@@ -256,31 +256,62 @@ def _reach(graph, start) -> set[str]:
     return seen
 
 
-def test_a_controller_never_sees_the_truth():
-    """model/ and controllers/ reach nothing of plant/ or sim/, directly or through others."""
+#: The layers of src/hinfnn, lowest first: a module imports modules of its own layer and of the
+#: layers below, never above (the package root, which names everything lazily, excepted).
+LAYERS = [
+    ("hinfnn._pytree", "hinfnn._config", "hinfnn._cache", "hinfnn._signals", "hinfnn._startup", "hinfnn._loop",
+     "hinfnn._linalg", "hinfnn.errors", "hinfnn.status", "hinfnn.fields", "hinfnn.protocols", "hinfnn.reference"),
+    ("hinfnn.model",),
+    ("hinfnn.controllers",),
+    ("hinfnn.plant",),
+    ("hinfnn.sim",),
+    ("hinfnn.metrics", "hinfnn.results", "hinfnn.resources"),
+    ("hinfnn.scenario",),
+    ("hinfnn.analysis",),
+    ("hinfnn.io",),
+    ("hinfnn.report",),
+    ("hinfnn.experiment",),
+    ("hinfnn.workflows",),
+    ("hinfnn.sweep",),
+    ("hinfnn.cli",),
+]
+#: Besides the layers: (importer prefix, imported prefixes it must never reach, directly or not,
+#: or import directly, and why).
+RULES = [
+    ("hinfnn.model", ("hinfnn.plant", "hinfnn.sim", "hinfnn.scenario"), "reach", "a controller never sees the truth"),
+    ("hinfnn.controllers", ("hinfnn.plant", "hinfnn.sim", "hinfnn.scenario"), "reach",
+     "a controller never sees the truth"),
+    ("hinfnn.sim", ("hinfnn.model", "hinfnn.controllers", "hinfnn.plant"), "reach",
+     "the simulator knows plants and controllers only through the protocols"),
+    ("hinfnn.report", ("hinfnn.controllers", "hinfnn.plant", "hinfnn.scenario"), "import",
+     "reports read tags and results documents, never a controller, a plant or a scenario"),
+]
+
+
+def _layer(mod: str) -> int | None:
+    for i, layer in enumerate(LAYERS):
+        if any(mod == p or mod.startswith(p + ".") for p in layer):
+            return i
+    return None
+
+
+def test_the_import_rules_hold_on_the_module_graph():
+    """One check of every import rule (docs/architecture.md): no circle, no arrow from a lower layer
+    to a higher one, and the rules of the one rule, the simulator and the reports."""
     graph = _graph()
-    for mod in graph:
-        if mod.startswith(("hinfnn.model", "hinfnn.controllers")):
-            bad = {d for d in _reach(graph, mod) if d.startswith(("hinfnn.plant", "hinfnn.sim", "hinfnn.scenario"))}
-            assert not bad, f"{mod} reaches {sorted(bad)}"
-
-
-def test_the_simulator_knows_only_the_protocols():
-    graph = _graph()
-    allowed = ("hinfnn.sim", "hinfnn.protocols", "hinfnn._pytree", "hinfnn.errors", "hinfnn.fields", "hinfnn._config",
-               "hinfnn._devices")
-    for mod, deps in graph.items():
-        if mod.startswith("hinfnn.sim"):
-            bad = {d for d in deps if not d.startswith(allowed)}
-            assert not bad, f"{mod} imports {sorted(bad)}"
-
-
-def test_reports_never_import_controllers_or_the_plant():
-    graph = _graph()
-    for mod, deps in graph.items():
-        if mod.startswith("hinfnn.report"):
-            bad = {d for d in deps if d.startswith(("hinfnn.controllers", "hinfnn.plant"))}
-            assert not bad, f"{mod} imports {sorted(bad)}"
+    unplaced = sorted(m for m in graph if m != "hinfnn" and _layer(m) is None)
+    assert not unplaced, f"modules in no layer (add them to LAYERS): {unplaced}"
+    upward = sorted((m, d) for m, deps in graph.items() if m != "hinfnn" for d in deps
+                    if d != "hinfnn" and _layer(d) > _layer(m))
+    assert not upward, f"imports from a lower layer to a higher one: {upward}"
+    circles = sorted(m for m in graph if m in _reach(graph, m))
+    assert not circles, f"modules on an import circle: {circles}"
+    for importer, forbidden, how, why in RULES:
+        for mod in graph:
+            if mod == importer or mod.startswith(importer + "."):
+                seen = _reach(graph, mod) if how == "reach" else graph[mod]
+                bad = sorted(d for d in seen if d.startswith(forbidden))
+                assert not bad, f"{mod} {'reaches' if how == 'reach' else 'imports'} {bad}: {why}"
 
 
 def test_the_graph_is_read_correctly():

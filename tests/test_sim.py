@@ -10,12 +10,12 @@ import pytest
 
 import hinfnn as H
 from hinfnn.metrics import METRIC_KEYS, STEP_FIELDS
-from conftest import make_plant, U1_0
+from conftest import PAPER, make_plant, U1_0
 
 
 def _preloaded_q0(plant, depth=5e-4):
     """Start 0.5 mm inside the surface so the contact force is positive (and smooth) throughout."""
-    q0 = plant.initial_q(1.6902)
+    q0 = plant.initial_q(U1_0)
     x = plant.arm.h(q0)
     return plant.arm.inverse_kinematics_closed(x + depth * plant.surface.inward_normal(x))
 
@@ -50,8 +50,9 @@ def test_halving_dt_changes_J10_of_paper_hinf_run_by_under_0_1_percent(paper_pla
 
 def _member_params(i):
     rng = np.random.default_rng(100 + i)
-    arm = H.TwoLinkArm(m1=1.2 * rng.uniform(0.8, 1.2), m2=1.1 * rng.uniform(0.8, 1.2),
-                       l1=1.02724 * rng.uniform(0.98, 1.02), l2=0.98041 * rng.uniform(0.98, 1.02))
+    a = PAPER.plant.arm  # the paper's true arm, perturbed
+    arm = H.TwoLinkArm(m1=a.m1 * rng.uniform(0.8, 1.2), m2=a.m2 * rng.uniform(0.8, 1.2),
+                       l1=a.l1 * rng.uniform(0.98, 1.02), l2=a.l2 * rng.uniform(0.98, 1.02))
     # a Python float, as the scenario loader gives it: the single runs then share the program of
     # every other paper H∞ + NN run (a NumPy scalar is another argument type, so another program)
     surface = H.InclinedLine(delta=float(np.deg2rad(45.5 + rng.uniform(-1, 1))), d_G=0.8)
@@ -99,20 +100,21 @@ def test_batch_with_one_diverging_member_finishes_and_marks_only_it(paper_plant,
 
 def test_a_batch_in_groups_equals_the_batch_in_one(paper_plant, nominal_arm, nominal_surface, reference,
                                                    monkeypatch):
-    """The ``batch_groups`` device (hinfnn._devices): three members in groups of two (the second
+    """The ``batch_group`` loop option (hinfnn._loop): three members in groups of two (the second
     padded with a copy of its member) give the one-group batch's numbers bit for bit, the
     diverging member's status included, and the progress runs once to the end."""
-    from hinfnn import _devices
+    from hinfnn._loop import LoopOptions
 
     gains = [H.Gains(), H.Gains(K_p=1e7, K_v=1e3), H.Gains(K_p=20.0)]
     ctrls = [H.HinfController.design(nominal_arm, nominal_surface, g) for g in gains]
     run = functools.partial(H.simulate_batch, paper_plant, ctrls, reference, u1_0=U1_0, t_final=0.3, dt=1e-4,
                             save_every=10)
     one = run()
-    monkeypatch.setattr(_devices, "BATCH_GROUP", 2)
-    assert [list(g) for g in _devices.batch_groups(3)] == [[0, 1], [2, 2]]
+    grouped = LoopOptions(batch_group=2)
+    assert [list(g) for g in grouped.groups(3)] == [[0, 1], [2, 2]]
+    assert [list(g) for g in LoopOptions(batch_group=0).groups(3)] == [[0, 1, 2]]
     seen = []
-    two = run(progress=lambda done, total: seen.append((done, total)))
+    two = run(progress=lambda done, total: seen.append((done, total)), loop=grouped)
     assert seen[-1] == (2 * 3000, 2 * 3000) and [d for d, _ in seen] == sorted(d for d, _ in seen)
     np.testing.assert_array_equal(two.status, one.status)
     np.testing.assert_array_equal(two.t_fail, one.t_fail)
@@ -232,7 +234,7 @@ def test_batch_of_one_equals_a_single_run(paper_plant, nominal_arm, nominal_surf
 
 
 def test_rolled_rk4_stages_equal_the_unrolled_ones():
-    """The rolled_rk4 device (hinfnn._devices): the four stages as a loop give the same step as the
+    """The rolled_rk4 loop option (hinfnn._loop): the four stages as a loop give the same step as the
     four stages written out, bit for bit, on a nonlinear pytree system with a time-dependent
     force (the stage times matter), the first stage's auxiliary output, and order four."""
     import jax
@@ -273,10 +275,10 @@ def sim_module():
 
 @pytest.fixture
 def rhs_traces(sim_module, monkeypatch):
-    """A list that grows by one each time plant and controller (``_rhs``) are traced."""
+    """A list that grows by one each time plant and controller (``rhs``) are traced."""
     calls = []
-    rhs = sim_module._rhs
-    monkeypatch.setattr(sim_module, "_rhs", lambda *a: calls.append(1) or rhs(*a))
+    rhs = sim_module.rhs
+    monkeypatch.setattr(sim_module, "rhs", lambda *a: calls.append(1) or rhs(*a))
     return calls
 
 
@@ -284,18 +286,18 @@ def rhs_traces(sim_module, monkeypatch):
 def test_a_chunk_traces_the_dynamics_once_per_written_stage(rolled, paper_plant, nominal_arm, nominal_surface,
                                                             reference, monkeypatch, sim_module, rhs_traces):
     """Tracing cost (paid by every process, cached program or not): a chunk program traces plant
-    and controller (``_rhs``) once per RK4 stage written out, 4 times, or once when the stages
+    and controller (``rhs``) once per RK4 stage written out, 4 times, or once when the stages
     are rolled (rolled_rk4). The record's shapes and the rolled stages' shapes come from those
     same traces (jax.jit's trace cache), not from second ones: 8 and 4 before."""
     import jax.numpy as jnp
 
-    from hinfnn import _devices
+    from hinfnn._loop import LoopOptions
 
     S = sim_module
-    monkeypatch.setattr(_devices, "ROLL_FROM_JOINTS", 2 if rolled else 3)
     ctrl = H.HinfNNController.design(nominal_arm, nominal_surface, H.Gains())
     carry = S._init_carry(ctrl, S.initial_state(paper_plant, ctrl, u1_0=U1_0), 2)
-    chunk = S._compiled.__wrapped__(None, 3, False, S.select(None))[0]  # a fresh jit: no trace cached
+    # a fresh jit (no trace cached), the paper's 2-joint arm with the stages rolled or written out
+    chunk = S._compiled.__wrapped__(None, 3, False, S.select(None), LoopOptions(rolled_rk4=rolled))[0]
     chunk.trace(paper_plant, ctrl, reference, S.Limits(), carry, jnp.asarray(0), jnp.asarray(6),
                 jnp.asarray(1e-4), jnp.asarray(1), jnp.asarray(2), jnp.asarray(3))
     assert len(rhs_traces) == (1 if rolled else 4)
@@ -309,9 +311,12 @@ def test_output_intervals_and_fields_share_one_compiled_program(paper_plant, nom
     several sizes (the every-step run is 4 chunks of 200 samples; the 30-step run is one chunk,
     21 of its 67 samples), and each stores what it should. A batch keeps one program per chunk
     size (records_per_chunk)."""
-    records = [sim_module.records_per_chunk(e) for e in (1, 2, 10, 11, 100, 101, 10_000)]
+    from hinfnn.sim.plan import StepPlan, records_per_chunk
+
+    records = [records_per_chunk(e) for e in (1, 2, 10, 11, 100, 101, 10_000)]
     assert records == [2000, 200, 200, 20, 20, 20, 20]
-    single = [sim_module.chunk_records(e, batched=False) for e in (1, 2, 10, 11, 100, 1999, 2000, 10_000)]
+    single = [StepPlan(n_steps=10_000 * e, dt=1e-4, save_every=e).chunk(batched=False)
+              for e in (1, 2, 10, 11, 100, 1999, 2000, 10_000)]
     assert single == [(200, 200), (200, 200), (200, 200), (200, 182), (200, 20), (200, 2), (200, 1), (200, 1)]
     ctrl = H.HinfController.design(nominal_arm, nominal_surface, H.Gains())
     runs = {10: H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.06, save_every=10)}

@@ -25,7 +25,7 @@ import hinfnn as H
 from hinfnn import cli
 from hinfnn.errors import ConfigError
 from hinfnn.sweep import load_spec, run_sweep, spec_from_dict, spec_names
-from hinfnn.sweep.run import batch_cap, plan_batches, scenario_of
+from hinfnn.sweep.worker import batch_cap, plan_batches, scenario_of
 from hinfnn.sweep.sampling import draw_values, grid_points, runs, uniforms
 from hinfnn.sweep.spec import PER_COORDINATE_METRICS
 from hinfnn.sweep.store import metric_columns
@@ -429,33 +429,36 @@ def test_docs_spec_tables_are_current():
 
 
 def test_a_folder_in_use_by_another_sweep_is_refused(small, tmp_path):
-    from hinfnn.sweep.store import FolderLock
+    """The folder's lock (hinfnn.io.FolderLock, the same as every result folder's) held by a live
+    process: the sweep stops before anything runs; once released, the sweep runs there."""
+    from hinfnn.io import FolderLock
 
     spec, _, _ = small
     folder = tmp_path / "busy"
     folder.mkdir()
     other = FolderLock(folder)
-    other.acquire()  # another sweep holds the folder (the lock is per open file: same process works too)
+    assert other.acquire() is None  # another process holds the folder (this one's pid: alive)
     try:
-        with pytest.raises(ConfigError, match="in use by another hinfnn sweep"):
+        with pytest.raises(ConfigError, match="in use by another hinfnn process"):
             run_sweep(spec, folder, resume=True)
     finally:
         other.release()
-    res = run_sweep(spec, folder, max_batch=2, report=False)  # an empty folder with only the lock file is fine
+    assert list(folder.iterdir()) == []
+    res = run_sweep(spec, folder, max_batch=2, report=False)
     assert res.simulated_now == 4
 
 
 def test_cli_interrupt_names_the_saved_batches_and_the_resume_command(tmp_path, monkeypatch, capsys):
     """Ctrl-C (or SIGTERM) during a sweep: exit 130 (143), and the one line says what is saved and
     the exact command that continues, not "no output was written"."""
-    import hinfnn.sweep as sweep_pkg
+    import hinfnn.sweep.run as sweep_run
     from hinfnn import _signals, cli
 
     for exc, code in ((KeyboardInterrupt(), 130), (_signals.Terminated(), 143)):
         def stop(*a, exc=exc, **k):
             raise exc
 
-        monkeypatch.setattr(sweep_pkg, "run_sweep", stop)
+        monkeypatch.setattr(sweep_run, "run_sweep", stop)
         out = tmp_path / "sw"
         assert cli.main(["sweep", "paper-uncertainty", "--out", str(out), "--samples", "4", "--quiet"]) == code
         err = capsys.readouterr().err

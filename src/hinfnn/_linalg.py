@@ -1,29 +1,50 @@
-"""Closed-form inverses of the tiny matrices of a 2–3 DOF arm, and the products of
-:mod:`hinfnn._devices`.
+"""Small dense linear algebra written for the compiled loop: products of small matrices as
+multiply-and-sum, shared sines and cosines, closed-form inverses of 1 × 1 and 2 × 2 matrices and a
+written-out Cholesky factorisation of the small SPD matrices of a 6-DOF arm.
 
 On the CPU, ``jnp.linalg.solve``/``inv`` call LAPACK through a custom call whose fixed cost
-dominates a 2 × 2 solve; the cofactor formulas below are plain arithmetic that XLA fuses with
-the rest of the step. Larger matrices fall back to ``jnp.linalg``. Shapes are static, so the
-choice is made at trace time.
+dominates a 2 × 2 solve, and a ``dot`` of small operands is a kernel of its own; the forms below
+are plain arithmetic that XLA fuses with the rest of the step. Shapes are static, so the choice is
+made at trace time; :mod:`hinfnn._loop` says which of these the traced program uses (its
+``small_mm`` and ``sincos`` options).
 """
 
 from __future__ import annotations
 
 import jax.numpy as jnp
 
-from . import _devices as _dev
-from ._devices import sincos  # noqa: F401  (re-exported: the model code uses la.sincos)
+from . import _loop
 
-#: Longest contraction :func:`mm` writes as multiply-and-sum (the ``small_mm`` device of
-#: :mod:`hinfnn._devices`, extended here from 4 to the 6 × 6 matrices of a 6-DOF arm: a ``dot``
-#: is a kernel of its own, multiply-and-sum fuses with its neighbours).
+#: Longest contraction :func:`mm` writes as multiply-and-sum (the 6 × 6 matrices of a 6-DOF arm
+#: included: a ``dot`` is a kernel of its own, multiply-and-sum fuses with its neighbours).
 SMALL_MM = 8
 
 
 def mm(a, b):
-    """``a @ b`` for vectors and matrices (:func:`hinfnn._devices.mm`, with contractions up to
-    :data:`SMALL_MM` written as multiply-and-sum)."""
-    return _dev.mm(a, b, limit=SMALL_MM)
+    """``a @ b`` for vectors and matrices; contractions over at most :data:`SMALL_MM` terms are
+    written as multiply-and-sum (the ``small_mm`` loop option, :mod:`hinfnn._loop`)."""
+    if (not _loop.current().small_mm or a.ndim > 2 or b.ndim > 2 or a.shape[-1] != b.shape[0]
+            or a.shape[-1] > SMALL_MM):
+        return a @ b
+    if a.ndim == 1 and b.ndim == 1:
+        return jnp.sum(a * b)
+    if a.ndim == 2 and b.ndim == 1:
+        return jnp.sum(a * b[None, :], axis=1)
+    if a.ndim == 1:
+        return jnp.sum(a[:, None] * b, axis=0)
+    return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
+
+
+def sincos(x):
+    """(sin x, cos x) of a vector of angles, computed once and shared (the ``sincos`` loop option,
+    :mod:`hinfnn._loop`): the values pass through a sum with 0·v, which XLA never recomputes inside
+    the kernels that use them (exact for finite values; NaN stays NaN)."""
+    s, c = jnp.sin(x), jnp.cos(x)
+    if not _loop.current().sincos:
+        return s, c
+    both = jnp.stack([s, c])
+    both = jnp.sum(jnp.stack([both, 0.0 * both]), axis=0)
+    return both[0], both[1]
 
 
 def inv(A):

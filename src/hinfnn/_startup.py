@@ -120,11 +120,11 @@ class StartupTrace:
     def wrap(self, progress):
         """``progress`` that also records the first chunks (called after each chunk)."""
 
-        def traced(done, total, names=None):
+        def traced(done, total, what=""):
             self.chunk_times.append(time.time())
             if len(self.chunk_times) == 1:
                 self._first_chunk()
-            progress(done, total, names)
+            progress(done, total, what)
 
         return traced
 

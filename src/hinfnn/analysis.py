@@ -5,7 +5,7 @@ The operating point is a true equilibrium of the closed loop: the EXACT-model pl
 and surface are the controller's nominal ones, no disturbance) at rest on the surface with a
 constant reference (u1d, λd) and the penetration that makes λ = λd; every filter at its rest
 value and the networks' weights zero. The Jacobian of the simulator's right-hand side (JAX
-``jacfwd`` of :func:`hinfnn.sim.simulate._rhs`) there has the local exponents as eigenvalues. On
+``jacfwd`` of :func:`hinfnn.sim.rhs`) there has the local exponents as eigenvalues. On
 the exact model the law cancels the reduced dynamics, so the force loop (u2, u̇2, z, the force-rate
 filter s) decouples from the position loop (u1, u̇1) and its eigenvalues are the roots of
 
@@ -30,7 +30,8 @@ from .controllers import terms as T
 from .plant import PenaltyContact, RigidBodyPlant, SquareWave
 from .reference import CosineReference
 from .sim.recorder import Accumulators
-from .sim.simulate import SimState, _rhs
+from .errors import HinfnnError
+from .sim.simulate import SimState, rhs
 
 
 def constant_reference(u1d: float, lam_d: float) -> CosineReference:
@@ -77,7 +78,7 @@ def equilibrium_q(plant: RigidBodyPlant, u1d: float, lam_d: float, elbow_up: boo
 def closed_loop_jacobian(plant, ctrl, ref, q_eq):
     """(A, y*, residual): the Jacobian of the closed loop's right-hand side over (q, q̇, controller
     state) at the state y* = (q_eq, 0, rest state), and max|f(y*)| (≈ 0 at an equilibrium)."""
-    xc0 = ctrl.to_loop(ctrl.init())
+    xc0 = ctrl.init()
     meas, _ = plant.sense(0.0, plant.initial_state(q_eq))
     xc0 = ctrl.start(0.0, xc0, meas, ref)  # filters at their rest value
     leaves, treedef = jax.tree.flatten(xc0)
@@ -93,7 +94,7 @@ def closed_loop_jacobian(plant, ctrl, ref, q_eq):
                         acc=Accumulators.zero())
 
     def f(y):
-        dy, _ = _rhs(plant, ctrl, ref, 0.0, unflat(y), jnp.zeros(n), None, False)
+        dy, _ = rhs(plant, ctrl, ref, 0.0, unflat(y), jnp.zeros(n))
         q_dot, qd_dot = plant.joints(dy.plant)
         return jnp.concatenate([q_dot, qd_dot] + [jnp.ravel(leaf) for leaf in jax.tree.leaves(dy.xc)])
 
@@ -195,3 +196,31 @@ def contact_modes(scenario, kind: str, stiffness: float, u1d: float | None = Non
                 residual=residual, eigenvalues=eigs, force_eigenvalues=np.array(force), roots=roots,
                 polynomial_match=matched, least_damped=Mode(complex(least)), constants=c, kappa=kappa, tau_f=tau,
                 g_f=g_f, stable=bool(all(e.real < 0 for e in eigs if abs(e) > 1e-8 * np.max(np.abs(eigs)))))
+
+
+def design_report(scenario) -> dict:
+    """What ``hinfnn design`` prints, by controller kind: the designed controller
+    (:func:`~hinfnn.controllers.design_summary`) and the least damped linearised contact mode at the
+    scenario's contact stiffness, as designed and with the force-rate term toggled (κ by the rule
+    when it is off, 0 when it is on; a design the toggled variant refuses is reported as its
+    error)."""
+    k = scenario.plant.contact.stiffness
+    out = {}
+    for kind in scenario.kinds:
+        one = scenario.single(kind)
+        d = one.build_controller(kind).summary()
+        with_term = one.controller.force_rate.kappa != 0.0
+        toggled = ("without the force-rate term" if with_term else "with the force-rate term (kappa by the rule)",
+                   {"controller.force_rate.kappa": 0.0 if with_term else "rule"})
+        modes = {}
+        for label, overrides in (("as designed", None), toggled):
+            try:
+                variant = one if overrides is None else one.with_overrides(overrides)
+                r = contact_modes(variant, kind, k)
+                modes[label] = dict(mode=str(r["least_damped"]), omega=r["least_damped"].omega,
+                                    zeta=r["least_damped"].zeta, stable=r["stable"], kappa=r["kappa"])
+            except HinfnnError as err:  # a design the other variant refuses is information
+                modes[label] = dict(error=str(err))
+        d["contact_mode"] = dict(stiffness=k, **modes)
+        out[kind] = d
+    return out

@@ -51,17 +51,6 @@ def _rms(x, axis=0):
     return np.sqrt(np.mean(x**2, axis=axis))
 
 
-def _end(traj) -> int:
-    """Number of samples that belong to the run: all of them, or those up to t_fail."""
-    t = np.asarray(traj.t)
-    if int(traj.status) == 0:
-        return len(t)
-    tf = float(traj.t_fail)
-    if not math.isfinite(tf):
-        return 1
-    return max(1, int(np.searchsorted(t, tf + 1e-12 * max(1.0, abs(tf)), side="right")))
-
-
 def compute_metrics(traj, last: float = 2.0) -> dict:
     """Metrics of one run (a dict of floats, lists and bools; JSON-ready).
 
@@ -76,7 +65,7 @@ def compute_metrics(traj, last: float = 2.0) -> dict:
     """
     if traj.batched:
         raise ValueError("compute_metrics takes one run; use traj.member(i) for a batch")
-    end = _end(traj)
+    end = traj.valid_samples()
     arr = {k: np.asarray(v)[:end] for k, v in traj.arrays.items()}
     t = arr["t"]
     partial = int(traj.status) != 0

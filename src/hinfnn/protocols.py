@@ -1,108 +1,249 @@
-"""The seams of hinfnn: what the simulator asks of a plant and of a controller.
+"""The seams of hinfnn: what the simulator asks of a plant and of a controller, and nothing more.
 
-``sim/`` knows plants and controllers only through these protocols (a test checks its imports);
-``controllers/`` and ``model/`` never import ``plant/`` (a controller never sees the truth). A
-new plant (a physics engine) or a new controller is a class with these methods plus one registry
-line (:mod:`hinfnn.scenario.registry`); nothing in ``sim/`` changes.
+These abstract base classes are the whole contract (diffrax's ``AbstractSolver`` habit): the
+simulator calls only the methods declared here and reads no field of a plant's or a controller's
+state. A plant is a :class:`ContinuousPlant` (integrated with the controller by the simulator's
+RK4) or a :class:`DiscretePlant` (a physics engine that advances itself); a controller is a
+:class:`Controller`, and one that also does the theorem bookkeeping of Theorems 1–2 declares the
+:class:`Dissipative` capability. :func:`check` verifies both once, before anything is traced.
 
-Everything that runs per time step is a pure JAX function of immutable pytrees, so that one
-run and a ``vmap`` batch of ten thousand are the same program.
+``sim/`` knows plants and controllers only through this module; ``controllers/`` and ``model/``
+never import ``plant/`` (a controller never sees the truth). A new plant or controller family is a
+subclass plus one registry line (:mod:`hinfnn.scenario.registry`, :mod:`hinfnn.controllers.kinds`);
+``tests/test_seams.py`` adds a toy of each from the test file alone.
+
+Everything that runs per time step is a pure JAX function of immutable pytrees (subclasses are
+:func:`hinfnn._pytree.pytree_dataclass` es), so one run and a ``vmap`` batch of ten thousand are
+the same program.
 """
 
 from __future__ import annotations
 
-from typing import Any, Protocol, runtime_checkable
+import abc
+from typing import Any, ClassVar
 
 import jax
+import jax.numpy as jnp
 
 from ._pytree import pytree_dataclass
 
 
 @pytree_dataclass
 class Measurement:
-    """What a controller measures (one sample).
+    """What a controller measures at one sample, as a robot's sensors give it.
 
-    ``q``, ``qd``: joint angles (rad) and rates (rad/s), shape (n,); ``F``: the generalised
-    contact force in TASK coordinates, shape (n,): the force the end-effector exerts on the
-    surface, such that its joint torque is Jᵀ(q) F (J = ∂h/∂q, h the task coordinates). For the
-    planar arm of the paper's Sec. VI the task coordinates are the end-effector's position, so F
-    is the contact force vector in newtons.
+    ``q``, ``qd``: joint angles (rad; m for prismatic joints) and rates, shape (n,).
+    ``force``: the contact force the tool exerts on the surface, at the tool point, in the base
+    frame's Cartesian axes of the arm (2 components for a planar arm, in the plane's coordinates;
+    3 for a spatial one), in N: what a force/torque sensor at the tool gives once moved to the tool
+    point and turned into the base frame. A point contact has no moment about the tool point, so
+    this is the whole wrench there. The controller maps it into its own task coordinates with its
+    NOMINAL kinematics (:meth:`hinfnn.model.arm.Arm.task_force`).
     """
 
     q: jax.Array
     qd: jax.Array
-    F: jax.Array
+    force: jax.Array
 
 
-@runtime_checkable
-class Plant(Protocol):
+@pytree_dataclass
+class PlantRecord:
+    """What the plant records at one instant: the penetration of the true surface (m, < 0: the
+    tool is above it; the recorder's contact bookkeeping needs it), a fault flag that stops the run
+    (:attr:`hinfnn.status.RunStatus.PLANT_FAULT`, e.g. a joint past its limit) with the measure
+    that decided it, and any further named signals (units in :data:`hinfnn.fields.FIELDS`)."""
+
+    penetration: jax.Array
+    signals: dict
+    fault: jax.Array = False
+    fault_value: jax.Array = jnp.nan
+
+
+class Plant(abc.ABC):
     """The truth: true arm and surface, contact, friction, disturbance (never seen by a controller).
 
-    A *continuous* plant (``discrete = False``, the built-in one) is integrated with the
-    controller by the simulator's RK4; a *discrete* one (a physics engine such as MuJoCo) advances
-    itself by ``step`` and is driven through the sampled-data path (zero-order hold).
+    Subclasses set ``n`` (number of joints, a static int) and implement the abstract methods;
+    ``fault_name`` names the measure of :attr:`PlantRecord.fault_value` in failure messages.
+    Use :class:`ContinuousPlant` or :class:`DiscretePlant`.
     """
 
-    n: int           # number of joints
-    discrete: bool   # a class attribute
+    discrete: ClassVar[bool]
+    fault_name: ClassVar[str] = "plant fault measure"
 
-    def initial_state(self, q0, qd0) -> Any:
-        """The plant state (a pytree) at joint angles q0 and rates qd0."""
+    @abc.abstractmethod
+    def initial_state(self, q0, qd0=None) -> Any:
+        """The plant state (a pytree) at joint angles q0 and rates qd0 (default 0)."""
 
+    @abc.abstractmethod
+    def initial_q(self, u1_0, **options):
+        """Joint angles with the TRUE tool at motion coordinate(s) ``u1_0`` on the TRUE surface
+        (NaN when out of reach); ``options`` are the plant's own (a branch, a guess)."""
+
+    @abc.abstractmethod
     def joints(self, state) -> tuple[jax.Array, jax.Array]:
         """(q, q̇) of a state."""
 
+    @abc.abstractmethod
     def step_input(self, t, dt) -> jax.Array:
         """What the plant holds over the step [t, t + dt) (the joint disturbance at its midpoint)."""
 
+    @abc.abstractmethod
     def sense(self, t, state) -> tuple[Measurement, Any]:
-        """The controller's measurement and a cache of what the plant computed for it (reused by
-        ``derivative`` and ``diagnostics`` at the same state)."""
+        """The controller's :class:`Measurement` and a cache of what the plant computed for it
+        (reused by ``derivative`` and ``record`` at the same state)."""
 
-    def diagnostics(self, state, w, cache) -> dict:
-        """Recorded quantities of the truth: ``F``, ``normal_force``, ``penetration``,
-        ``disturbance``, ``x_true`` (see :data:`hinfnn.sim.recorder.FIELDS` for units)."""
+    @abc.abstractmethod
+    def record(self, state, w, cache) -> PlantRecord:
+        """What is recorded of the truth at this state (``w``: the held input)."""
 
-    # continuous plants
+
+class ContinuousPlant(Plant):
+    """A plant integrated with the controller by the simulator's RK4 (the built-in one)."""
+
+    discrete: ClassVar[bool] = False
+
+    @abc.abstractmethod
     def derivative(self, t, state, tau, w, cache) -> tuple[Any, jax.Array]:
         """(d state / dt, q̈) under torque τ and the held input w."""
 
-    # discrete plants
+
+class DiscretePlant(Plant):
+    """A plant that advances itself (a physics engine such as MuJoCo), driven through the
+    sampled-data path: the torque is held over each of its steps."""
+
+    discrete: ClassVar[bool] = True
+
+    @abc.abstractmethod
     def step(self, t, state, tau, dt) -> tuple[Any, jax.Array]:
         """(state after dt with τ held, q̈ over the step)."""
 
 
-@runtime_checkable
-class Controller(Protocol):
-    """A control law built from a NOMINAL model; it sees only :class:`Measurement` s.
+@pytree_dataclass
+class ControllerOutput:
+    """One evaluation of a controller.
 
-    ``evaluate`` returns an output pytree with ``tau`` (n,), ``dstate`` (the state's time
-    derivative, same structure as the state) and ``signals`` (a dict of named arrays, recorded by
-    the simulator; their units are declared in :data:`hinfnn.sim.recorder.FIELDS`). ``sample`` is
-    the zero-order-hold update of the sampled-data path (one definition, used by the simulator
-    and by :class:`hinfnn.SampledController`).
-
-    The theorem bookkeeping (the dissipation inequality of Theorems 1–2) needs four more
-    methods, ``performance``, ``storage``, ``supply_residuals`` and ``u1_ddot``; a controller
-    without them runs, with J, V and the supply not recorded.
+    ``tau`` (n,): the joint torque; ``dstate``: the time derivative of the controller state (same
+    structure); ``e_u1`` (m,) and ``e_lam`` (k,): the motion and force errors (the recorder's
+    metrics are built on them); ``signals``: further named signals to record (units in
+    :data:`hinfnn.fields.FIELDS`); ``fault``: True when the law cannot be trusted at this sample
+    (the simulator stops the run with :attr:`~hinfnn.status.RunStatus.CONTROLLER_FAULT`, the
+    sampled controller returns NaN), with the measure that decided it; ``aux``: whatever the
+    controller's own bookkeeping needs of this evaluation (opaque to the simulator).
     """
 
-    n: int
-    #: sizes of e_u1 and e_λ in ``signals`` (the motion and force coordinates; 1 if not given)
-    m: int
-    k: int
-
-    def init(self) -> Any: ...
-
-    def evaluate(self, t, state, measurement: Measurement, reference) -> Any: ...
-
-    def sample(self, t, period, state, measurement: Measurement, reference) -> tuple[jax.Array, Any]: ...
-
-    def constrain(self, state) -> Any: ...
-
-    def to_loop(self, state) -> Any: ...
-
-    def from_loop(self, state) -> Any: ...
+    tau: jax.Array
+    dstate: Any
+    e_u1: jax.Array
+    e_lam: jax.Array
+    signals: dict
+    fault: jax.Array = False
+    fault_value: jax.Array = jnp.nan
+    aux: Any = None
 
 
-__all__ = ["Measurement", "Plant", "Controller"]
+class Controller(abc.ABC):
+    """A control law built from a NOMINAL model; it sees only :class:`Measurement` s.
+
+    Subclasses set ``n`` (joints), ``m`` (size of e_u1) and ``k`` (size of e_λ) as ints, ``kind``
+    (the name results file it under), and implement :meth:`init` and :meth:`evaluate`. The state is
+    any pytree, in whatever layout the controller computes fastest with: the simulator carries it
+    opaquely and asks :meth:`state_arrays` for the named arrays a result keeps.
+    """
+
+    kind: str = ""
+    fault_name: ClassVar[str] = "controller fault measure"
+
+    @abc.abstractmethod
+    def init(self) -> Any:
+        """The controller state at t = 0."""
+
+    @abc.abstractmethod
+    def evaluate(self, t, state, measurement: Measurement, reference) -> ControllerOutput:
+        """τ, the state derivative and the signals at one instant (``reference`` is callable on t)."""
+
+    def sample(self, t, period, state, measurement: Measurement, reference, out: ControllerOutput | None = None):
+        """The zero-order-hold update of the sampled-data path: (τ at the sample, the state
+        advanced by forward Euler over ``period`` and :meth:`constrain` ed). One definition, used by
+        the simulator and by :class:`hinfnn.SampledController` (``out``: this sample's
+        :meth:`evaluate`, when the caller has it)."""
+        out = self.evaluate(t, state, measurement, reference) if out is None else out
+        return out.tau, self.constrain(jax.tree.map(lambda x, d: x + period * d, state, out.dstate))
+
+    def constrain(self, state):
+        """The state put back where the theory keeps it after an integration step (identity)."""
+        return state
+
+    @property
+    def needs_start(self) -> bool:
+        """Whether :meth:`start` changes the state (a filter that starts at its first input)."""
+        return False
+
+    def start(self, t, state, measurement: Measurement, reference):
+        """The state at the first sample, from the first measurement (identity)."""
+        return state
+
+    def check_start(self, q0) -> None:
+        """Design-time check of the start pose (raise :class:`~hinfnn.errors.DesignError`)."""
+
+    def summary(self) -> dict:
+        """The designed controller as plain numbers (``metrics.json``, ``hinfnn show`` and
+        ``hinfnn design``). Default: its kind."""
+        return {"kind": self.kind}
+
+    def state_arrays(self, state) -> dict:
+        """The state's arrays by name, flat (what a result keeps of the final state). Default:
+        every leaf, named by its path in the pytree."""
+        leaves = jax.tree_util.tree_flatten_with_path(state)[0]
+        return {_path_name(path): leaf for path, leaf in leaves}
+
+
+@pytree_dataclass
+class Dissipation:
+    """The theorem bookkeeping at one instant (Theorems 1–2): the integrand ``j`` of the H∞ index
+    (eq. 34) and ``j_extra`` (Remark 1's and the terms' additions), the supply rate
+    ρ²(‖f_p‖² + ‖f_f‖²), the storage ``V`` and the residuals ``f_p``, ``f_f``."""
+
+    j: jax.Array
+    j_extra: jax.Array
+    supply: jax.Array
+    V: jax.Array
+    f_p: jax.Array
+    f_f: jax.Array
+
+
+class Dissipative(abc.ABC):
+    """The capability of a controller whose runs check the dissipation inequality
+    J(T) + V(T) − V(0) ≤ ∫ supply (the simulator integrates J and the supply with the state)."""
+
+    @abc.abstractmethod
+    def dissipation(self, state, out: ControllerOutput, qd, qdd) -> Dissipation:
+        """The bookkeeping at one instant, given the true joint acceleration q̈ (from the plant,
+        like an accelerometer)."""
+
+
+def _path_name(path) -> str:
+    parts = []
+    for p in path:
+        key = getattr(p, "key", getattr(p, "name", getattr(p, "idx", None)))
+        parts.append(str(key))
+    return ".".join(parts) or "state"
+
+
+def check(plant, controller) -> None:
+    """Verify once, before anything is traced, that ``plant`` and ``controller`` implement the
+    protocols (a TypeError saying what is missing otherwise)."""
+    if not isinstance(plant, (ContinuousPlant, DiscretePlant)):
+        raise TypeError(f"the plant must be a hinfnn.protocols.ContinuousPlant or DiscretePlant, got "
+                        f"{type(plant).__name__}")
+    if not isinstance(controller, Controller):
+        raise TypeError(f"the controller must be a hinfnn.protocols.Controller, got {type(controller).__name__}")
+    for who, obj, names in (("plant", plant, ("n",)), ("controller", controller, ("n", "m", "k"))):
+        for name in names:
+            if not isinstance(getattr(obj, name, None), int):
+                raise TypeError(f"the {who} {type(obj).__name__} must give {name} as an int")
+    if controller.n != plant.n:
+        raise TypeError(f"the controller is for {controller.n} joints, the plant has {plant.n}")
+
+
+__all__ = ["Measurement", "PlantRecord", "Plant", "ContinuousPlant", "DiscretePlant", "ControllerOutput",
+           "Controller", "Dissipation", "Dissipative", "check"]

@@ -29,12 +29,32 @@ def lam_d_at(ref, t):
     return jax.vmap(lambda ti: ref(ti).lam_d)(t)
 
 
+def smoothstep(t, duration):
+    """(r, ṙ, r̈) of the quintic ramp r = 10τ³ − 15τ⁴ + 6τ⁵, τ = t / duration clipped to [0, 1]
+    (r = 1 for duration 0): it starts and ends with zero slope and curvature."""
+    positive = duration > 0
+    T = jnp.where(positive, duration, 1.0)
+    tau = jnp.clip(t / T, 0.0, 1.0)
+    r = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
+    dr = 30.0 * tau**2 * (1.0 - tau) ** 2 / T
+    ddr = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau) / T**2
+    one, zero = jnp.ones_like(r), jnp.zeros_like(r)
+    return jnp.where(positive, r, one), jnp.where(positive, dr, zero), jnp.where(positive, ddr, zero)
+
+
 @pytree_dataclass
 class CosineReference:
-    """u1d(t) = a_u + b_u cos(ω_u t + φ_u),  λd(t) = a_λ + b_λ cos(ω_λ t + φ_λ).
+    """One cosine per coordinate, optionally faded in: for m motion and k force coordinates,
 
-    Sec. VI: u1d = 1.5 + 0.2 cos πt and λd = 60 − 20 cos πt (:meth:`paper`).
-    Each parameter is an array of shape (m,) for u1 and (k,) for λ (scalars for the planar case).
+        u1d_i(t) = a_i + r_u(t) b_i cos(ω_i t + φ_i),     λd_j(t) = r_λ(t) (a_j + b_j cos(ω_j t + φ_j))
+
+    with r the quintic ramp of :func:`smoothstep` over ``u1_ramp`` (resp. ``lam_ramp``) seconds (0,
+    the default: no ramp, r = 1). Each parameter is an array of shape (m,) for u1 and (k,) for λ.
+    Sec. VI: u1d = 1.5 + 0.2 cos πt and λd = 60 − 20 cos πt (:meth:`paper`). The motion ramp
+    makes u̇1d(0) = ü1d(0) = 0, so a run that starts at rest on u1d(0) = a has no initial velocity
+    error (e.g. a circle: two coordinates with phases 0 and −π/2); the force ramp lets the contact
+    force build up from 0. u̇1d and ü1d are exact (the product rule through the ramp; without a
+    ramp r = 1, ṙ = r̈ = 0 exactly, so the values are the plain cosine's to the last bit).
     """
 
     u1_offset: jax.Array
@@ -45,6 +65,8 @@ class CosineReference:
     lam_amplitude: jax.Array
     lam_omega: jax.Array
     lam_phase: jax.Array
+    u1_ramp: jax.Array = 0.0
+    lam_ramp: jax.Array = 0.0
 
     @classmethod
     def paper(cls) -> "CosineReference":
@@ -60,63 +82,16 @@ class CosineReference:
         )
 
     def __call__(self, t) -> RefSample:
-        arg = self.u1_omega * t + self.u1_phase
-        s, c = la.sincos(arg)  # computed once and shared, see hinfnn._linalg.sincos
+        s, c = la.sincos(self.u1_omega * t + self.u1_phase)  # computed once and shared (hinfnn._linalg.sincos)
         _, c_lam = la.sincos(self.lam_omega * t + self.lam_phase)
-        return RefSample(
-            u1_d=self.u1_offset + self.u1_amplitude * c,
-            u1_d_dot=-self.u1_amplitude * self.u1_omega * s,
-            u1_d_ddot=-self.u1_amplitude * self.u1_omega**2 * c,
-            lam_d=self.lam_offset + self.lam_amplitude * c_lam,
-        )
-
-
-def smoothstep(t, duration):
-    """(r, ṙ, r̈) of the quintic ramp r = 10τ³ − 15τ⁴ + 6τ⁵, τ = t / duration clipped to [0, 1]
-    (r = 1 for duration 0): it starts and ends with zero slope and curvature."""
-    positive = duration > 0
-    T = jnp.where(positive, duration, 1.0)
-    tau = jnp.clip(t / T, 0.0, 1.0)
-    r = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
-    dr = 30.0 * tau**2 * (1.0 - tau) ** 2 / T
-    ddr = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau) / T**2
-    one, zero = jnp.ones_like(r), jnp.zeros_like(r)
-    return jnp.where(positive, r, one), jnp.where(positive, dr, zero), jnp.where(positive, ddr, zero)
-
-
-@pytree_dataclass
-class SmoothCosineReference:
-    """One cosine per coordinate, each faded in: for m motion and k force coordinates,
-
-        u1d_i(t) = a_i + r_u(t) b_i cos(ω_i t + φ_i),     λd_j(t) = r_λ(t) (a_j + b_j cos(ω_j t + φ_j))
-
-    with r the quintic ramp of :func:`smoothstep` over ``u1_ramp`` (resp. ``lam_ramp``) seconds
-    (0: no ramp). The motion ramp makes u̇1d(0) = ü1d(0) = 0, so a run that starts at rest on
-    u1d(0) = a has no initial velocity error (e.g. a circle: two coordinates with phases 0 and
-    −π/2); the force ramp lets the contact force build up from 0. u̇1d and ü1d are exact (the
-    product rule through the ramp)."""
-
-    u1_offset: jax.Array
-    u1_amplitude: jax.Array
-    u1_omega: jax.Array
-    u1_phase: jax.Array
-    lam_offset: jax.Array
-    lam_amplitude: jax.Array
-    lam_omega: jax.Array
-    lam_phase: jax.Array
-    u1_ramp: jax.Array = 0.0
-    lam_ramp: jax.Array = 0.0
-
-    def __call__(self, t) -> RefSample:
-        s, c = jnp.sin(self.u1_omega * t + self.u1_phase), jnp.cos(self.u1_omega * t + self.u1_phase)
-        r, dr, ddr = smoothstep(t, self.u1_ramp)
         b, w = self.u1_amplitude, self.u1_omega
         wave, dwave, ddwave = b * c, -b * w * s, -b * w**2 * c
+        r, dr, ddr = smoothstep(t, self.u1_ramp)
         rl, _, _ = smoothstep(t, self.lam_ramp)
-        c_lam = jnp.cos(self.lam_omega * t + self.lam_phase)
         return RefSample(
             u1_d=self.u1_offset + r * wave,
             u1_d_dot=dr * wave + r * dwave,
             u1_d_ddot=ddr * wave + 2.0 * dr * dwave + r * ddwave,
             lam_d=rl * (self.lam_offset + self.lam_amplitude * c_lam),
         )
+

@@ -46,7 +46,8 @@ def parse_size(text: str) -> int:
 
 def available_memory() -> int | None:
     """Bytes of memory available to a new allocation (Linux ``MemAvailable``; else free pages),
-    capped by ``HINFNN_MAX_MEMORY`` when set, or None when the system does not say."""
+    capped by the process's cgroup memory limit and by ``HINFNN_MAX_MEMORY`` when set, or None when
+    the system does not say."""
     found = None
     try:
         with open("/proc/meminfo", encoding="ascii") as f:
@@ -61,6 +62,13 @@ def available_memory() -> int | None:
             found = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
         except (ValueError, OSError, AttributeError):
             found = None
+    for limit_file in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            text = open(limit_file, encoding="ascii").read().strip()  # noqa: SIM115 - a one-line file
+        except OSError:
+            continue
+        if text.isdigit():  # "max": no limit
+            found = int(text) if found is None else min(found, int(text))
     cap = os.environ.get(ENV_MAX_MEMORY, "").strip()
     if cap:
         try:
@@ -124,7 +132,7 @@ def plan(runs, *, fields=None, save_every: int | None = None, copies: float = 2.
     :func:`hinfnn.sim.simulate_many` would with ``fields`` and ``save_every``. ``copies``: how
     many times the stored samples are held at the peak (2: the arrays and the file being
     written)."""
-    from .sim.simulate import record_shapes, steps
+    from .sim.simulate import record_shapes
 
     groups: dict = {}
     for r in runs:
@@ -136,13 +144,13 @@ def plan(runs, *, fields=None, save_every: int | None = None, copies: float = 2.
     interval = math.inf
     for items in groups.values():
         r = items[0]
-        n_steps, _, every = steps(r.t_final, r.dt, save_every, r.control_period, r.save_interval,
-                                  bool(getattr(r.plant, "discrete", False)))
+        step_plan = r.plan(save_every)
+        n_steps, every = step_plan.n_steps, step_plan.save_every
         shapes = record_shapes(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt,
                                control_period=r.control_period, fields=fields, limits=r.limits,
                                single=len(items) == 1)  # a group of one runs the single-run program
         per_sample = sum(math.prod(shape) * dtype.itemsize for shape, dtype in shapes.values())
-        n_samples = n_steps // every + 1
+        n_samples = step_plan.samples
         stored += per_sample * n_samples * len(items)
         total_steps += n_steps * len(items)
         seconds += n_steps * len(items) / (STEPS_PER_SECOND * min(len(items), 3))

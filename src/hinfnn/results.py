@@ -3,18 +3,16 @@ designed controllers, how each run ended."""
 
 from __future__ import annotations
 
-import math
-
 from .metrics import UNITS, compute_metrics
-from .sim.simulate import failure_reason
-from .sim.trajectory import STATUS
 
 FORMAT = "hinfnn-metrics-2"
 
 
-def run_entry(name: str, traj, *, overrides=None, design=None, metrics=None, label: str | None = None) -> dict:
-    """One run of ``metrics.json``: name, controller, status, metrics (partial up to t_fail for a
-    run that stopped), the resolved design."""
+def run_entry(name: str, traj, *, overrides=None, design=None, metrics=None, label: str | None = None,
+              tags: dict | None = None) -> dict:
+    """One run of ``metrics.json``: name, controller, label, tags, status (the
+    :class:`~hinfnn.status.RunStatus` outcome and why it stopped), metrics (partial up to t_fail
+    for a run that stopped), the resolved design."""
     status = int(traj.status)
     m = metrics if metrics is not None else compute_metrics(traj)
     info = traj.info
@@ -23,9 +21,10 @@ def run_entry(name: str, traj, *, overrides=None, design=None, metrics=None, lab
         "controller": info.kind,
         "label": label or info.label or info.kind,
         "overrides": dict(overrides or {}),
-        "status": "ok" if status == 0 else "diverged",
+        "tags": dict(tags if tags is not None else info.tags),
+        "status": traj.run_status.outcome,
         "t_fail": None if status == 0 else float(traj.t_fail),
-        "reason": None if status == 0 else failure_reason(status, {k: float(v) for k, v in traj.fail_details.items()}),
+        "reason": traj.reason,
         "partial": bool(m.get("partial", False)),
         "metrics": {k: v for k, v in m.items() if k != "partial"},
     }
@@ -42,11 +41,4 @@ def metrics_document(scenario, entries: list[dict], *, command: str) -> dict:
             "scenario": scenario.to_dict(), "runs": entries}
 
 
-def short_status(run: dict) -> str:
-    if run.get("status", "ok") == "ok":
-        return "ok"
-    t = run.get("t_fail")
-    return f"stopped t={t:.3g}" if isinstance(t, (int, float)) and math.isfinite(t) else "stopped"
-
-
-__all__ = ["FORMAT", "run_entry", "metrics_document", "STATUS"]
+__all__ = ["FORMAT", "run_entry", "metrics_document"]

@@ -10,7 +10,7 @@ then used through pure functions on an explicit state pytree. Nothing here impor
 from .gains import Gains
 from .kinds import (KINDS, Composition, FeedbackLinearization, HinfController, HinfNNController, design, register,
                     unregister)
-from .law import ControllerState, Output, ReducedOrderController, force_multiplier
+from .law import ControllerState, LawAux, Output, ReducedOrderController, force_multiplier, measured_force
 from .network import CENTRE_PRESETS_F, CoordinateNetwork, TanhNetwork, centres_from, paper_network_f, paper_network_p
 from .riccati import RiccatiSolution, design_riccati, solve_riccati_like
 from .sampled import MeasurementError, SampledController, SampledLoop
@@ -20,7 +20,7 @@ from .terms import Context, ForceNetwork, ForceRate, PositionNetwork, RobustForc
 __all__ = [
     "Gains", "KINDS", "Composition", "design", "register", "unregister",
     "FeedbackLinearization", "HinfController", "HinfNNController",
-    "ControllerState", "Output", "ReducedOrderController", "force_multiplier",
+    "ControllerState", "LawAux", "Output", "ReducedOrderController", "force_multiplier", "measured_force",
     "Term", "Context", "RobustPosition", "RobustForce", "PositionNetwork", "ForceNetwork", "ForceRate",
     "TanhNetwork", "CoordinateNetwork", "CENTRE_PRESETS_F", "centres_from", "paper_network_p", "paper_network_f",
     "RiccatiSolution", "design_riccati", "solve_riccati_like",

@@ -16,6 +16,12 @@ from .._pytree import pytree_dataclass
 from ..errors import DesignError
 
 
+def theorem1_bounds(rho: float, alpha_z: float, alpha_lam: float) -> tuple[float, float]:
+    """Theorem 1's bounds (Remark 3 for any α_z): α_λ > 2ρ²/α_z and β_λ ≥ α_λα_z/(2ρ²) − 1.
+    Returns (the bound on α_λ, the bound on β_λ); the one place they are written."""
+    return 2.0 * rho**2 / alpha_z, alpha_lam * alpha_z / (2.0 * rho**2) - 1.0
+
+
 @pytree_dataclass
 class Gains:
     """Design parameters. Scalars are accepted for the m = 1 matrices (K_p, K_v, R_p).
@@ -41,9 +47,6 @@ class Gains:
         """Sec. VI gains (R_p as the scalar 0.495: docs/paper-conventions.md, the printed diag is a misprint)."""
         return cls()
 
-    def beta_lam_bound(self) -> float:
-        """β_λ ≥ α_λ α_z / (2ρ²) − 1 (Theorem 1 with α_z = 2; Remark 3 in general)."""
-        return float(self.alpha_lam) * float(self.alpha_z) / (2.0 * float(self.rho) ** 2) - 1.0
 
     def normalized(self, m: int, k: int, *, require_bounds: bool = True) -> "Gains":
         """Check every gain and return a copy with float64 arrays of the right shapes.
@@ -70,8 +73,7 @@ class Gains:
         if not (rho**2 > 0 and math.isfinite(alpha_lam * alpha_z / (2.0 * rho**2))):
             raise DesignError(f"rho = {rho:g} is too small: alpha_lam alpha_z / (2 rho^2) (Theorem 1's bound "
                               "on beta_lam) is not a finite number", key="rho", value=rho, bound=0.0)
-        alpha_bound = 2.0 * rho**2 / alpha_z
-        beta_bound = alpha_lam * alpha_z / (2.0 * rho**2) - 1.0
+        alpha_bound, beta_bound = theorem1_bounds(rho, alpha_z, alpha_lam)
         if self.beta_lam is None:
             beta_lam = beta_bound
         else:

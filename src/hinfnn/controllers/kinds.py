@@ -8,8 +8,8 @@ kind         terms added to the CT law      theory
 ``hinf_nn``  v_p, v_λ, F_p (30), F_f (31)  Theorem 1, adaptive H∞ NN
 ===========  ============================  ===========================================
 
-:data:`KINDS` maps each kind name to its :class:`Composition` (terms, label and colour for
-reports, whether Theorem 1's bounds apply). A new controller is a new composition plus one line
+:data:`KINDS` maps each kind name to its :class:`Composition` (terms, label, whether Theorem 1's
+bounds apply, whether it learns). A new controller is a new composition plus one line
 in :data:`KINDS` (or :func:`register` from your own code).
 """
 
@@ -23,26 +23,31 @@ import jax.numpy as jnp
 from ..errors import DesignError
 from . import terms as T
 from .gains import Gains
-from .law import ReducedOrderController, split_blocks
+from .law import BLOCK, ReducedOrderController
 from .network import TanhNetwork, paper_network_f, paper_network_p
 from .riccati import design_riccati
 
 
 @dataclasses.dataclass(frozen=True)
 class Composition:
-    """A controller kind: which terms the law gets, and how reports show it.
+    """A controller kind: which terms the law gets, and its name in words.
 
     ``terms(options) -> tuple[Term, ...]`` builds the terms from the design options (networks,
     ``augmented`` ...). ``robust``: Theorem 1's bounds on α_λ, β_λ are required and the Riccati
     equation must have a stabilising solution (the FL-like law uses them only as performance
-    weights)."""
+    weights). ``learns``: its terms include the networks (their settings describe the run).
+
+    A controller family not built from the paper's law gives ``build(arm, surface, gains,
+    **options) -> Controller`` instead (``terms`` is then not used): any
+    :class:`hinfnn.protocols.Controller`, designed from the nominal arm and surface."""
 
     kind: str
     label: str
-    color: str
-    terms: Callable[[dict], tuple]
+    terms: Callable[[dict], tuple] = lambda options: ()
     robust: bool = True
+    learns: bool = False
     doc: str = ""
+    build: Callable | None = None
 
 
 def _networks(opts):
@@ -51,13 +56,12 @@ def _networks(opts):
 
 
 KINDS: dict[str, Composition] = {
-    "fl": Composition("fl", "FL-like", "#7b3294", lambda o: (), robust=False,
+    "fl": Composition("fl", "FL-like", lambda o: (), robust=False,
                       doc="Sec. VI feedback-linearization-like law (the CT part alone)"),
-    "hinf": Composition("hinf", "H∞-only", "#1f5fbf", lambda o: (T.RobustPosition(), T.RobustForce()),
+    "hinf": Composition("hinf", "H∞-only", lambda o: (T.RobustPosition(), T.RobustForce()),
                         doc="Theorem 2: eq. (51) with v_p (33) and v_λ (32)"),
-    "hinf_nn": Composition("hinf_nn", "adaptive H∞ NN", "#d62728",
-                           lambda o: (T.RobustPosition(), T.RobustForce(), *_networks(o)),
-                           doc="Theorem 1: eq. (24) with v_p, v_λ and the networks F_p, F_f"),
+    "hinf_nn": Composition("hinf_nn", "adaptive H∞ NN", lambda o: (T.RobustPosition(), T.RobustForce(), *_networks(o)),
+                           learns=True, doc="Theorem 1: eq. (24) with v_p, v_λ and the networks F_p, F_f"),
 }
 
 
@@ -73,7 +77,7 @@ def unregister(kind: str) -> None:
 
 def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bool = False,
            extra_terms: tuple = (), force_rate: dict | None = None, singularity_stop: float = 0.0,
-           **options) -> ReducedOrderController:
+           block: int | None = BLOCK, **options) -> ReducedOrderController:
     """Design the controller ``kind`` from the NOMINAL arm and surface: check the gains (Theorem
     1's bounds, Remarks 1–3), solve the Riccati-like eq. (35) (or (40) with ``augmented``,
     Remark 1), build and check the terms. ``options``: ``network_p``, ``network_f``,
@@ -84,11 +88,22 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
     ``tau_f``, ``zeta``, ``stiffness_min``, ``stiffness_max``, ``u1_range``, ``q_start``,
     ``period``); a κ of 0 leaves the law as the paper's. ``singularity_stop``: the law reports a
     fault (the simulator stops, the sampled controller returns NaN) when σ_min(Ĵ) falls below it.
+    ``block``: the largest array the controller keeps in the compiled loop
+    (:data:`~hinfnn.controllers.law.BLOCK`; None: arrays whole).
 
     Raises :class:`~hinfnn.errors.DesignError` naming the condition that failed."""
     if kind not in KINDS:
         raise DesignError(f"unknown controller kind {kind!r}; known: {', '.join(KINDS)}", key="kind", value=kind)
     comp = KINDS[kind]
+    if comp.build is not None:  # a family of its own (Composition.build)
+        from ..protocols import Controller
+
+        ctrl = comp.build(arm, surface, gains, augmented=augmented, force_rate=force_rate,
+                          singularity_stop=singularity_stop, **options)
+        if not isinstance(ctrl, Controller):
+            raise TypeError(f"the build of controller kind {kind!r} returned a {type(ctrl).__name__}, not a "
+                            "hinfnn.protocols.Controller")
+        return ctrl
     g = (gains or Gains.paper()).normalized(surface.m, surface.k, require_bounds=comp.robust)
     try:
         P = jnp.asarray(design_riccati(g, "40" if augmented else "35").P)
@@ -110,7 +125,7 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
         term.check(surface.m, surface.k)
     return ReducedOrderController(arm=arm, surface=surface, gains=g, P_p=P, terms=terms,
                                   sigma_stop=jnp.asarray(float(singularity_stop)), kind=kind, augmented=augmented,
-                                  P_blocks=split_blocks(P, surface.m), Q_blocks=split_blocks(g.Q_p, surface.m))
+                                  block=block)
 
 
 class FeedbackLinearization:

@@ -11,35 +11,42 @@ make it the H∞-only law of Theorem 2 (v_p, v_λ) or the adaptive law of Theore
 the networks). :mod:`hinfnn.controllers.kinds` lists these compositions.
 
 A controller is built from the NOMINAL arm and surface and sees only a
-:class:`~hinfnn.protocols.Measurement`; nothing here imports :mod:`hinfnn.plant`.
+:class:`~hinfnn.protocols.Measurement`: joint angles, rates and the contact force at the tool,
+which it maps into its task coordinates with its own nominal kinematics (:func:`measured_force`).
+Nothing here imports :mod:`hinfnn.plant`.
 """
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .. import _linalg as la
 from .._pytree import pytree_dataclass, static_field
 from ..model.reduced import reduced_model
+from ..protocols import Controller, ControllerOutput, Dissipation, Dissipative
 from ..reference import RefSample
 from . import terms as T
 from .gains import Gains
+from .network import block_bounds, join, split
+
+#: Largest number of float64 values the controller keeps in one array inside the compiled loop
+#: (512 bytes): XLA's CPU runtime runs a loop body's kernels inline only when no kernel touches a
+#: larger buffer; one larger buffer sends the step's kernels through its thread pool, which costs
+#: about as much as the step's arithmetic (2.0 s vs 1.0 s per 100,000 steps of the paper's adaptive
+#: run when this was introduced). The networks' weights Θ̂ (40 and 120 values) travel as blocks,
+#: and P_p, Q_p of more than this many entries are used by their m × m blocks.
+BLOCK = 64
 
 
-#: Largest 2m × 2m matrix (P_p, Q_p) used whole inside the compiled loop. XLA's CPU runtime runs a
-#: loop body's kernels inline only when no kernel touches a buffer of more than 512 bytes
-#: (:mod:`hinfnn._devices`, ``blocks``); P_p of a 6-DOF arm (m = 5) has 800. Larger ones are
-#: split into their four m × m blocks at design time (:func:`split_blocks`) and used by blocks.
-WHOLE = 64
-
-
-def split_blocks(A, m: int):
-    """The four m × m blocks (A11, A12, A21, A22) of a 2m × 2m matrix, or None when it is small
-    enough to be used whole in the loop (at most :data:`WHOLE` entries)."""
-    if A is None or (2 * m) ** 2 <= WHOLE:
+def split_blocks(A, m: int, limit: int | None = BLOCK):
+    """The four m × m blocks (A11, A12, A21, A22) of a 2m × 2m matrix, or None when it has at most
+    ``limit`` entries (used whole; None: never split)."""
+    if A is None or not limit or (2 * m) ** 2 <= limit:
         return None
-    A = jnp.asarray(A)
     return (A[:m, :m], A[:m, m:], A[m:, :m], A[m:, m:])
 
 
@@ -65,13 +72,26 @@ def force_multiplier(A_hat, F):
     return la.solve(la.mm(A_hat, A_hat.T), la.mm(A_hat, F))
 
 
+def measured_force(J, J_p, force):
+    """The task-space force F the controller works with, from the contact force at the tool point
+    (:class:`~hinfnn.protocols.Measurement`), by its NOMINAL kinematics: F with Ĵᵀ F = Ĵ_pᵀ f (the
+    same joint torque), F = (Ĵ Ĵᵀ)⁻¹ Ĵ Ĵ_pᵀ f, Ĵ_p the tool point's Jacobian. When the task
+    coordinates are the tool point itself (``J_p`` None: the paper's arm, whose task coordinates
+    are its tip position), F = f."""
+    if J_p is None:
+        return force
+    return la.spd_solve(la.mm(J, J.T), la.mm(J, la.mm(J_p.T, force)))
+
+
 @pytree_dataclass
 class ControllerState:
     """The controller's state: z of eq. (27) (k,) and the terms' state arrays by name
-    (``theta_p``, ``theta_f`` for the networks), readable as attributes (``state.theta_f``).
+    (``theta_p``, ``theta_f`` for the networks), read as flat arrays by attribute
+    (``state.theta_f``) or all at once (:meth:`arrays`).
 
-    Public state is always flat arrays; inside the compiled loop the arrays a term declares
-    ``blocked`` travel as tuples of blocks (:meth:`ReducedOrderController.to_loop`)."""
+    The arrays a term declares ``blocked`` are kept as tuples of blocks of at most
+    :data:`BLOCK` values (the layout the compiled loop runs fastest with); build states with
+    :meth:`ReducedOrderController.init`, which takes flat arrays."""
 
     z: jax.Array
     parts: dict
@@ -79,36 +99,45 @@ class ControllerState:
     def __getattr__(self, name):
         parts = self.__dict__.get("parts")
         if parts is not None and name in parts:
-            return parts[name]
+            v = parts[name]
+            return join(v) if isinstance(v, tuple) else v
         raise AttributeError(name)
 
     def names(self) -> tuple[str, ...]:
         """("z", then the terms' arrays by name)."""
         return ("z", *sorted(self.parts))
 
+    def arrays(self) -> dict:
+        """{"z": z, name: flat array, ...}."""
+        return {"z": self.z, **{name: getattr(self, name) for name in self.parts}}
+
 
 @pytree_dataclass
-class Output:
-    """One evaluation of the law: τ, the state derivative, the recorded signals, and what the
-    theorem bookkeeping needs (the reference sample, the terms' values, Ĵ and J̇̂)."""
+class LawAux:
+    """What the theorem bookkeeping needs of one evaluation of the law (its
+    :attr:`~hinfnn.protocols.ControllerOutput.aux`): the reference sample, the terms' values, Ĵ
+    and J̇̂ (or J̇̂ q̇ when J̇̂ is not formed) and the terms' context."""
 
-    tau: jax.Array
-    dstate: ControllerState
-    signals: dict
     ref: RefSample
     values: tuple  # each term's value, in the controller's term order
     J: jax.Array
     J_dot: jax.Array | None
     ctx: T.Context
-    fault: jax.Array  # True when the law cannot be trusted at this sample (singularity guard)
-    Jd_qd: jax.Array | None = None  # J̇̂ q̇ when J̇̂ is not formed
+    Jd_qd: jax.Array | None = None
+
+
+#: One evaluation of the law (the protocol's output; ``aux`` a :class:`LawAux`).
+Output = ControllerOutput
 
 
 @pytree_dataclass
-class ReducedOrderController:
+class ReducedOrderController(Controller, Dissipative):
     """The law (24)–(27) with a tuple of terms. Build one with
     :func:`hinfnn.controllers.kinds.design` (or ``HinfController.design`` ...), which checks the
-    gains against Theorem 1's bounds and solves the Riccati-like equation for P_p."""
+    gains against Theorem 1's bounds and solves the Riccati-like equation for P_p.
+
+    ``block``: the largest array the state keeps inside the compiled loop (:data:`BLOCK`; None:
+    arrays whole)."""
 
     arm: object  # nominal arm (model.Arm)
     surface: object  # nominal surface (model.Surface)
@@ -118,8 +147,8 @@ class ReducedOrderController:
     sigma_stop: jax.Array = 0.0  # singularity guard: fault when σ_min(Ĵ) < sigma_stop (0: off)
     kind: str = static_field(default="")
     augmented: bool = static_field(default=False)
-    P_blocks: tuple | None = None  # P_p by m × m blocks for large m (split_blocks), set by design()
-    Q_blocks: tuple | None = None  # gains.Q_p likewise
+    block: int | None = static_field(default=BLOCK)
+    fault_name: ClassVar[str] = "σ_min(Ĵ), below the singularity guard's stop"
 
     # --- sizes -----------------------------------------------------------------------------------
     @property
@@ -150,8 +179,8 @@ class ReducedOrderController:
 
     # --- state -----------------------------------------------------------------------------------
     def init(self, **given) -> ControllerState:
-        """Sec. VI initial state: z(0) = 0, every term's state 0, unless given by name
-        (``init(theta_f=...)``)."""
+        """Sec. VI initial state: z(0) = 0, every term's state 0, unless given by name as flat
+        arrays (``init(theta_f=...)``; :meth:`ControllerState.arrays` of another state)."""
         parts = {}
         for term in self.terms:
             parts.update(term.init(self.m, self.k))
@@ -160,25 +189,40 @@ class ReducedOrderController:
             raise TypeError(f"unknown state arrays {sorted(unknown)}; this controller has z"
                             + "".join(f", {n}" for n in parts))
         for name, value in given.items():
-            if value is None:
-                continue
-            if name == "z":
+            if value is None or name == "z":
                 continue
             parts[name] = jnp.asarray(value, dtype=float).reshape(parts[name].shape)
+        for term in self.terms:
+            for name, groups in term.blocked.items():
+                parts[name] = split(parts[name], groups, self.block)
         z = jnp.zeros(self.k) if given.get("z") is None else jnp.asarray(given["z"], float).reshape(self.k)
         return ControllerState(z=z, parts=parts)
 
-    def to_loop(self, state: ControllerState) -> ControllerState:
-        """The state in the compiled loop's layout (:mod:`hinfnn._devices`, ``blocks``)."""
-        return ControllerState(z=state.z, parts=T.to_loop(self.terms, state.parts))
+    def summary(self) -> dict:
+        """The resolved design (:func:`hinfnn.controllers.summary.design_summary`)."""
+        from .summary import design_summary
 
-    def from_loop(self, state: ControllerState) -> ControllerState:
-        """Inverse of :meth:`to_loop`: flat arrays."""
-        return ControllerState(z=state.z, parts=T.from_loop(self.terms, state.parts))
+        return design_summary(self)
+
+    def state_from_arrays(self, arrays: dict) -> ControllerState:
+        """The state with the flat arrays ``arrays`` (:meth:`ControllerState.arrays`; NumPy or
+        traced, with any leading batch axes), in the controller's layout."""
+        parts = {}
+        for name, tpl in self.init().parts.items():
+            v = arrays[name]
+            if isinstance(tpl, tuple):
+                edges = np.cumsum([0] + [int(b.shape[-1]) for b in tpl])
+                v = tuple(v[..., a:b] for a, b in zip(edges[:-1], edges[1:]))
+            parts[name] = v
+        return ControllerState(z=arrays["z"], parts=parts)
+
+    def state_arrays(self, state: ControllerState) -> dict:
+        """z and the terms' arrays, flat (:meth:`ControllerState.arrays`)."""
+        return state.arrays()
 
     def constrain(self, state: ControllerState) -> ControllerState:
         """Applied after each integration step (Remark 2's radial clip for projected networks;
-        identity otherwise). Loop layout."""
+        identity otherwise)."""
         parts = dict(state.parts)
         for term in self.terms:
             parts.update(term.constrain(state.parts))
@@ -186,27 +230,29 @@ class ReducedOrderController:
 
     # --- measurement map (nominal kinematics, docs/paper-conventions.md "Measurements") ---------
     def observe(self, meas):
-        """u1 = ĥ1(q), u̇1 = (Ĵ q̇)_1 and λ = (Â Âᵀ)⁻¹ Â F from the nominal model."""
-        x = self.arm.h(meas.q)
-        x_dot = la.mm(self.arm.J(meas.q), meas.qd)
-        return x[: self.m], x_dot[: self.m], force_multiplier(self.surface.A_hat(x), meas.F)
+        """u1 = ĥ1(q), u̇1 = (Ĵ q̇)_1 and λ = (Â Âᵀ)⁻¹ Â F from the nominal model (F the measured
+        tool force in task coordinates, :func:`measured_force`)."""
+        rm = reduced_model(self.arm, self.surface, meas.q, meas.qd)
+        F = measured_force(rm.J, rm.J_p, meas.force)
+        return rm.x[: self.m], rm.x_dot[: self.m], force_multiplier(rm.A_hat, F)
 
     # --- the control law -----------------------------------------------------------------------
-    def evaluate(self, t, state: ControllerState, meas, ref) -> Output:
+    def evaluate(self, t, state: ControllerState, meas, ref) -> ControllerOutput:
         """τ, state derivative and signals at one instant. Implements eqs. (24)–(27) with the
-        terms' eqs. (30)–(33), (41) added. ``state`` in the loop's layout (:meth:`to_loop`);
-        ``ref`` a reference (callable on t, e.g. :class:`~hinfnn.reference.CosineReference`)."""
+        terms' eqs. (30)–(33), (41) added. ``state`` as :meth:`init` gives it; ``ref`` a
+        reference (callable on t, e.g. :class:`~hinfnn.reference.CosineReference`)."""
         g = self.gains
         m = self.m
         r = ref(t)
         rm = reduced_model(self.arm, self.surface, meas.q, meas.qd)
         u1, u1_dot = rm.x[:m], rm.x_dot[:m]
-        lam = force_multiplier(rm.A_hat, meas.F)
+        F = measured_force(rm.J, rm.J_p, meas.force)
+        lam = force_multiplier(rm.A_hat, F)
         e_u1 = u1 - r.u1_d
         e_u1_dot = u1_dot - r.u1_d_dot
         e_lam = lam - r.lam_d
         x_p = jnp.concatenate([e_u1, e_u1_dot])
-        s_p = _lower_times(self.P_p, self.P_blocks, x_p, m)  # B_pᵀ P_p x_p
+        s_p = _lower_times(self.P_p, split_blocks(self.P_p, m, self.block), x_p, m)  # B_pᵀ P_p x_p
         ctx = T.Context(t=jnp.asarray(t, dtype=float), ref=r, u1=u1, u1_dot=u1_dot, lam=lam, e_u1=e_u1,
                         e_u1_dot=e_u1_dot, e_lam=e_lam, z=state.z, x_p=x_p, s_p=s_p, gains=g, P_p=self.P_p,
                         augmented=self.augmented)
@@ -241,12 +287,11 @@ class ReducedOrderController:
             tau = mm(rm.J.T, jnp.concatenate([lam_p - mm(Gamma.T, y2), y2]))
         dz = -g.mu_z * state.z - g.alpha_z * e_lam  # eq. (27)
         sigma = sigma_min(rm.J)
-        signals = {"u1": u1, "u1_dot": u1_dot, "lam": lam, "u1_d": r.u1_d, "u1_d_dot": r.u1_d_dot,
-                   "lam_d": r.lam_d, "e_u1": e_u1, "e_u1_dot": e_u1_dot, "e_lam": e_lam, "z": state.z,
-                   "tau": tau, "sigma_min_J": sigma, **signals}
-        return Output(tau=tau, dstate=ControllerState(z=dz, parts=dparts), signals=signals, ref=r,
-                      values=tuple(values), J=rm.J, J_dot=rm.J_dot, ctx=ctx, fault=sigma < self.sigma_stop,
-                      Jd_qd=rm.Jd_qd)
+        signals = {"F": F, "u1": u1, "u1_dot": u1_dot, "lam": lam, "u1_d": r.u1_d, "u1_d_dot": r.u1_d_dot,
+                   "lam_d": r.lam_d, "e_u1_dot": e_u1_dot, "z": state.z, "sigma_min_J": sigma, **signals}
+        aux = LawAux(ref=r, values=tuple(values), J=rm.J, J_dot=rm.J_dot, ctx=ctx, Jd_qd=rm.Jd_qd)
+        return ControllerOutput(tau=tau, dstate=ControllerState(z=dz, parts=dparts), e_u1=e_u1, e_lam=e_lam,
+                                signals=signals, fault=sigma < self.sigma_stop, fault_value=sigma, aux=aux)
 
     @property
     def needs_start(self) -> bool:
@@ -255,50 +300,41 @@ class ReducedOrderController:
 
     def start(self, t, state: ControllerState, meas, ref) -> ControllerState:
         """The state at the first sample, from the first measurement (a term's filter starts at
-        its input, e.g. the force-rate filter at e_λ(0)). Loop layout."""
+        its input, e.g. the force-rate filter at e_λ(0))."""
         if not self.needs_start:
             return state
         out = self.evaluate(t, state, meas, ref)
         parts = dict(state.parts)
         for term in self.terms:
-            parts.update(term.start(out.ctx, state.parts))
+            parts.update(term.start(out.aux.ctx, state.parts))
         return ControllerState(z=state.z, parts=parts)
 
-    def sample(self, t, period, state: ControllerState, meas, ref, out: Output | None = None):
-        """The sampled-data update (zero-order hold): τ_k of eq. (24) at the sample and the state
-        advanced by forward Euler over the period, then constrained (Remark 2's clip). Loop
-        layout. The one definition used by the simulator's sampled mode and by
-        :class:`~hinfnn.controllers.sampled.SampledController` (``out``: this sample's
-        :meth:`evaluate`, when the caller has it)."""
-        out = self.evaluate(t, state, meas, ref) if out is None else out
-        new = self.constrain(jax.tree.map(lambda x, d: x + period * d, state, out.dstate))
-        return out.tau, new
-
-    # --- public conveniences on flat state ------------------------------------------------------
+    # --- conveniences ---------------------------------------------------------------------------
     def torque(self, t, state, meas, ref):
-        """τ of eq. (24) (flat state, as :meth:`init` returns it)."""
-        return self.evaluate(t, self.to_loop(state), meas, ref).tau
+        """τ of eq. (24)."""
+        return self.evaluate(t, state, meas, ref).tau
 
     def derivative(self, t, state, meas, ref) -> ControllerState:
-        """The state's time derivative: ż of eq. (27), the networks' updates (30)–(31) (flat)."""
-        return self.from_loop(self.evaluate(t, self.to_loop(state), meas, ref).dstate)
+        """The state's time derivative: ż of eq. (27), the networks' updates (30)–(31)."""
+        return self.evaluate(t, state, meas, ref).dstate
 
     def signals(self, t, state, meas, ref) -> dict:
-        """Every named signal of :meth:`evaluate` (flat state)."""
-        return self.evaluate(t, self.to_loop(state), meas, ref).signals
+        """Every named signal of :meth:`evaluate`, the errors and τ included."""
+        out = self.evaluate(t, state, meas, ref)
+        return {**out.signals, "e_u1": out.e_u1, "e_lam": out.e_lam, "tau": out.tau}
 
     # --- the theorems' bookkeeping ---------------------------------------------------------------
-    def performance(self, state, out: Output):
+    def performance(self, state, out: ControllerOutput):
         """Integrand of the H∞ index, eq. (34) with Remark 3's weight α_λα_z/2 on e_λ, the same
         for every controller; and the extra terms of Remark 1's augmented index (0 otherwise).
         Implements eq. (34)."""
         g = self.gains
-        c = out.ctx
+        c = out.aux.ctx
         mm = la.mm
-        j = (mm(c.x_p, _times(g.Q_p, self.Q_blocks, c.x_p, self.m)) + 0.5 * g.alpha_lam * g.alpha_z * mm(c.e_lam, c.e_lam)
+        j = (mm(c.x_p, _times(g.Q_p, split_blocks(g.Q_p, self.m, self.block), c.x_p, self.m)) + 0.5 * g.alpha_lam * g.alpha_z * mm(c.e_lam, c.e_lam)
              + g.alpha_lam * g.mu_z / (1.0 + g.beta_lam) * mm(state.z, state.z))
         extra = jnp.zeros_like(j)
-        for term, value in zip(self.terms, out.values):
+        for term, value in zip(self.terms, out.aux.values):
             e = term.extra_performance(c, value) if self.augmented else None
             if e is not None:
                 extra = extra + e
@@ -307,33 +343,33 @@ class ReducedOrderController:
                 extra = extra + d
         return j, extra
 
-    def storage(self, state, out: Output):
+    def storage(self, state, out: ControllerOutput):
         """Storage function V of eqs. (36)/(55) with Θ* = 0 (so Θ̃ = Θ̂ and ε = f), plus the
         terms' contributions: V = x_pᵀ P_p x_p + α_λ/(2(1+β_λ)) ‖z‖² + Σ V_term."""
-        c = out.ctx
-        V = la.mm(c.x_p, _times(self.P_p, self.P_blocks, c.x_p, self.m)) + 0.5 * c.c * la.mm(state.z, state.z)
+        c = out.aux.ctx
+        V = la.mm(c.x_p, _times(self.P_p, split_blocks(self.P_p, self.m, self.block), c.x_p, self.m)) + 0.5 * c.c * la.mm(state.z, state.z)
         for term in self.terms:
             v = term.storage(c, state.parts)
             if v is not None:
                 V = V + v
         return V
 
-    def supply_residuals(self, out: Output, u1_ddot):
+    def supply_residuals(self, out: ControllerOutput, u1_ddot):
         """f_p, f_f as the actual residuals of the error systems (28)–(29) / (52)–(53):
         f_p = ë_u1 + K_p e_u1 + K_v ė_u1 − Σ a_i,  f_f = e_λ − z − Σ b_j, with ë_u1 from the true
         motion (:meth:`u1_ddot`)."""
         g = self.gains
-        c = out.ctx
-        f_p = (u1_ddot - out.ref.u1_d_ddot) + la.mm(g.K_p, c.e_u1) + la.mm(g.K_v, c.e_u1_dot)
+        c = out.aux.ctx
+        f_p = (u1_ddot - out.aux.ref.u1_d_ddot) + la.mm(g.K_p, c.e_u1) + la.mm(g.K_v, c.e_u1_dot)
         f_f = c.e_lam - c.z
-        for term, v in zip(self.terms, out.values):
+        for term, v in zip(self.terms, out.aux.values):
             if term.side == "position":
                 f_p = f_p - v
             else:
                 f_f = f_f - v
         return f_p, f_f
 
-    def dissipation(self, state, out: Output, qd, qdd) -> dict:
+    def dissipation(self, state, out: ControllerOutput, qd, qdd) -> Dissipation:
         """The theorems' bookkeeping at one instant, given the true joint acceleration q̈ (from
         the plant, like an accelerometer): the integrand ``j`` of eq. (34) and Remark 1's
         ``j_extra``, the supply rate ρ²(‖f_p‖² + ‖f_f‖²), the storage ``V`` and the residuals
@@ -341,7 +377,7 @@ class ReducedOrderController:
         j, extra = self.performance(state, out)
         f_p, f_f = self.supply_residuals(out, self.u1_ddot(out, qd, qdd))
         supply = self.gains.rho**2 * (la.mm(f_p, f_p) + la.mm(f_f, f_f))
-        return {"j": j, "j_extra": extra, "supply": supply, "V": self.storage(state, out), "f_p": f_p, "f_f": f_f}
+        return Dissipation(j=j, j_extra=extra, supply=supply, V=self.storage(state, out), f_p=f_p, f_f=f_f)
 
     # --- design-time checks ----------------------------------------------------------------------
     def check_start(self, q0, min_abs_det: float = 1e-6) -> None:
@@ -360,11 +396,12 @@ class ReducedOrderController:
             raise DesignError(f"the nominal Jacobian is singular at the start pose q0 = {np.round(q0, 6).tolist()} "
                               f"(|det J| = {abs(det):.3g} < {min_abs_det:g}): (A1) fails", key="initial.u1")
 
-    def u1_ddot(self, out: Output, qd, qdd):
+    def u1_ddot(self, out: ControllerOutput, qd, qdd):
         """d²/dt² of the measured u1 = ĥ1(q) along a motion with joint acceleration q̈:
         (Ĵ q̈ + J̇̂ q̇)_1 (the chain rule on the controller's own observation map)."""
-        Jd_qd = la.mm(out.J_dot, qd) if out.J_dot is not None else out.Jd_qd
-        return (la.mm(out.J, qdd) + Jd_qd)[: self.m]
+        a = out.aux
+        Jd_qd = la.mm(a.J_dot, qd) if a.J_dot is not None else a.Jd_qd
+        return (la.mm(a.J, qdd) + Jd_qd)[: self.m]
 
 
 def sigma_min(J):

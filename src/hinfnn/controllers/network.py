@@ -8,10 +8,15 @@ the hidden layer ξ (eq. 19).
 
 Θ stacks the per-output weight vectors: Θ = [θ_1; …; θ_n_out], so Ξᵀ s = s ⊗ ξ.
 
-The public methods (:meth:`features`, :meth:`output`, :meth:`update`) take and return flat
-arrays. Inside the compiled loop the weights travel in blocks (:mod:`hinfnn._devices`,
-``blocks``): the ``*_blocks`` methods, used by :class:`~hinfnn.controllers.terms.NetworkTerm`,
-take Θ as the tuple :func:`hinfnn._devices.split` makes and return the same layout.
+A network holds flat arrays (centres, slope, input weights) and its public methods
+(:meth:`~TanhNetwork.features`, :meth:`~TanhNetwork.output`, :meth:`~TanhNetwork.update`) take and
+return flat arrays. The controller carries Θ in blocks of at most ``block`` values inside the
+compiled loop (:func:`split`; :class:`hinfnn.controllers.law.ReducedOrderController`, ``block``:
+XLA's CPU runtime runs a loop body's kernels inline only when no kernel touches a buffer of more
+than 512 bytes, 64 float64, and one larger buffer sends the step's kernels through its thread
+pool, which cost about as much as the step's arithmetic); the ``*_blocks`` methods, used by the
+network terms of :mod:`hinfnn.controllers.terms`, take Θ in that layout, cut the centres the same
+way (read off Θ's blocks) and return the same layout.
 """
 
 from __future__ import annotations
@@ -20,7 +25,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _devices as dev
 from .. import _linalg as la
 from .._pytree import pytree_dataclass, static_field
 from ..errors import DesignError
@@ -41,15 +45,40 @@ def centres_from(start: float, step: float, count: int) -> np.ndarray:
     return start + step * np.arange(int(count), dtype=float)
 
 
+def block_bounds(j: int, block: int | None) -> list[tuple[int, int]]:
+    """[(start, stop)] of ⌈j / block⌉ blocks of near-equal size (120 → 60 + 60 for block 64); one
+    block when ``block`` is None or 0."""
+    n = max(1, -(-j // block)) if block else 1
+    edges = [round(i * j / n) for i in range(n + 1)]
+    return list(zip(edges[:-1], edges[1:]))
+
+
+def split(x, groups: int = 1, block: int | None = None) -> tuple:
+    """A flat vector as a tuple of blocks: ``groups`` equal consecutive parts (one per network
+    output), each cut by :func:`block_bounds`."""
+    j = x.shape[-1] // groups
+    return tuple(x[..., g * j + a: g * j + b] for g in range(groups) for a, b in block_bounds(j, block))
+
+
+def join(blocks: tuple):
+    """Inverse of :func:`split`."""
+    return jnp.concatenate(blocks, axis=-1)
+
+
+def _bounds(sizes) -> tuple:
+    """[(start, stop)] of consecutive blocks of the given sizes."""
+    edges = np.cumsum([0, *sizes])
+    return tuple(zip(edges[:-1].tolist(), edges[1:].tolist()))
+
+
 @pytree_dataclass
 class TanhNetwork:
     """One network of eq. (19) with optional projection onto ‖Θ‖ ≤ radius (Remark 2).
 
-    Build it with :meth:`build`. The centres are kept in the blocks of :mod:`hinfnn._devices`
-    (``centre_blocks``); :attr:`centres` is the whole vector.
+    Build it with :meth:`build`.
     """
 
-    centre_blocks: tuple  # of arrays, in increasing order
+    centres: jax.Array  # (j,), increasing
     slope: jax.Array  # α of eq. (17)
     w_a: jax.Array  # (1,) or (n_out,) weights of the first input in φ
     w_b: jax.Array  # (1,) or (n_out,) weights of the second input in φ
@@ -83,20 +112,14 @@ class TanhNetwork:
             if not (np.isfinite(radius) and radius > 0):
                 raise DesignError(f"projection radius must be finite and > 0, got {radius:g}",
                                   key=f"{name}.radius", value=radius, bound=0.0)
-        blocks = tuple(jnp.asarray(c[a:b]) for a, b in dev.block_bounds(c.size))
-        return cls(centre_blocks=blocks, slope=jnp.asarray(slope), w_a=jnp.asarray(w_a),
+        return cls(centres=jnp.asarray(c), slope=jnp.asarray(slope), w_a=jnp.asarray(w_a),
                    w_b=jnp.asarray(w_b), radius=jnp.asarray(np.inf if radius is None else radius),
                    n_out=int(n_out), project=radius is not None)
 
     @property
-    def centres(self) -> jax.Array:
-        """All centres c_1 … c_j."""
-        return jnp.concatenate(self.centre_blocks, axis=-1)
-
-    @property
     def n_units(self) -> int:
         """Number of hidden units j."""
-        return sum(int(b.shape[-1]) for b in self.centre_blocks)
+        return int(self.centres.shape[-1])
 
     @property
     def size(self) -> int:
@@ -106,11 +129,11 @@ class TanhNetwork:
     # --- flat arrays (the public form) ------------------------------------------------------------
     def features(self, a, b):
         """ξ = [σ_1 … σ_j], σ_i = tanh(α(φ − c_i)), φ = w_aᵀ a + w_bᵀ b. Implements eq. (17)."""
-        return jnp.concatenate(self.features_blocks(a, b), axis=-1)
+        return self.features_blocks(a, b, ((0, self.n_units),))[0]
 
     def output(self, xi, theta):
         """F = Ξ Θ, output o = ξ_oᵀ θ_o. Implements eqs. (18)–(19)."""
-        return self.output_blocks(self._split_xi(xi), dev.split(theta, self.n_out))
+        return self.output_blocks((xi,), split(theta, self.n_out))
 
     def update(self, xi, s, theta, gamma):
         """Θ̇ = γ Ξᵀ s, projected onto ‖Θ‖ ≤ d when ``project`` (Remark 2).
@@ -119,16 +142,18 @@ class TanhNetwork:
         removes the outward radial part when ‖Θ‖ ≥ d and sᵀ Ξ Θ > 0 (the paper's "= d",
         taken as "≥ d" so that integration round-off cannot step past it).
         """
-        return dev.join(self.update_blocks(self._split_xi(xi), s, dev.split(theta, self.n_out), gamma))
-
-    def _split_xi(self, xi):
-        return tuple(xi[..., a:b] for a, b in dev.block_bounds(self.n_units))
+        return join(self.update_blocks((xi,), s, split(theta, self.n_out), gamma))
 
     # --- blocks (inside the compiled loop) ---------------------------------------------------------
-    def features_blocks(self, a, b) -> tuple:
-        """ξ of eq. (17), one array per centre block."""
+    def layout(self, theta_blocks) -> tuple:
+        """[(start, stop)] of the centre blocks matching a blocked Θ (one output's blocks)."""
+        nb = len(theta_blocks) // self.n_out
+        return _bounds(int(t.shape[-1]) for t in theta_blocks[:nb])
+
+    def features_blocks(self, a, b, bounds) -> tuple:
+        """ξ of eq. (17), one array per centre block ``bounds`` (:meth:`layout`)."""
         phi = la.mm(jnp.broadcast_to(self.w_a, a.shape), a) + la.mm(jnp.broadcast_to(self.w_b, b.shape), b)
-        return tuple(jnp.tanh(self.slope * (phi - c)) for c in self.centre_blocks)
+        return tuple(jnp.tanh(self.slope * (phi - self.centres[..., lo:hi])) for lo, hi in bounds)
 
     def output_blocks(self, xi_blocks, theta_blocks):
         """F = Ξ Θ (eqs. 18–19) from blocked ξ and blocked Θ."""
@@ -192,7 +217,7 @@ class CoordinateNetwork:
     network terms of :mod:`hinfnn.controllers.terms` use it unchanged.
     """
 
-    centre_blocks: tuple  # output o's blocks, then o + 1's (each at most dev.BLOCK values)
+    centres: jax.Array  # (n_out, j)
     slope: jax.Array  # (n_out,)
     w_a: jax.Array  # (n_out,)
     w_b: jax.Array  # (n_out,)
@@ -233,25 +258,14 @@ class CoordinateNetwork:
             if not (np.isfinite(radius) and radius > 0):
                 raise DesignError(f"projection radius must be finite and > 0, got {radius:g}",
                                   key=f"{name}.radius", value=radius, bound=0.0)
-        blocks = tuple(jnp.asarray(c[o, a:b]) for o in range(n_out) for a, b in dev.block_bounds(c.shape[1]))
-        return cls(centre_blocks=blocks, slope=slope_a, w_a=w_a_a, w_b=w_b_a,
+        return cls(centres=jnp.asarray(c), slope=slope_a, w_a=w_a_a, w_b=w_b_a,
                    radius=jnp.asarray(np.inf if radius is None else radius), n_out=n_out,
                    project=radius is not None)
 
     @property
-    def _nb(self) -> int:
-        return len(self.centre_blocks) // self.n_out
-
-    @property
-    def centres(self) -> jax.Array:
-        """(n_out, j) centres."""
-        nb = self._nb
-        return jnp.stack([jnp.concatenate(self.centre_blocks[o * nb:(o + 1) * nb]) for o in range(self.n_out)])
-
-    @property
     def n_units(self) -> int:
         """Hidden units per output, j."""
-        return sum(int(b.shape[-1]) for b in self.centre_blocks[: self._nb])
+        return int(self.centres.shape[-1])
 
     @property
     def size(self) -> int:
@@ -260,7 +274,8 @@ class CoordinateNetwork:
     # flat arrays -----------------------------------------------------------------------------
     def features(self, a, b):
         """Ξ's rows ξ_o (n_out, j), eq. (17) per coordinate."""
-        return jnp.stack([jnp.concatenate(self._xi_out(a, b, o), axis=-1) for o in range(self.n_out)])
+        whole = ((0, self.n_units),)
+        return jnp.stack([self._xi_out(a, b, o, whole)[0] for o in range(self.n_out)])
 
     def output(self, xi, theta):
         """F_o = ξ_oᵀ θ_o, eq. (19)."""
@@ -268,26 +283,29 @@ class CoordinateNetwork:
 
     def update(self, xi, s, theta, gamma):
         """θ̇_o = γ s_o ξ_o, eqs. (30)–(31), with Remark 2's projection (flat Θ)."""
-        xb = tuple(xi[o, a:b] for o in range(self.n_out) for a, b in dev.block_bounds(self.n_units))
-        return dev.join(self.update_blocks(xb, s, dev.split(theta, self.n_out), gamma))
+        return join(self.update_blocks(tuple(xi[o] for o in range(self.n_out)), s, split(theta, self.n_out), gamma))
 
     # blocks (inside the compiled loop) ---------------------------------------------------------
-    def _xi_out(self, a, b, o):
-        phi = self.w_a[o] * a[o] + self.w_b[o] * b[o]
-        nb = self._nb
-        return tuple(jnp.tanh(self.slope[o] * (phi - c)) for c in self.centre_blocks[o * nb:(o + 1) * nb])
+    def layout(self, theta_blocks) -> tuple:
+        """[(start, stop)] of one output's centre blocks matching a blocked Θ."""
+        nb = len(theta_blocks) // self.n_out
+        return _bounds(int(t.shape[-1]) for t in theta_blocks[:nb])
 
-    def features_blocks(self, a, b) -> tuple:
-        """ξ_o of eq. (17), output by output, block by block (the layout of Θ's blocks)."""
-        return tuple(x for o in range(self.n_out) for x in self._xi_out(a, b, o))
+    def _xi_out(self, a, b, o, bounds):
+        phi = self.w_a[o] * a[o] + self.w_b[o] * b[o]
+        return tuple(jnp.tanh(self.slope[o] * (phi - self.centres[o, lo:hi])) for lo, hi in bounds)
+
+    def features_blocks(self, a, b, bounds) -> tuple:
+        """ξ_o of eq. (17), output by output, block by block (``bounds``: :meth:`layout`)."""
+        return tuple(x for o in range(self.n_out) for x in self._xi_out(a, b, o, bounds))
 
     def output_blocks(self, xi_blocks, theta_blocks):
-        nb = self._nb
+        nb = len(theta_blocks) // self.n_out
         return jnp.stack([sum(jnp.sum(theta_blocks[o * nb + i] * xi_blocks[o * nb + i]) for i in range(nb))
                           for o in range(self.n_out)])
 
     def update_blocks(self, xi_blocks, s, theta_blocks, gamma) -> tuple:
-        nb = self._nb
+        nb = len(theta_blocks) // self.n_out
         raw = tuple(gamma * s[o] * xi_blocks[o * nb + i] for o in range(self.n_out) for i in range(nb))
         return _projected(self, raw, xi_blocks, s, theta_blocks, gamma)
 

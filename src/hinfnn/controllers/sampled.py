@@ -40,19 +40,22 @@ Entry points:
 * :meth:`SampledController.update` — ``step`` jit-compiled once per wrapper (the controller
   and the reference are compile-time constants). Pytrees in and out; pure.
 * :meth:`SampledController.update_packed` — the same law on one float64 vector
-  ``[t, h, q, q̇, F, state...]`` returning one vector ``[τ, state...]`` (the state's arrays in
+  ``[t, h, q, q̇, force, state...]`` returning one vector ``[τ, state...]`` (the state's arrays in
   the order of ``init().names()``: z, then Θ̂p, Θ̂f for the adaptive law): one buffer in and one
   out per call, the cheapest call from Python. Pure.
 * :class:`SampledLoop` (``sc.loop()``) — the fast path for a robot loop: a small stateful
-  shell around ``update_packed`` with ``tau = loop.update(t, h, q, q̇, F)`` (NumPy τ), the state
+  shell around ``update_packed`` with ``tau = loop.update(t, h, q, q̇, force)`` (NumPy τ), the state
   kept inside in the packed buffer.
 * :meth:`SampledController.update_checked` — validates its inputs in Python and raises
   :class:`MeasurementError` instead of returning NaN.
 * :meth:`SampledController.torque_and_signals` — τ and every named signal, for logging.
 
-The measurement's F is the TASK-SPACE force vector the end-effector exerts on the surface, shape
-(n,) (:class:`~hinfnn.protocols.Measurement`): for the paper's planar arm the contact force in
-newtons in the plane's (x1, x2) coordinates. q, q̇ and F must each have shape (n,).
+The measurement's ``force`` is the contact force the tool exerts on the surface, at the tool point,
+in the base frame's Cartesian axes (:class:`~hinfnn.protocols.Measurement`): what a force/torque
+sensor at the tool gives, moved to the tool point and turned into the base frame; shape (d,), d
+the arm's Cartesian dimension (:attr:`SampledController.force_size`: 2 for a planar arm, in the
+plane's coordinates, 3 for a spatial one). The controller maps it into its task coordinates with
+its nominal kinematics. q and q̇ have shape (n,).
 
 Non-finite inputs. A NaN or ±inf anywhere in t, h or the measurement, a negative h, or a
 non-finite torque from finite inputs (e.g. overflow at an absurd q̇) never produces a usable
@@ -93,7 +96,7 @@ class MeasurementError(HinfnnError, ValueError):
     """A sample given to :meth:`SampledController.update_checked` (or :class:`SampledLoop`) is
     unusable.
 
-    ``key`` names the offending input (``measurement.F``, ``t``, ``period``, ``state.z``,
+    ``key`` names the offending input (``measurement.force``, ``t``, ``period``, ``state.z``,
     ``tau`` …), ``value`` is what was given and ``t`` the sample time.
     """
 
@@ -106,7 +109,7 @@ class MeasurementError(HinfnnError, ValueError):
 
 def _as_meas(measurement) -> Measurement:
     return Measurement(q=jnp.asarray(measurement.q, dtype=float), qd=jnp.asarray(measurement.qd, dtype=float),
-                       F=jnp.asarray(measurement.F, dtype=float))
+                       force=jnp.asarray(measurement.force, dtype=float))
 
 
 @pytree_dataclass
@@ -121,10 +124,11 @@ class SampledController:
     fast to call as passing them as arguments, see ``benchmarks/latency.py``) and are built once
     per wrapper, on first use.
 
-    The state is the controller's :class:`~hinfnn.controllers.law.ControllerState` with flat
-    arrays. Packed layouts (n joints; ``state_size`` = the total length of the state's arrays):
+    The state is the controller's :class:`~hinfnn.controllers.law.ControllerState` (its arrays
+    flat by name: :meth:`~hinfnn.controllers.law.ControllerState.arrays`). Packed layouts (n joints,
+    d = :attr:`force_size`; ``state_size`` = the total length of the state's arrays):
 
-    * packed input (``packed_size``): ``[t, period, q (n), q̇ (n), F (n), state...]``
+    * packed input (``packed_size``): ``[t, period, q (n), q̇ (n), force (d), state...]``
     * packed output (``n + state_size``): ``[τ (n), state...]`` (the new state)
     """
 
@@ -136,10 +140,14 @@ class SampledController:
     def n_joints(self) -> int:
         return int(self.controller.arm.n)
 
+    @property
+    def force_size(self) -> int:
+        """Length d of the measured tool force: the arm's Cartesian dimension (2 planar, 3 spatial)."""
+        return int(self.controller.arm.space_dim)
+
     @functools.cached_property
     def _layout(self) -> tuple[tuple[str, int], ...]:
-        xc = self.controller.init()
-        return (("z", int(xc.z.shape[0])),) + tuple((k, int(v.shape[0])) for k, v in xc.parts.items())
+        return tuple((k, int(v.shape[0])) for k, v in self.controller.init().arrays().items())
 
     @property
     def state_size(self) -> int:
@@ -148,8 +156,8 @@ class SampledController:
 
     @property
     def sample_size(self) -> int:
-        """Length of the sample part ``[t, period, q, q̇, F]`` of the packed input: 2 + 3n."""
-        return 2 + 3 * self.n_joints
+        """Length of the sample part ``[t, period, q, q̇, force]`` of the packed input: 2 + 2n + d."""
+        return 2 + 2 * self.n_joints + self.force_size
 
     @property
     def packed_size(self) -> int:
@@ -168,23 +176,22 @@ class SampledController:
         x[1] = period
         x[2:2 + n] = measurement.q
         x[2 + n:2 + 2 * n] = measurement.qd
-        x[2 + 2 * n:2 + 3 * n] = measurement.F
+        x[2 + 2 * n:self.sample_size] = measurement.force
         x[self.sample_size:] = self.state_vector(state)
         return x
 
     def state_vector(self, state: ControllerState) -> np.ndarray:
         """ControllerState → its arrays concatenated in the packed order, as one NumPy vector."""
-        return np.concatenate([np.asarray(state.z if name == "z" else state.parts[name], dtype=float).reshape(-1)
-                               for name, _ in self._layout])
+        arrays = state.arrays()
+        return np.concatenate([np.asarray(arrays[name], dtype=float).reshape(-1) for name, _ in self._layout])
 
     def state_from_vector(self, vec) -> ControllerState:
-        """Packed state vector → ControllerState with flat arrays (NumPy or traced)."""
-        parts, i = {}, 0
+        """Packed state vector → ControllerState (NumPy or traced, any leading batch axes)."""
+        arrays, i = {}, 0
         for name, size in self._layout:
-            parts[name] = vec[..., i:i + size]
+            arrays[name] = vec[..., i:i + size]
             i += size
-        z = parts.pop("z")
-        return ControllerState(z=z, parts=parts)
+        return self.controller.state_from_arrays(arrays)
 
     def unpack(self, out) -> tuple:
         """Packed output → ``(τ, new state)``."""
@@ -210,32 +217,28 @@ class SampledController:
         period = jnp.asarray(period, dtype=float)
         meas = _as_meas(measurement)
         ctrl = self.controller
-        loop = ctrl.to_loop(state)
-        out = ctrl.evaluate(t, loop, meas, self.reference)
-        tau, new = ctrl.sample(t, period, loop, meas, self.reference, out=out)
-        ok = all_finite((t, period, meas.q, meas.qd, meas.F, tau)) & (period >= 0.0) & ~out.fault
-        return jnp.where(ok, tau, jnp.nan), ctrl.from_loop(new)
+        out = ctrl.evaluate(t, state, meas, self.reference)
+        tau, new = ctrl.sample(t, period, state, meas, self.reference, out=out)
+        ok = all_finite((t, period, meas.q, meas.qd, meas.force, tau)) & (period >= 0.0) & ~out.fault
+        return jnp.where(ok, tau, jnp.nan), new
 
     def start_fn(self, t, state: ControllerState, measurement: Measurement) -> ControllerState:
         """The state at the first sample from the first measurement (the controller's ``start``:
         e.g. the force-rate filter starts at e_λ(0)). Pure; identity for the paper's laws."""
-        ctrl = self.controller
-        return ctrl.from_loop(ctrl.start(jnp.asarray(t, dtype=float), ctrl.to_loop(state), _as_meas(measurement),
-                                         self.reference))
+        return self.controller.start(jnp.asarray(t, dtype=float), state, _as_meas(measurement), self.reference)
 
     def step_packed(self, x):
-        """:meth:`step` on the packed layouts: ``[t, h, q, q̇, F, state...] → [τ, state...]``."""
+        """:meth:`step` on the packed layouts: ``[t, h, q, q̇, force, state...] → [τ, state...]``."""
         n, ns = self.n_joints, self.sample_size
-        meas = Measurement(q=x[2:2 + n], qd=x[2 + n:2 + 2 * n], F=x[2 + 2 * n:ns])
+        meas = Measurement(q=x[2:2 + n], qd=x[2 + n:2 + 2 * n], force=x[2 + 2 * n:ns])
         tau, new = self.step(x[0], x[1], self.state_from_vector(x[ns:]), meas)
-        return jnp.concatenate([tau, *(new.z if name == "z" else new.parts[name] for name, _ in self._layout)])
+        arrays = new.arrays()
+        return jnp.concatenate([tau, *(arrays[name] for name, _ in self._layout)])
 
     def torque_and_signals_fn(self, t, state: ControllerState, measurement: Measurement):
         """Traceable ``(τ, signals)`` at one instant (eqs. (24)–(33)); no state update."""
-        ctrl = self.controller
-        out = ctrl.evaluate(jnp.asarray(t, dtype=float), ctrl.to_loop(state), _as_meas(measurement),
-                            self.reference)
-        return out.tau, out.signals
+        out = self.controller.evaluate(jnp.asarray(t, dtype=float), state, _as_meas(measurement), self.reference)
+        return out.tau, {**out.signals, "e_u1": out.e_u1, "e_lam": out.e_lam, "tau": out.tau}
 
     # --- compiled entry points (built once per wrapper, on first use) --------------------------
     def _check_parts(self):
@@ -275,7 +278,7 @@ class SampledController:
     def update(self, t, period, state: ControllerState, measurement: Measurement):
         """``(τ, new_state)`` of one sample (:meth:`step`), jit-compiled once per wrapper.
 
-        τ of eq. (24) at time ``t`` (s) from ``measurement`` (q, q̇, F), to be held for
+        τ of eq. (24) at time ``t`` (s) from ``measurement`` (q, q̇, force), to be held for
         ``period`` (s); new_state = constrain(state + period · ẋ_c), ẋ_c of eqs. (27), (30),
         (31): forward Euler over the period. Pass t and period as floats and the measurement as
         float64 arrays (another dtype compiles a second program). Works under ``jax.vmap``. τ is
@@ -287,7 +290,7 @@ class SampledController:
     def update_packed(self, x):
         """One sample on the packed layouts (:meth:`step_packed`), jit-compiled once.
 
-        ``x = [t, period, q, q̇, F, state...]`` (:meth:`pack`) → ``[τ, state...]``
+        ``x = [t, period, q, q̇, force, state...]`` (:meth:`pack`) → ``[τ, state...]``
         (:meth:`unpack`). Same law and numbers as :meth:`update`; one buffer in and one out,
         the cheapest call from Python. :class:`SampledLoop` wraps it for a robot loop.
         """
@@ -298,9 +301,9 @@ class SampledController:
         :meth:`start` at the first sample)."""
         return SampledLoop(self, self.init() if state is None else state, start=state is None)
 
-    def check_sample(self, t, period, q, qd, F) -> None:
+    def check_sample(self, t, period, q, qd, force) -> None:
         """Raise :class:`MeasurementError` naming the input when t or period is not a finite
-        number, period ≤ 0, or q, q̇, F do not each have shape (n,) with finite entries."""
+        number, period ≤ 0, q or q̇ is not n finite numbers, or force is not d finite numbers."""
         n = self.n_joints
         for key, v in (("t", t), ("period", period)):
             try:
@@ -311,15 +314,17 @@ class SampledController:
                 raise MeasurementError(f"must be a finite number, got {v!r}", key=key, value=v, t=t)
         if not float(period) > 0.0:
             raise MeasurementError(f"must be > 0, got {period!r}", key="period", value=period, t=t)
-        for name, v in (("q", q), ("qd", qd), ("F", F)):
+        d = self.force_size
+        for name, v, size in (("q", q, n), ("qd", qd, n), ("force", force, d)):
             try:
                 v = np.asarray(v, dtype=float)
             except (TypeError, ValueError):
-                raise MeasurementError(f"must be {n} numbers, got {v!r:.80}", key=f"measurement.{name}",
+                raise MeasurementError(f"must be {size} numbers, got {v!r:.80}", key=f"measurement.{name}",
                                        value=v, t=t) from None
-            if v.shape != (n,):
-                what = " (the task-space force vector the end-effector exerts on the surface)" if name == "F" else ""
-                raise MeasurementError(f"must have shape ({n},){what}, got {v.shape}", key=f"measurement.{name}",
+            if v.shape != (size,):
+                what = (" (the contact force at the tool point, in the base frame's Cartesian axes)"
+                        if name == "force" else "")
+                raise MeasurementError(f"must have shape ({size},){what}, got {v.shape}", key=f"measurement.{name}",
                                        value=v, t=t)
             if not np.all(np.isfinite(v)):
                 raise MeasurementError(f"is not finite: {v.tolist()}", key=f"measurement.{name}", value=v, t=t)
@@ -331,9 +336,10 @@ class SampledController:
         field is not finite, has the wrong shape, or period ≤ 0; and when the law itself
         returns a non-finite torque. Returns ``(τ as NumPy, new_state)``.
         """
-        self.check_sample(t, period, measurement.q, measurement.qd, measurement.F)
+        self.check_sample(t, period, measurement.q, measurement.qd, measurement.force)
+        arrays = state.arrays()
         for name, size in self._layout:
-            part = state.z if name == "z" else state.parts.get(name)
+            part = arrays.get(name)
             try:
                 v = np.asarray(part, dtype=float)
                 ok = v.shape == (size,)
@@ -365,65 +371,66 @@ class SampledController:
 
 
 class SampledLoop:
-    """The controller in a robot loop, ros2_control style: ``tau = loop.update(t, h, q, q̇, F)``.
+    """The controller in a robot loop, ros2_control style: ``tau = loop.update(t, h, q, q̇, force)``.
 
     A thin stateful shell (at the edge, like I/O) around the pure
     :meth:`SampledController.update_packed`: it keeps the packed input buffer
-    ``[t, h, q, q̇, F, state...]`` whose state part is the controller state, fills the sample
+    ``[t, h, q, q̇, force, state...]`` whose state part is the controller state, fills the sample
     part in place, calls the compiled update (one buffer in, one out) and returns τ as a NumPy
-    array. q, q̇ and F are NumPy-convertible vectors of shape (n,); F is the TASK-SPACE force
-    vector the end-effector exerts on the surface (for the paper's planar arm: the contact force
-    in N in the plane's coordinates). A wrong shape raises :class:`MeasurementError` (the buffer
-    is not touched). The state is advanced only when τ is finite: after an unusable sample (NaN
-    or inf in t, h, q, q̇, F; h < 0; non-finite τ) ``update`` returns τ = [NaN, …], the state
+    array. q, q̇ are NumPy-convertible vectors of shape (n,), force of shape (d,): the contact force
+    the tool exerts on the surface at the tool point, in the base frame's Cartesian axes (for the
+    paper's planar arm: in N, in the plane's coordinates). A wrong shape raises
+    :class:`MeasurementError` (the buffer is not touched). The state is advanced only when τ is finite: after an unusable sample (NaN
+    or inf in t, h, q, q̇, force; h < 0; non-finite τ) ``update`` returns τ = [NaN, …], the state
     stays as it was, and ``rejected`` counts it. Same numbers as :meth:`SampledController.update`.
 
     ::
 
         loop = sampled.loop()
         while running:                         # 1 kHz
-            tau = loop.update(t, 1e-3, q, qd, F)
+            tau = loop.update(t, 1e-3, q, qd, force)
             if not tau[0] == tau[0]:           # NaN: unusable sample
                 ...                            # safe stop
             send(tau)
     """
 
-    __slots__ = ("controller", "_buf", "_fn", "_n", "_ns", "_i_q", "_i_qd", "_i_F", "rejected", "_pending_start")
+    __slots__ = ("controller", "_buf", "_fn", "_n", "_d", "_ns", "_i_q", "_i_qd", "_i_F", "rejected", "_pending_start")
 
     def __init__(self, controller: SampledController, state: ControllerState, start: bool = False):
         self.controller = controller
         self._n = n = controller.n_joints
+        self._d = controller.force_size
         self._ns = controller.sample_size
-        self._i_q, self._i_qd, self._i_F = slice(2, 2 + n), slice(2 + n, 2 + 2 * n), slice(2 + 2 * n, 2 + 3 * n)
+        self._i_q, self._i_qd, self._i_F = slice(2, 2 + n), slice(2 + n, 2 + 2 * n), slice(2 + 2 * n, self._ns)
         self._buf = np.zeros(controller.packed_size)
         self._buf[self._ns:] = controller.state_vector(state)
         self._fn = controller._update_packed
         self.rejected = 0
         self._pending_start = start and controller.controller.needs_start
 
-    def update(self, t, period, q, qd, F) -> np.ndarray:
+    def update(self, t, period, q, qd, force) -> np.ndarray:
         """τ (NumPy, shape (n,), N·m) of eq. (24) for this sample; the state advances by forward
         Euler over ``period`` (eqs. (27), (30), (31)) unless the sample was unusable (τ all NaN).
 
         ``t``, ``period``: the sample time and the time until the next sample, s. ``q``, ``qd``:
-        joint angles (rad) and rates (rad/s), shape (n,). ``F``: the task-space force vector the
-        end-effector exerts on the surface, shape (n,) (for the paper's planar arm: the contact
-        force in N along the plane's x and y axes, as a force/torque sensor gives it after the
-        transform to the base frame); the controller turns it into λ itself. A wrong shape
-        raises :class:`MeasurementError` naming the input (the state is not touched)."""
+        joint angles (rad) and rates (rad/s), shape (n,). ``force``: the contact force the tool
+        exerts on the surface at the tool point, in the base frame's Cartesian axes, shape (d,)
+        (for the paper's planar arm: in N along the plane's x and y axes, as a force/torque sensor
+        gives it after the transform to the base frame); the controller turns it into λ itself. A
+        wrong shape raises :class:`MeasurementError` naming the input (the state is not touched)."""
         n = self._n
-        if np.shape(q) != (n,) or np.shape(qd) != (n,) or np.shape(F) != (n,):
-            self.controller.check_sample(t, period, q, qd, F)  # raises, naming the input
+        if np.shape(q) != (n,) or np.shape(qd) != (n,) or np.shape(force) != (self._d,):
+            self.controller.check_sample(t, period, q, qd, force)  # raises, naming the input
         b = self._buf
         if self._pending_start:  # the controller's filters start at the first measurement
-            meas = Measurement(q=np.asarray(q, float), qd=np.asarray(qd, float), F=np.asarray(F, float))
-            if np.all(np.isfinite(meas.q)) and np.all(np.isfinite(meas.qd)) and np.all(np.isfinite(meas.F)):
+            meas = Measurement(q=np.asarray(q, float), qd=np.asarray(qd, float), force=np.asarray(force, float))
+            if np.all(np.isfinite(meas.q)) and np.all(np.isfinite(meas.qd)) and np.all(np.isfinite(meas.force)):
                 started = self.controller.start(float(t), self.state, meas)
                 b[self._ns:] = self.controller.state_vector(started)
                 self._pending_start = False
         b[self._i_q] = q
         b[self._i_qd] = qd
-        b[self._i_F] = F
+        b[self._i_F] = force
         b[0] = t
         b[1] = period
         out = np.asarray(self._fn(b))

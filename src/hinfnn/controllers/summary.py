@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import DesignError
+from .gains import theorem1_bounds
 from .riccati import design_riccati
 from . import terms as T
 
@@ -32,8 +33,7 @@ def design_summary(ctrl) -> dict:
                   "gamma_2": float(g.gamma_2), "Q_p": _f(g.Q_p), "R_p": _f(g.R_p)},
         "P_p": P.tolist(),
     }
-    alpha_bound = 2.0 * rho**2 / alpha_z
-    beta_bound = alpha_lam * alpha_z / (2.0 * rho**2) - 1.0
+    alpha_bound, beta_bound = theorem1_bounds(rho, alpha_z, alpha_lam)
     out["bounds"] = {
         "alpha_lam": {"value": alpha_lam, "bound": alpha_bound, "margin": alpha_lam - alpha_bound,
                       "rule": "alpha_lam > 2 rho^2 / alpha_z (Theorem 1; Remark 3)"},

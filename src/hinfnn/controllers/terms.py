@@ -25,7 +25,6 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
-from .. import _devices as dev
 from .. import _linalg as la
 from .._pytree import pytree_dataclass, static_field
 from ..reference import RefSample
@@ -65,8 +64,8 @@ class Term:
 
     Class attributes: ``side`` ("position" or "force"), ``fields`` (the signals it records:
     name -> (unit, meaning); registered with the recorder's field table), ``blocked`` (its state
-    arrays carried in blocks inside the compiled loop: name -> number of equal groups, see
-    :mod:`hinfnn._devices`).
+    arrays the controller carries in blocks inside the compiled loop: name -> number of equal
+    groups, see :func:`hinfnn.controllers.network.split`).
     """
 
     side: ClassVar[str] = "position"
@@ -91,7 +90,8 @@ class Term:
 
     def evaluate(self, ctx: Context, parts: dict):
         """(value, state derivative {name: array}, signals {name: array}) at one instant.
-        ``parts`` holds every state array of the controller (in the loop's layout)."""
+        ``parts`` holds every state array of the controller, the ``blocked`` ones as tuples of
+        blocks (the derivative in the same layout)."""
         raise NotImplementedError
 
     def storage(self, ctx: Context, parts: dict):
@@ -181,7 +181,7 @@ class _NetworkTerm(Term):
     def evaluate(self, ctx, parts):
         a, b, drive, gamma = self._io(ctx)
         theta = parts[self.key]
-        xi = self.network.features_blocks(a, b)
+        xi = self.network.features_blocks(a, b, self.network.layout(theta))
         nn = self.network.output_blocks(xi, theta)
         d_theta = self.network.update_blocks(xi, drive, theta, gamma)
         return -nn, {self.key: d_theta}, {self.out: nn, f"{self.key}_norm": jnp.sqrt(sq_norm(theta))}
@@ -280,22 +280,3 @@ class ForceRate(Term):
 
     def start(self, ctx, parts):
         return {"s_lam": ctx.e_lam}
-
-
-def to_loop(terms, parts: dict) -> dict:
-    """The state arrays in the loop's layout: the ones a term declares ``blocked`` become tuples of
-    blocks (:func:`hinfnn._devices.split`)."""
-    out = dict(parts)
-    for term in terms:
-        for name, groups in term.blocked.items():
-            out[name] = dev.split(parts[name], groups)
-    return out
-
-
-def from_loop(terms, parts: dict) -> dict:
-    """Inverse of :func:`to_loop`: every state array flat."""
-    out = dict(parts)
-    for term in terms:
-        for name in term.blocked:
-            out[name] = dev.join(parts[name])
-    return out

@@ -117,6 +117,12 @@ class Arm:
         return jax.jvp(lambda qq: la.mm(self.J(qq), v), (q,), (qd,))[1]
 
     # --- contact point --------------------------------------------------------------------------
+    @property
+    def task_is_point(self) -> bool:
+        """Whether the task coordinates are the tool point's Cartesian coordinates (x = point(q)):
+        then a force at the tool point is the task-space force itself (the Sec. VI arm)."""
+        return False
+
     def point(self, q):
         """The tool point in the arm's Cartesian space (where surfaces live): h(q) by default
         (the Sec. VI arm: task coordinates = tip position)."""
@@ -140,11 +146,13 @@ class Arm:
 
     # --- lighter sets of terms --------------------------------------------------------------------
     def law_terms(self, q, qd) -> ArmTerms:
-        """x, J, J̇, M, G for the control law; C not formed (None) unless
+        """x, J, J̇, M, G for the control law, and the tool point's Jacobian J_p unless the task
+        coordinates are the tool point (:attr:`task_is_point`); C not formed (None) unless
         :attr:`coriolis_matrix_in_law` (then :meth:`terms`)."""
         if self.coriolis_matrix_in_law:
             return self.terms(q, qd)
-        return ArmTerms(x=self.h(q), J=self.J(q), J_dot=None, M=self.M(q), C=None, G=self.G(q))
+        return ArmTerms(x=self.h(q), J=self.J(q), J_dot=None, M=self.M(q), C=None, G=self.G(q),
+                        J_p=None if self.task_is_point else self.point_jacobian(q))
 
     def plant_terms(self, q, qd) -> ArmTerms:
         """x, J, M, bias = C q̇ + G, tool point and its Jacobian, for the true plant."""
@@ -214,6 +222,11 @@ class PlanarPointMassArm(Arm):
         if self.task is None:
             return self._mass_positions(q)[-1]
         return self.task(*self.fk(q))
+
+    @property
+    def task_is_point(self) -> bool:
+        """Without a task map the task coordinates are the tip position."""
+        return self.task is None
 
     def point(self, q):
         """The tip (x1, x2)."""

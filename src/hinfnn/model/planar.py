@@ -27,6 +27,7 @@ class TwoLinkArm(Arm):
     g: float = 9.8
     n: int = static_field(default=2)
     coriolis_matrix_in_law = True  # the law forms C (closed form, cheaper than products)
+    task_is_point = True  # the task coordinates are the tip position
 
     # Each closed form is written once, on the sines and cosines of q1, q2, q1 + q2 (one
     # vectorised sine and cosine of three angles); terms() evaluates them once for all six.

@@ -41,6 +41,7 @@ class ReducedModel:
     J_dot: jax.Array | None  # J̇̂(q, q̇) (None on the "product" path)
     m: int = static_field()
     Jd_qd: jax.Array | None = None  # J̇̂ q̇ (the "product" path)
+    J_p: jax.Array | None = None  # the tool point's Jacobian Ĵ_p (None: the task coordinates are the tool point)
 
     # --- partitions used by eqs. (11)-(14) ------------------------------------------------
     @property
@@ -145,6 +146,7 @@ def reduced_model(arm, surface, q, qd, *, coriolis: str | None = None) -> Reduce
         J=J,
         J_dot=J_dot,
         m=m,
+        J_p=None if arm.task_is_point else arm.point_jacobian(q),
     )
 
 
@@ -190,4 +192,5 @@ def _reduced_products(arm, surface, q, qd) -> ReducedModel:
         J_dot=None,
         m=m,
         Jd_qd=Jd[:, 1],
+        J_p=at.J_p,
     )

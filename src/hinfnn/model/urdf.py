@@ -834,7 +834,8 @@ class UrdfArm(Arm):
         Jf_dot = self.chain._jacobian_dot(k, qd)
         J = _task_jacobian(self.task, k.p_tool, k.R_tool, Jf)
         return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=J, J_dot=None, M=self.chain._crba(k), C=None,
-                        G=self.chain._gravity(k), aux=(k, Jf, Jf_dot))
+                        G=self.chain._gravity(k), aux=(k, Jf, Jf_dot),
+                        J_p=None if self.task_is_point else jnp.stack([Jf[i] for i in self.task.space_rows]))
 
     def C_product(self, terms: ArmTerms, q, qd, v):
         """C(q, q̇) v by one bilinear Newton–Euler pass on the kinematics of :meth:`law_terms`."""
@@ -853,6 +854,13 @@ class UrdfArm(Arm):
             return la.mm(self.J_dot(q, qd), v)
         k, Jf, Jf_dot = terms.aux
         return _task_derivatives_times(self.task, k.p_tool, k.R_tool, Jf, Jf_dot, qd, v)
+
+    @property
+    def task_is_point(self) -> bool:
+        """The task coordinates are the tool point (x = p) for the position task map."""
+        from .taskmap import PositionTaskMap
+
+        return isinstance(self.task, PositionTaskMap)
 
     def point(self, q):
         """The tool point in the task map's space (3-D, or the plane's coordinates)."""

@@ -1,7 +1,8 @@
 """The truth: the plant a controller acts on but never sees (DESIGN: the one rule).
 
 :class:`RigidBodyPlant` is hinfnn's own (rigid-body arm, penalty contact, disturbance); other
-engines implement the same :class:`hinfnn.protocols.Plant` protocol.
+engines implement the same protocol (:class:`hinfnn.protocols.ContinuousPlant` or
+:class:`~hinfnn.protocols.DiscretePlant`).
 """
 
 from .contact import Friction, PenaltyContact

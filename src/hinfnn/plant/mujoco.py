@@ -35,7 +35,7 @@ import numpy as np
 
 from .._pytree import pytree_dataclass
 from ..errors import ConfigError
-from ..protocols import Measurement
+from ..protocols import DiscretePlant, Measurement, PlantRecord
 
 __all__ = ["MujocoPlant", "MujocoState", "mjcf_two_link", "contact_solref", "require_mujoco",
            "INTEGRATORS", "CALLBACKS", "IMPEDANCE", "POINT_MASS_GYRATION_RADIUS", "TIP_RADIUS"]
@@ -469,7 +469,7 @@ def _call_host(engine, kind: str, x, callback: str):
                              x, vmap_method="broadcast_all")
 
 
-class MujocoPlant:
+class MujocoPlant(DiscretePlant):
     """MuJoCo as the true plant, driven at the control rate (sampled data, zero-order hold).
 
     Protocol (what hinfnn's simulator uses)::
@@ -487,8 +487,6 @@ class MujocoPlant:
     is a pytree whose only data leaf is the disturbance; its engine is static, hashed by
     identity). Not differentiable (no JVP rule).
     """
-
-    discrete = True
 
     def __init__(self, engine: _Engine, disturbance, control_period: float, callback: str = "host"):
         self._engine = engine
@@ -586,7 +584,7 @@ class MujocoPlant:
         the step from t over one control period applies: d(t + control_period/2)).
         """
         t = jnp.asarray(t, dtype=jnp.float64)
-        meas = Measurement(q=state.q, qd=state.qd, F=state.F)
+        meas = Measurement(q=state.q, qd=state.qd, force=state.F)
         diag = {"normal_force": state.normal_force, "penetration": state.penetration, "F": state.F,
                 "x_true": state.x_true, "disturbance": self.disturbance(t + 0.5 * self.control_period)}
         return meas, diag
@@ -598,9 +596,10 @@ class MujocoPlant:
         """The joint disturbance of the step [t, t + dt): d(t + dt/2) (what :meth:`step` applies)."""
         return self.disturbance(t + 0.5 * dt)
 
-    def diagnostics(self, state: MujocoState, w, cache) -> dict:
-        return {"q": state.q, "qd": state.qd, "F": state.F, "normal_force": state.normal_force,
-                "penetration": state.penetration, "disturbance": w, "x_true": state.x_true}
+    def record(self, state: MujocoState, w, cache) -> PlantRecord:
+        return PlantRecord(penetration=state.penetration,
+                           signals={"q": state.q, "qd": state.qd, "normal_force": state.normal_force,
+                                    "disturbance": w, "x_true": state.x_true})
 
     def step(self, t, state: MujocoState, tau, dt):
         """Advance by ``dt`` (a whole number of MuJoCo timesteps) with τ and the disturbance

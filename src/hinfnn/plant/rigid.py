@@ -4,25 +4,27 @@ Paper eq. (1) with the TRUE parameters, ``M(q) q̈ + C(q, q̇) q̇ + G(q) + Jᵀ
 force of a unilateral penalty contact on the TRUE surface
 (:class:`~hinfnn.plant.contact.PenaltyContact`) with optional friction
 (:class:`~hinfnn.plant.contact.Friction`), ω the joint disturbance
-(:class:`~hinfnn.plant.disturbance.SquareWave`). A continuous plant in the sense of
-:class:`hinfnn.protocols.Plant`: the simulator integrates it with the controller (RK4), and
-only the measurements of :meth:`RigidBodyPlant.sense` reach the controller.
+(:class:`~hinfnn.plant.disturbance.SquareWave`). A :class:`hinfnn.protocols.ContinuousPlant`: the
+simulator integrates it with the controller (RK4), and only the measurements of
+:meth:`RigidBodyPlant.sense` reach the controller: joint angles, rates and the contact force at
+the tool point in the base frame, as a force/torque sensor at the tool gives it (the controller
+maps it into its task coordinates with its NOMINAL kinematics).
 
 Two kinds of true surface:
 
 * a constraint in task coordinates (:class:`~hinfnn.model.surface.Surface`, e.g. the inclined
   line of Sec. VI, whose task coordinates are the tip position): penetration θ/‖∇θ‖ at h(q), the
-  force F = f_n n in task coordinates, joint torque JᵀF (the paper's arm, numbers unchanged);
+  force F = f_n n in task coordinates (= the tip's Cartesian coordinates), joint torque JᵀF (the
+  paper's arm, numbers unchanged);
 * a Cartesian shape (:mod:`hinfnn.model.geometry`): the penetration is its EXACT signed distance
   at the tool point p (the arm's :meth:`~hinfnn.model.arm.Arm.point`, in its Cartesian space),
   the contact force F_c = f_n n + F_t (friction) acts at p, its joint torque is τ_c = J_pᵀ F_c,
-  and the force sensor's F is that force in task coordinates, F = J⁻ᵀ τ_c (so that JᵀF = τ_c).
+  and the force sensor reads F_c.
 """
 
 from __future__ import annotations
 
 import functools
-from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -30,7 +32,7 @@ import jax.numpy as jnp
 from .. import _linalg as la
 from .._pytree import pytree_dataclass
 from ..model.geometry import Geometry
-from ..protocols import Measurement
+from ..protocols import ContinuousPlant, Measurement, PlantRecord
 from .contact import Friction, PenaltyContact
 from .disturbance import SquareWave
 
@@ -49,17 +51,16 @@ class ContactCache:
     ``diagnostics``: the true arm's terms, the contact force F, normal force and penetration."""
 
     terms: object
-    F: jax.Array
+    F: jax.Array  # the contact force at the tool point (task coordinates = Cartesian for a task-space surface)
     normal_force: jax.Array
     penetration: jax.Array
     tau_c: jax.Array | None = None  # joint torque of the contact (Cartesian surfaces)
-    F_contact: jax.Array | None = None  # the contact force at the tool point, Cartesian
-    friction: jax.Array | None = None  # its tangential part F_t
+    friction: jax.Array | None = None  # its tangential part F_t (Cartesian surfaces)
     L_M: jax.Array | None = None  # Cholesky factor of the true M (Cartesian surfaces)
 
 
 @pytree_dataclass
-class RigidBodyPlant:
+class RigidBodyPlant(ContinuousPlant):
     """True arm and surface (model types, true parameters), contact law and disturbance."""
 
     arm: object
@@ -67,7 +68,6 @@ class RigidBodyPlant:
     contact: PenaltyContact
     disturbance: SquareWave
     friction: Friction | None = None
-    discrete: ClassVar[bool] = False
 
     @property
     def cartesian(self) -> bool:
@@ -92,12 +92,13 @@ class RigidBodyPlant:
         return self.disturbance(t + 0.5 * dt)
 
     def sense(self, t, state: JointState):
-        """Sensors: joint angles, rates and the force sensor's F (exact, noise-free)."""
+        """Sensors: joint angles, rates and the contact force at the tool point (exact, noise-free)."""
         if self.cartesian:
             return self._sense_cartesian(state)
         at = self.arm.terms(state.q, state.qd)  # the true arm's kinematics and dynamics, once
         F, f_n, p = self.contact_state(state.q, state.qd, at)
-        return Measurement(q=state.q, qd=state.qd, F=F), ContactCache(terms=at, F=F, normal_force=f_n, penetration=p)
+        return Measurement(q=state.q, qd=state.qd, force=F), ContactCache(terms=at, F=F, normal_force=f_n,
+                                                                            penetration=p)
 
     def _sense_cartesian(self, state: JointState):
         at = self.arm.plant_terms(state.q, state.qd)  # x, J, M, C q̇ + G, tool point p and J_p
@@ -112,13 +113,9 @@ class RigidBodyPlant:
             F_t = self.friction.force(f_n, v_t)
             F_c = F_c + F_t
         tau_c = la.mm(at.J_p.T, F_c)
-        # in task coordinates, Jᵀ F = τ_c: F = (J Jᵀ)⁻¹ J τ_c (one Cholesky factorisation, no
-        # pivoting loop in the compiled step)
-        F = la.spd_solve(la.mm(at.J, at.J.T), la.mm(at.J, tau_c))
         L_M = la.chol(at.M)
-        return (Measurement(q=state.q, qd=state.qd, F=F),
-                ContactCache(terms=at, F=F, normal_force=f_n, penetration=d, tau_c=tau_c, F_contact=F_c,
-                             friction=F_t, L_M=L_M))
+        return (Measurement(q=state.q, qd=state.qd, force=F_c),
+                ContactCache(terms=at, F=F_c, normal_force=f_n, penetration=d, tau_c=tau_c, friction=F_t, L_M=L_M))
 
     def derivative(self, t, state: JointState, tau, w, cache: ContactCache):
         """(q̇, q̈) and q̈ from eq. (1) with the TRUE parameters."""
@@ -129,18 +126,19 @@ class RigidBodyPlant:
             qdd = la.chol_solve(cache.L_M, tau + w - cache.tau_c - t_.bias)
         return JointState(q=state.qd, qd=qdd), qdd
 
-    def diagnostics(self, state: JointState, w, cache: ContactCache) -> dict:
-        out = {"q": state.q, "qd": state.qd, "F": cache.F, "normal_force": cache.normal_force,
-               "penetration": cache.penetration, "disturbance": w, "x_true": cache.terms.x}
+    def record(self, state: JointState, w, cache: ContactCache) -> PlantRecord:
+        out = {"q": state.q, "qd": state.qd, "normal_force": cache.normal_force, "disturbance": w,
+               "x_true": cache.terms.x}
         if self.cartesian:
-            out["F_contact"] = cache.F_contact
+            out["F_contact"] = cache.F
             out["friction_force"] = jnp.sqrt(jnp.sum(cache.friction**2))
             out["task_margin"] = self.arm.task_margin(state.q)
-        return out
+        return PlantRecord(penetration=cache.penetration, signals=out)
 
     # --- contact and start pose ---------------------------------------------------------------------
     def contact_state(self, q, qd, terms=None):
-        """(F, f_n, p): force on the surface in task coordinates, normal force, penetration depth."""
+        """(F, f_n, p): the force on the surface at the tool point (task coordinates for a
+        task-space surface, Cartesian for a shape), normal force, penetration depth."""
         if self.cartesian:
             _, c = self._sense_cartesian(JointState(q=q, qd=qd))
             return c.F, c.normal_force, c.penetration
@@ -153,6 +151,11 @@ class RigidBodyPlant:
             return f_n * n, f_n, p
         # task coordinates = the tip position here (Sec. VI): friction along the line
         return f_n * n + self.friction.force(f_n, x_dot - la.mm(n, x_dot) * n), f_n, p
+
+    def diagnostics(self, state: JointState, w, cache: ContactCache) -> dict:
+        """The recorded signals with the penetration, as one dict (:meth:`record`)."""
+        r = self.record(state, w, cache)
+        return {**r.signals, "penetration": r.penetration}
 
     def measure(self, q, qd) -> Measurement:
         """The measurement at (q, q̇) (:meth:`sense` without its cache)."""

@@ -1,17 +1,15 @@
-"""Figures and reports of runs; they consume Trajectories, never a controller.
+"""Figures and tables of runs, from Trajectories, their tags and results documents only: never a
+controller, a plant or a scenario (a workflow composes its own report text from these).
 
 The figure functions are imported on first use (matplotlib takes 0.5–0.7 s to import), so that
 ``from hinfnn.report.markdown import metrics_table`` or a run without figures does not pay it.
 """
 
-from .claims import CLAIMS, RULES, ClaimResult, evaluate
-from .markdown import study_report
-
-__all__ = ["paper_figures", "run_figures", "study_report", "evaluate", "ClaimResult", "CLAIMS", "RULES"]
+__all__ = ["paper_figures", "run_figures", "beyond_figures"]
 
 
 def __getattr__(name):
-    if name in ("paper_figures", "run_figures"):
+    if name in __all__:
         from . import figures
 
         return getattr(figures, name)

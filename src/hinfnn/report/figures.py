@@ -45,9 +45,9 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 from matplotlib.transforms import blended_transform_factory
 
-from .. import _devices
 from ..io import atomic_write
-from ..sim.trajectory import STATUS, Trajectory
+from ..sim.trajectory import Trajectory
+from ..status import status_of
 
 __all__ = ["paper_figures", "run_figures", "sparse_note", "RUN_FIGURES", "PAPER_FIGURES", "DPI", "SIZE",
            "SIZE_TALL"]
@@ -80,15 +80,9 @@ def _kind(traj: Trajectory) -> str | None:
     return traj.info.kind or None
 
 
-def _scenario(traj: Trajectory):
-    return traj.scenario
-
-
-def _preset(traj: Trajectory) -> str | None:
-    sc = _scenario(traj)
-    if _kind(traj) != "hinf_nn" or sc is None:
-        return None
-    return sc.controller.network_f.preset
+def _tag(traj: Trajectory, name: str, default=None):
+    """A tag of the run (what it stands for and the facts reports show: hinfnn.experiment)."""
+    return traj.info.tags.get(name, default)
 
 
 def _status(traj: Trajectory) -> int:
@@ -99,22 +93,12 @@ def _t_fail(traj: Trajectory) -> float:
     return float(np.asarray(traj.t_fail).reshape(()))
 
 
-def _end(traj: Trajectory) -> int:
-    """Number of valid samples: all of them, or those up to t_fail for a diverged run."""
-    t = np.asarray(traj.arrays["t"])
-    if _status(traj) != 0 and math.isfinite(_t_fail(traj)):
-        return max(1, int(np.searchsorted(t, _t_fail(traj), side="right")))
-    return len(t)
-
-
 def _describe(traj: Trajectory) -> str:
-    kind = _kind(traj)
-    text = traj.info.label or kind or "controller"
-    sc = _scenario(traj)
-    if kind == "hinf_nn" and sc is not None:
-        text += f", $F_f$ centres {sc.controller.network_f.preset}"
-        if sc.controller.augmented:
-            text += ", augmented"
+    text = traj.info.label or _kind(traj) or "controller"
+    if _tag(traj, "networks") and _tag(traj, "f_f_preset") and "centres" not in text and "(" not in text:
+        text += f", $F_f$ centres {_tag(traj, 'f_f_preset')}"
+    if _tag(traj, "augmented") and "augmented" not in text:
+        text += ", augmented"
     return text
 
 
@@ -123,36 +107,29 @@ def _failure(traj: Trajectory) -> str:
         return ""
     tf = _t_fail(traj)
     when = f"t = {tf:.3g} s" if math.isfinite(tf) else "unknown time"
-    reason = STATUS.get(_status(traj), f"status {_status(traj)}")
+    reason = status_of(_status(traj)).message
     return f" (diverged at {when}: {reason})"
 
 
 def _damping(traj: Trajectory) -> float | None:
-    sc = _scenario(traj)
-    return None if sc is None else float(sc.plant.contact.damping)
+    return _tag(traj, "contact_damping")
 
 
 def _stiffness(traj: Trajectory) -> float | None:
-    sc = _scenario(traj)
-    return None if sc is None else float(sc.plant.contact.stiffness)
+    return _tag(traj, "contact_stiffness")
 
 
 def _scaling(traj: Trajectory) -> str | None:
-    sc = _scenario(traj)
-    return None if sc is None else sc.nominal.surface.scaling
+    return _tag(traj, "lambda_scaling")
 
 
 def _coordinates(runs) -> list[tuple[str, str]] | None:
-    """Names and units of the task coordinates (x = (u1, x2)) of the first run whose scenario
-    says, or None (the native coordinates of the Sec. VI arm)."""
+    """Names and units of the task coordinates (x = (u1, x2)) of the first run whose tags say,
+    or None (the native coordinates of the Sec. VI arm)."""
     for r in runs:
-        sc = _scenario(r.traj)
-        if sc is None:
-            continue
-        try:
-            return sc.coordinate_names()
-        except Exception:  # noqa: BLE001 - a figure never fails over a label
-            return None
+        coords = _tag(r.traj, "coordinates")
+        if coords:
+            return [tuple(c) for c in coords]
     return None
 
 
@@ -187,7 +164,7 @@ class _Run:
         arrays = self.traj.arrays
         if field not in arrays or "t" not in arrays:
             return None
-        n = _end(self.traj)
+        n = self.traj.valid_samples()
         t = np.asarray(arrays["t"], dtype=float)[:n]
         y = np.asarray(arrays[field], dtype=float)[:n]
         if y.ndim == 2:
@@ -569,10 +546,20 @@ def _log_limits(ax, series, t_end: float):
     ax.set_ylim(lo, hi)
 
 
-def _save(fig: Figure, path: Path) -> Path:
-    options = _devices.png_options()
-    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=DPI, facecolor="white", **options))
+#: ``savefig`` keywords of every PNG hinfnn writes: zlib level 1 instead of matplotlib's 6, the same
+#: pixels in files about 15 % larger; the six PNGs of ``hinfnn run paper`` encode in 0.41 s instead
+#: of 0.81 s (``python benchmarks/run.py --cases whole``).
+PNG_OPTIONS = {"pil_kwargs": {"compress_level": 1}}
+
+
+def save_png(fig: Figure, path: Path, dpi: int = DPI) -> Path:
+    """Write ``fig`` to ``path`` atomically as a PNG (:data:`PNG_OPTIONS`)."""
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=dpi, facecolor="white", **PNG_OPTIONS))
     return path
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    return save_png(fig, path)
 
 
 def _series(runs: list[_Run], field: str, column: int | None = None, scale: float = 1.0):
@@ -612,13 +599,11 @@ def sparse_note(runs: dict[str, Trajectory]) -> str | None:
     :data:`MIN_SAMPLES_PER_PERIOD` per period of the cosine reference), else None."""
     worst = None
     for traj in runs.values():
-        sc = _scenario(traj)
         t = np.asarray(traj.arrays.get("t", ()))
-        if sc is None or t.ndim != 1 or len(t) < 2:
+        if t.ndim != 1 or len(t) < 2:
             continue
         interval = float(t[1] - t[0])
-        periods = [float(v) for p in (getattr(sc.reference, "u1_period", ()), getattr(sc.reference, "lam_period", ()))
-                   for v in (p if isinstance(p, tuple) else (p,))]
+        periods = _tag(traj, "reference_periods") or []
         if not periods:
             continue
         period = min(periods)  # the cosine references: one period, or one per coordinate
@@ -656,13 +641,12 @@ def paper_figures(runs: dict[str, Trajectory], out_dir, *, suffix: str = "",
                   only: Sequence[str] | None = None) -> list[Path]:
     """Write the paper's Figs. 3–9 (Sec. VI) as PNG files in ``out_dir``; return their paths.
 
-    ``runs`` holds the study's runs under the names ``fl`` (FL-like), ``hinf`` (H∞-only),
-    ``hinf_nn`` (adaptive H∞ NN) and optionally ``hinf_nn_printed`` (the same with the printed
-    F_f centres). ``suffix`` is appended to every file name (``fig5_u1_damped.png``); if some
-    keys of ``runs`` end with it, the runs are looked up as ``NAME + suffix`` (so the whole
-    study, undamped and ``_damped``, can be passed twice). Missing runs are skipped; a figure
-    none of whose runs is present is not written. ``zoom_windows``: the two (start, end) times
-    of the zoom panels A and B (default 6–7 % and 96–98 % of the run's length).
+    ``runs`` holds one contact model's runs of the study, in the study's order; each run's tag
+    ``figures`` says which figures it appears in: "figs3-4" (the FL-like law: Figs. 3–4, and 9)
+    or "figs5-9" (H∞-only and adaptive: Figs. 5–9); runs without it are not drawn.
+    ``suffix`` is appended to every file name (``fig5_u1_damped.png``). A figure none of whose
+    runs is present is not written. ``zoom_windows``: the two (start, end) times of the zoom
+    panels A and B (default 6–7 % and 96–98 % of the run's length).
 
     Files: ``fig3_u1_fl``, ``fig4_lambda_fl`` (FL-like), ``fig5_u1``, ``fig6_lambda``,
     ``fig7_tau1``, ``fig8_tau2`` (H∞-only vs adaptive), ``fig9_J`` (all, log scale); ``only``:
@@ -670,20 +654,15 @@ def paper_figures(runs: dict[str, Trajectory], out_dir, *, suffix: str = "",
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    warn_sparse(runs)
-    use_suffix = bool(suffix) and any(k.endswith(suffix) for k in runs)
+    drawn = {name: traj for name, traj in runs.items() if _tag(traj, "figures") in ("figs3-4", "figs5-9")}
+    warn_sparse(drawn)
 
-    def pick(names):
-        found = []
-        for n in names:
-            key = n + suffix if use_suffix else n
-            if key in runs:
-                found.append((key, runs[key]))
-        return _prepare(found, _paper_label)
+    def pick(groups):
+        return _prepare([(n, t) for n, t in drawn.items() if _tag(t, "figures") in groups], _paper_label)
 
-    fl = pick(["fl"])
-    main = pick(["hinf", "hinf_nn", "hinf_nn_printed"])
-    every = pick(["fl", "hinf", "hinf_nn", "hinf_nn_printed"])
+    fl = pick(("figs3-4",))
+    main = pick(("figs5-9",))
+    every = pick(("figs3-4", "figs5-9"))
     # one colour per controller across all the figures of the set
     colors = {r.name: r.color for r in every}
     fl = [dataclasses.replace(r, color=colors[r.name]) for r in fl]
@@ -758,14 +737,9 @@ def _width(runs, field: str) -> int:
 
 def _joint_title(runs, i: int) -> str:
     for r in runs:
-        sc = _scenario(r.traj)
-        names = getattr(sc, "joint_names", None) if sc is not None else None
-        if names is not None:
-            try:
-                js = names()
-                return f"joint {i + 1}: {js[i]}" if i < len(js) else f"joint {i + 1}"
-            except Exception:  # noqa: BLE001
-                return f"joint {i + 1}"
+        js = _tag(r.traj, "joints")
+        if js:
+            return f"joint {i + 1}: {js[i]}" if i < len(js) else f"joint {i + 1}"
     return f"joint {i + 1}"
 
 

@@ -53,10 +53,11 @@ def replot(folder, *, only: Sequence[str] | None = None, out=None,
         dest.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise ConfigError(f"cannot create folder {dest}: {err.strerror or err}", key="--out") from None
-    if study:
-        paper = {n: t for n, t in result.trajectories.items() if not n.startswith("hinf_exact")}
-        written = (paper_figures(paper, dest, only=only, zoom_windows=zoom_windows)
-                   + paper_figures(paper, dest, suffix="_damped", only=only, zoom_windows=zoom_windows))
+    if study:  # the study's runs by their contact tag (their ``figures`` tag says which figures)
+        written = []
+        for contact, suffix in (("undamped", ""), ("damped", "_damped")):
+            runs = {n: t for n, t in result.trajectories.items() if t.info.tags.get("contact") == contact}
+            written += paper_figures(runs, dest, suffix=suffix, only=only, zoom_windows=zoom_windows)
     else:
         written = run_figures(result.trajectories, dest, only=only, zoom_windows=zoom_windows)
     add_to_marker(dest, [p.name for p in written])

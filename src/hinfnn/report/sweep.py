@@ -29,8 +29,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import LogLocator, MaxNLocator, NullFormatter
 
-from .. import _devices
-from ..io import atomic_write, atomic_write_text
+from ..io import atomic_write_text
+from .figures import save_png
 
 DPI = 130
 _OUTCOMES = [  # (name, colour, label)
@@ -44,9 +44,7 @@ _OUTCOMES = [  # (name, colour, label)
 
 
 def _save(fig: Figure, path: Path) -> Path:
-    options = _devices.png_options()
-    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=DPI, facecolor="white", **options))
-    return path
+    return save_png(fig, path, dpi=DPI)
 
 
 def _label(meta, kind):

@@ -56,7 +56,8 @@ def check(sc) -> None:
                           f"Cartesian shapes (true: {sc.plant.surface.kind!r}, nominal: {sc.nominal.surface.kind!r})",
                           key="nominal.surface.kind")
     cartesian = geo[0]
-    plant = sc.build_plant()
+    setup = sc.build()
+    plant = setup.plant
     n = int(plant.n)
     if len(d.amplitude) != n:
         raise ConfigError(f"must be a list of {n} numbers (one per joint), got {list(d.amplitude)!r}",
@@ -65,7 +66,7 @@ def check(sc) -> None:
         _check_cartesian(sc, plant)
     elif isinstance(sc.initial.u1, tuple):
         raise ConfigError(f"must be a number (m = 1 for this surface), got {list(sc.initial.u1)}", key="initial.u1")
-    constraint = sc.build_constraint() if cartesian else sc.nominal.surface.build()
+    constraint = setup.constraint
     m, k = constraint.m, constraint.k
     rm, rk = sc.reference.sizes()
     for name, got, want in (("u1_offset", rm, m), ("lam_offset", rk, k)):
@@ -73,7 +74,7 @@ def check(sc) -> None:
             what = "motion" if name.startswith("u1") else "force"
             raise ConfigError(f"gives {got if got != -1 else 'lists of different lengths of'} {what} coordinates, the "
                               f"task coordinates have {want} (m = {m}, k = {k})", key=f"reference.{name}")
-    q0 = np.asarray(sc.initial_q(plant))
+    q0 = setup.q0
     if not np.all(np.isfinite(q0)):
         if cartesian:
             raise ConfigError(f"u1(0) = {_fmt(sc.initial.u1)} on the true surface: the start pose was not found from "
@@ -83,7 +84,7 @@ def check(sc) -> None:
         between = f" (|x| must be between {reach()[0]:g} and {reach()[1]:g} m)" if reach else ""
         raise ConfigError(f"u1(0) = {_fmt(sc.initial.u1)} on the true surface is out of the true arm's reach{between}",
                           key="initial.u1")
-    controllers = [sc.build_controller(kind) for kind in sc.kinds]
+    controllers = [setup.controller(kind) for kind in sc.kinds]
     for ctrl in controllers:
         ctrl.check_start(q0)
     if cartesian:
@@ -100,7 +101,7 @@ def _check_path_against_singularity(sc, q0) -> None:
     from ..controllers.law import nominal_sigma_min
     from ..errors import DesignError
 
-    arm, surface = sc.nominal.arm.build(), sc.nominal.surface.build()
+    arm, surface = sc.build().nominal_arm, sc.build().nominal_surface
     lo, hi = sc.reference.u1_range()
     worst = min(((float(nominal_sigma_min(arm, q)), u1) for u1, q in path_poses(arm, surface, (lo, hi), q0)), key=lambda p: p[0])
     stop = sc.controller.singularity_stop
@@ -146,7 +147,7 @@ def _check_path(sc, ctrl, q0) -> None:
     import jax.numpy as jnp
 
     task = getattr(ctrl.arm, "task", None)
-    ref = sc.build_reference()
+    ref = sc.build().reference
     t = jnp.linspace(0.0, sc.simulation.t_final, 201)
     surf = ctrl.surface
     margin, pi = _path_quantities(task, surf, ref, t)
@@ -220,5 +221,5 @@ def _force_scale(sc) -> float:
     from ..reference import lam_d_at
 
     t = jnp.linspace(0.0, sc.simulation.t_final, 201)
-    lam = np.asarray(lam_d_at(sc.build_reference(), t))
+    lam = np.asarray(lam_d_at(sc.build().reference, t))
     return float(np.max(np.abs(lam))) if lam.size else 0.0

@@ -21,7 +21,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import difflib
-import inspect
+import functools
 import math
 import tomllib
 from importlib import resources
@@ -112,128 +112,63 @@ class Scenario:
         return self.controller.kinds
 
     # --- building the library objects ----------------------------------------------------------------
+    def build(self):
+        """The scenario's objects, each built once (:class:`~hinfnn.scenario.setup.Setup`): task
+        map, true plant, nominal arm and constraint, reference, start pose, controllers by kind,
+        simulation options, coordinate and joint names."""
+        return self._setup
+
+    @functools.cached_property
+    def _setup(self):
+        from .setup import Setup
+
+        return Setup(self)
+
     def task_map(self):
-        """The task map (:mod:`hinfnn.model.taskmap`) the arms are built with; None for the arm's
-        native coordinates (the two_link arm of Sec. VI)."""
-        if not self.nominal.arm.task_maps and self.task.map != "native":
-            raise ConfigError(f"the {self.nominal.arm.model!r} arm has only its native task coordinates (the tip "
-                              "position); use arm model \"planar\" or \"urdf\" for other coordinates", key="task.map")
-        geometry = None
-        if self.task.fitted:
-            geometry = self.nominal.surface.build()
-        return self.task.build(self.nominal.arm, geometry)
+        """The task map both arms are built with; None for the arm's native coordinates."""
+        return self.build().task
 
     def build_plant(self):
         """The true plant (``plant.engine`` chooses the class)."""
-        s = self.simulation
-        return self.plant.build(task=self.task_map(), dt=s.dt,
-                                control_period=s.control_period if s.control == "sampled" else None)
+        return self.build().plant
 
-    def build_arm(self, who: str):
-        return getattr(self, who).arm.build(self.task_map(), key=f"{who}.arm")
-
-    def build_surface(self, who: str):
-        """The surface as its kind builds it: a task-space constraint (inclined_line) or a
-        Cartesian shape (:mod:`hinfnn.model.geometry`)."""
-        return getattr(self, who).surface.build()
-
-    def build_constraint(self, arm=None):
-        """The controller's constraint θ̂(x) in task coordinates: the nominal surface itself for a
-        task-space kind; for a Cartesian shape, θ̂ = d in fitted coordinates
-        (:class:`~hinfnn.model.surface.FittedConstraint`) or θ̂(x) = θ(point(x))
-        (:class:`~hinfnn.model.surface.TaskConstraint`), with m = n − 1 and k = 1."""
-        from ..model.geometry import Geometry
-        from ..model.surface import FittedConstraint, TaskConstraint
-
-        surface = self.nominal.surface.build()
-        if not isinstance(surface, Geometry):
-            return surface
-        arm = arm if arm is not None else self.build_arm("nominal")
-        m = arm.n - 1
-        if self.task.fitted:
-            return FittedConstraint(m=m, k=1)
-        task = self.task_map() if self.task.map != "native" else self.nominal.arm.native_task()
-        if task is None:
-            raise ConfigError(f"a {self.nominal.surface.kind!r} surface needs task coordinates that contain the tool "
-                              "point: set task.map", key="task.map")
-        return TaskConstraint(geometry=surface, task=task, m=m, k=1)
+    def build_constraint(self):
+        """The controller's constraint θ̂(x) in task coordinates (:attr:`Setup.constraint`)."""
+        return self.build().constraint
 
     def coordinate_names(self) -> list[tuple[str, str]] | None:
-        """Names and units of the task coordinates (motion coordinates first, the constrained one
-        last), or None for the native coordinates of the two_link arm (x1, x2)."""
-        task = self.task_map()
-        return None if task is None else task.names()
+        """Names and units of the task coordinates, or None for the two_link arm's (x1, x2)."""
+        return self.build().coordinate_names
 
     def joint_names(self) -> list[str]:
         """The moving joints' names (URDF), or joint1 … jointn."""
-        arm = self.build_arm("nominal")
-        chain = getattr(arm, "chain", None)
-        return list(chain.joint_names) if chain is not None else [f"joint{i + 1}" for i in range(arm.n)]
+        return self.build().joint_names
 
     def build_reference(self):
-        ref = self.reference
-        if "m" in inspect.signature(ref.build).parameters:
-            n = self.nominal.arm.build(self.task_map(), key="nominal.arm").n
-            return ref.build(m=n - 1, k=1)
-        return ref.build()
+        return self.build().reference
 
     @property
     def control_period(self) -> float | None:
-        """The period the controller runs at: ``simulation.control_period`` under sampled
-        control, the simulation step for a plant that steps itself (MuJoCo: the torque is held
-        over each of its steps), None for continuous control. The controller is designed for it
-        (the force-rate term's κ and filter)."""
-        s = self.simulation
-        if s.control == "sampled":
-            return s.control_period
-        return s.dt if type(self.plant).discrete else None
+        """The period the controller runs at (:attr:`Setup.control_period`)."""
+        return self.build().control_period
 
     def build_controller(self, kind: str | None = None):
         """Design the controller ``kind`` (default: the scenario's only kind) from the NOMINAL
         model. Raises :class:`DesignError` with the dotted key of the failing gain."""
-        kind = kind or _only(self.kinds)
-        arm = self.build_arm("nominal")
-        u1_range = q_start = None
-        if self.controller.force_rate.kappa != 0.0:
-            if self.nominal.arm.model != "two_link" or self.nominal.surface.kind != "inclined_line":
-                raise ConfigError("the force-rate term is designed for the two_link arm on an inclined_line (its κ "
-                                  "rule uses the normal mass along the line's path; docs/beyond-the-paper.md), got "
-                                  f"a {self.nominal.arm.model!r} arm on a {self.nominal.surface.kind!r}; set it to 0",
-                                  key="controller.force_rate.kappa")
-            u1_range = self.reference.u1_range()
-            q_start = self.initial_q()
-        return self.controller.build(kind, arm, self.build_constraint(arm), u1_range=u1_range, q_start=q_start,
-                                     period=self.control_period)
+        return self.build().controller(kind)
 
     def initial_q(self, plant=None):
-        """The start pose (the truth: inverse kinematics of the true arm onto the true surface)."""
-        plant = plant or self.build_plant()
-        if getattr(plant, "cartesian", False):
-            guess = self.initial.q_guess or None
-            return plant.initial_q(self.initial.u1, elbow_up=self.initial.elbow == "up", q_guess=guess)
-        return plant.initial_q(self.initial.u1, elbow_up=self.initial.elbow == "up")
+        """The start pose (the truth: inverse kinematics of the true arm onto the true surface);
+        ``plant``: another plant than the scenario's own."""
+        return self.build().q0 if plant is None else self.build().start_pose(plant)
 
     def sim_options(self) -> dict:
         """Keyword arguments of :func:`hinfnn.simulate` for this scenario."""
-        s = self.simulation
-        return dict(t_final=s.t_final, dt=s.dt, save_interval=s.output_interval,
-                    control_period=self.control_period, limits=s.limits())
+        return self.build().options()
 
-    def run(self, kind: str | None = None, name: str | None = None, *, controller=None):
+    def run(self, kind: str | None = None, name: str | None = None, *, info=None, controller=None):
         """The :class:`hinfnn.sim.Run` of one controller kind (default: the only one)."""
-        from ..controllers import KINDS
-        from ..sim import Run, RunInfo
-
-        kind = kind or _only(self.kinds)
-        one = self.single(kind)
-        plant = one.build_plant()
-        comp = KINDS[kind]
-        info = RunInfo(name=name or kind, kind=kind, label=comp.label, color=comp.color, scenario=one)
-        opts = one.sim_options()
-        return Run(name=name or kind, plant=plant, controller=controller or one.build_controller(kind),
-                   reference=one.build_reference(), q0=one.initial_q(plant), t_final=opts["t_final"],
-                   dt=opts["dt"], control_period=opts["control_period"], save_interval=opts["save_interval"],
-                   limits=opts["limits"], info=info)
+        return self.build().run(kind, name, info=info, controller=controller)
 
     def simulate(self, kind: str | None = None, **options):
         """Run one controller (default: the only kind) and return its Trajectory."""
@@ -419,12 +354,6 @@ def _unknown_override(err: ConfigError, items) -> ConfigError:
 def load_scenario(name_or_path: str | Path = "paper", overrides=(), *, check: bool = True) -> Scenario:
     """Shortcut for :meth:`Scenario.load`."""
     return Scenario.load(name_or_path, overrides, check=check)
-
-
-def _only(kinds):
-    if len(kinds) != 1:
-        raise ConfigError(f"the scenario lists {len(kinds)} controllers {kinds}; name one", key="controller.kind")
-    return kinds[0]
 
 
 # --- the F_f presets ------------------------------------------------------------------------------------

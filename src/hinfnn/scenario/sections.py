@@ -929,7 +929,8 @@ class ReferenceConfig:
     __registry__ = REFERENCES
     kind: str = param(doc="reference kind")
 
-    def build(self):
+    def build(self, m: int | None = None, k: int | None = None):
+        """The reference object for m motion and k force coordinates (None: as the section gives)."""
         raise NotImplementedError
 
     def sizes(self) -> tuple[int | None, int | None]:
@@ -955,7 +956,7 @@ class CosineConfig(ReferenceConfig):
         """The span of u1d(t)."""
         return self.u1_offset - abs(self.u1_amplitude), self.u1_offset + abs(self.u1_amplitude)
 
-    def build(self):
+    def build(self, m: int | None = None, k: int | None = None):
         import jax.numpy as jnp
 
         from ..reference import CosineReference
@@ -1015,7 +1016,7 @@ class CosinesConfig(ReferenceConfig):
     def build(self, m: int | None = None, k: int | None = None):
         import jax.numpy as jnp
 
-        from ..reference import SmoothCosineReference
+        from ..reference import CosineReference
 
         m0, k0 = self.sizes()
         m = m or m0 or 1
@@ -1024,7 +1025,7 @@ class CosinesConfig(ReferenceConfig):
         def v(key, n, f=lambda x: x):
             return jnp.asarray(f(per_item(getattr(self, key), n, f"reference.{key}", "one per coordinate")))
 
-        return SmoothCosineReference(
+        return CosineReference(
             u1_offset=v("u1_offset", m), u1_amplitude=v("u1_amplitude", m),
             u1_omega=v("u1_period", m, lambda p: 2 * math.pi / p), u1_phase=v("u1_phase", m),
             lam_offset=v("lam_offset", k), lam_amplitude=v("lam_amplitude", k),

@@ -6,6 +6,7 @@ import dataclasses
 from typing import Any
 
 from .._pytree import structure_key
+from .plan import DEFAULT_SAVE_INTERVAL, StepPlan
 from .simulate import Limits, simulate, simulate_batch
 from .trajectory import RunInfo, Trajectory
 
@@ -22,13 +23,19 @@ class Run:
     t_final: float
     dt: float
     control_period: float | None = None
-    save_interval: float = 1e-3
+    save_interval: float = DEFAULT_SAVE_INTERVAL
     limits: Limits = Limits()
     info: RunInfo = RunInfo()
 
+    def plan(self, save_every: int | None = None) -> StepPlan:
+        """The run's :class:`~hinfnn.sim.plan.StepPlan` (``save_every`` overrides the output
+        interval)."""
+        return StepPlan.make(self.t_final, self.dt, control_period=self.control_period,
+                             save_interval=self.save_interval, save_every=save_every, discrete=self.plant.discrete)
+
     @property
     def n_steps(self) -> int:
-        return round(self.t_final / self.dt)
+        return self.plan().n_steps
 
     def group_key(self):
         """Runs with equal keys share one compiled program (and run as one batch): the pytree
@@ -45,7 +52,8 @@ def simulate_many(runs: list[Run], *, progress=None, save_every: int | None = No
 
     Returns ``{name: Trajectory}`` in the order given. Runs that diverge are marked in their
     Trajectory's ``status``; they never stop the others. ``progress(steps_done, steps_total,
-    names)`` is called after every compiled chunk (steps summed over all runs). A group of one
+    what)`` is called after every compiled chunk (steps summed over all runs; ``what``: the names
+    of the runs being simulated). A group of one
     runs without ``vmap`` (faster to trace and to run). ``save_every`` overrides the runs'
     ``save_interval`` for what is kept in memory.
     """
@@ -59,9 +67,9 @@ def simulate_many(runs: list[Run], *, progress=None, save_every: int | None = No
         first = items[0]
         names = [r.name for r in items]
 
-        def report(done, _total, names=names, base=finished, width=len(items)):
+        def report(done, _total, _what="", names=names, base=finished, width=len(items)):
             if progress:
-                progress(base + done * width, total, names)
+                progress(base + done * width, total, ", ".join(names))
 
         common = dict(t_final=first.t_final, dt=first.dt, control_period=first.control_period,
                       save_interval=first.save_interval, save_every=save_every, fields=fields,

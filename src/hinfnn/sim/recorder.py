@@ -4,11 +4,12 @@ samples, and the theorem bookkeeping integrated along the run.
 Every recorded quantity is a named field of :data:`hinfnn.fields.FIELDS` (one table, with
 units). A record is assembled from what the parts produce, never from a list in the simulator:
 
-* the plant's ``diagnostics`` (q, q̇, F, normal force, penetration, disturbance, true position);
-* the controller's ``signals`` (u1, λ, errors, z, τ and whatever its terms declare: v_p, v_λ,
-  the networks' outputs and weight norms ...);
-* the bookkeeping of Theorems 1–2 when the controller provides ``dissipation``: J, J_aug and
-  the supply integrated as states (:class:`Accumulators`), V, f_p, f_f;
+* the plant's :class:`~hinfnn.protocols.PlantRecord` (the penetration, and q, q̇, normal force,
+  disturbance, true position ...);
+* the controller's :class:`~hinfnn.protocols.ControllerOutput`: τ, e_u1, e_λ and its ``signals``
+  (u1, λ, z and whatever its terms declare: v_p, v_λ, the networks' outputs and weight norms ...);
+* the bookkeeping of Theorems 1–2 when the controller is :class:`~hinfnn.protocols.Dissipative`:
+  J, J_aug and the supply integrated as states (:class:`Accumulators`), V, f_p, f_f;
 * the step summaries (:data:`STEP_SUMS`, :data:`STEP_MAXES`, peak and total variation of τ), so
   that metrics cover every step whatever the decimation of the stored samples.
 """
@@ -21,6 +22,7 @@ import jax.numpy as jnp
 from .._pytree import pytree_dataclass
 from ..errors import ConfigError
 from ..fields import FIELDS, METRICS_FIELDS
+from ..protocols import Dissipative
 
 
 @pytree_dataclass
@@ -39,16 +41,14 @@ class Accumulators:
 
 
 def bookkeeping(controller, xc, out, qd, qdd, acc: Accumulators):
-    """(rates of the accumulators, recorded fields) at one instant. Controllers without a
-    ``dissipation`` method get zero rates and record nothing of it."""
-    diss = getattr(controller, "dissipation", None)
-    if diss is None:
+    """(rates of the accumulators, recorded fields) at one instant. A controller that is not
+    :class:`~hinfnn.protocols.Dissipative` gets zero rates and records nothing of it."""
+    if not isinstance(controller, Dissipative):
         zero = jnp.zeros(())
         return Accumulators(J=zero, J_aug=zero, supply=zero), {}
-    d = diss(xc, out, qd, qdd)
-    rates = Accumulators(J=d["j"], J_aug=d["j"] + d["j_extra"], supply=d["supply"])
-    return rates, {"J": acc.J, "J_aug": acc.J_aug, "supply": acc.supply, "V": d["V"], "f_p": d["f_p"],
-                   "f_f": d["f_f"]}
+    d = controller.dissipation(xc, out, qd, qdd)
+    rates = Accumulators(J=d.j, J_aug=d.j + d.j_extra, supply=d.supply)
+    return rates, {"J": acc.J, "J_aug": acc.J_aug, "supply": acc.supply, "V": d.V, "f_p": d.f_p, "f_f": d.f_f}
 
 
 #: A step is out of contact when the end-effector is more than this above the true surface (m):

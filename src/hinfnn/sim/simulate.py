@@ -1,29 +1,33 @@
 """Closed-loop simulation: plant, controller and bookkeeping integrated together in ``lax.scan``.
 
-The simulator knows the plant and the controller only through :mod:`hinfnn.protocols`:
+The simulator knows the plant and the controller only through :mod:`hinfnn.protocols` (checked
+once, by :func:`hinfnn.protocols.check`, before anything is traced):
 
-* a *continuous* plant (``plant.discrete`` False) is integrated with the controller state and
+* a *continuous* plant (:class:`~hinfnn.protocols.ContinuousPlant`) is integrated with the controller state and
   the accumulators by fixed-step RK4 (:func:`~hinfnn.sim.integrate.rk4_step`), the controller
   evaluated at every stage from that stage's measurement (the paper's continuous-time control),
   or held by a zero-order hold between samples (``control_period``: τ computed at each sample
   instant by the controller's ``sample`` method, its state advanced by forward Euler over the
   period);
-* a *discrete* plant (a physics engine) advances itself by ``plant.step`` every ``dt`` with the
-  held torque; it always runs in the sampled-data mode, and the accumulators advance by the
-  rectangle rule.
+* a *discrete* plant (:class:`~hinfnn.protocols.DiscretePlant`, a physics engine) advances itself by
+  ``plant.step`` every ``dt`` with the held torque; it always runs in the sampled-data mode, and
+  the accumulators advance by the rectangle rule.
 
-A run is a jit-compiled program over a chunk of stored samples (about :data:`CHUNK_STEPS`
-steps, :func:`chunk_records`), called from a Python loop over chunks (never over steps): a single
+The steps, the controller's period and the stored samples are a :class:`~hinfnn.sim.plan.StepPlan`.
+A run is a jit-compiled program over a chunk of stored samples (about
+:data:`~hinfnn.sim.plan.CHUNK_STEPS` steps, :meth:`~hinfnn.sim.plan.StepPlan.chunk`), called from
+a Python loop over chunks (never over steps): a single
 run's compiled program is the same for every horizon, dt, output interval and choice of stored
 fields (a batch's, within one of three sizes of chunk), progress is reported and Ctrl-C is
 honoured between chunks.
 Inside a chunk, an outer scan takes one stored sample every ``save_every`` steps and an inner
 loop runs the steps between them, keeping the record of the first (the RK4 step's first stage is
 the evaluation at the sample instant, so the dynamics appear in the program once per RK4 stage,
-not again for the samples); every buffer it touches is small (see :mod:`hinfnn._devices`,
-``blocks``). The same program takes the last sample (t_final) in the chunk that reaches it, so a
-run structure compiles one large program (the final state is read from the last carry by a
-small one). What a sample holds is the recorder's business (:mod:`hinfnn.sim.recorder`).
+not again for the samples); how the program is written for XLA's CPU runtime is a
+:class:`~hinfnn._loop.LoopOptions` value, part of the program's key. The same program takes the last
+sample (t_final) in the chunk that reaches it, so a run structure compiles one large program (the
+final state is read from the last carry by a small one). What a sample holds is the recorder's
+business (:mod:`hinfnn.sim.recorder`); how a run ended is a :class:`~hinfnn.status.RunStatus`.
 
 The plant's held input (the joint disturbance) is evaluated at each step's midpoint; steps land
 on its switching instants when dt divides them (checked by the scenario loader).
@@ -42,25 +46,25 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _devices as dev
+from .. import _loop
+from .._loop import LoopOptions
 from .._pytree import all_finite, pytree_dataclass, structure_key
 from ..errors import ConfigError, SimulationError
+from ..protocols import check as check_protocols
+from ..status import RunStatus, status_of
 from .integrate import rk4_step
+from .plan import SINGLE_RECORDS, StepPlan
 from .recorder import STEP_MAXES, STEP_SUMS, Accumulators, bookkeeping, pick, select
-from .trajectory import STATUS, RunInfo, Trajectory
+from .trajectory import RunInfo, Trajectory
 
 
 @pytree_dataclass
 class SimState:
-    """The integrated state: the plant's, the controller's (loop layout) and the accumulators."""
+    """The integrated state: the plant's, the controller's (opaque) and the accumulators."""
 
     plant: object
     xc: object
     acc: Accumulators
-
-
-#: Bits of ``fail_details["nonfinite_parts"]``: which part of the state became non-finite.
-NONFINITE_PARTS = ("plant state (q, q̇)", "controller state z, Θ̂", "accumulated J, V-supply")
 
 
 @pytree_dataclass
@@ -72,59 +76,29 @@ class Limits:
 
 
 def _evaluate(plant, ctrl, ref, t, y: SimState, w, held, sampled):
-    """Measurement, controller output, applied τ, and the record's plant and controller parts."""
+    """Measurement, controller output, applied τ, and the record's plant and controller parts
+    (keys starting with "_" are the simulator's own: the fault flags and measures)."""
     meas, cache = plant.sense(t, y.plant)
     out = ctrl.evaluate(t, y.xc, meas, ref)
     tau = held if sampled else out.tau
-    record = {"t": jnp.asarray(t, dtype=float), **plant.diagnostics(y.plant, w, cache), **out.signals, "tau": tau,
-              "_fault": getattr(out, "fault", jnp.array(False))}
+    pr = plant.record(y.plant, w, cache)
+    record = {"t": jnp.asarray(t, dtype=float), **pr.signals, "penetration": pr.penetration, **out.signals,
+              "tau": tau, "e_u1": out.e_u1, "e_lam": out.e_lam,
+              "_cfault": jnp.asarray(out.fault), "_cfault_value": jnp.asarray(out.fault_value, dtype=float),
+              "_pfault": jnp.asarray(pr.fault), "_pfault_value": jnp.asarray(pr.fault_value, dtype=float)}
     return meas, cache, out, tau, record
 
 
-def _rhs(plant, ctrl, ref, t, y: SimState, w, held, sampled):
-    """Time derivative of the whole state (continuous plants), and the record at (t, y)."""
+def rhs(plant, ctrl, ref, t, y: SimState, w, held=None, sampled: bool = False):
+    """Time derivative of the whole closed-loop state of a continuous plant (plant, controller,
+    accumulators) at (t, y) under the held input w, and the record there. The function the
+    simulator integrates, and that :mod:`hinfnn.analysis` linearises. ``held``/``sampled``: the
+    torque held by the sampled-data path (the controller state is then frozen between samples)."""
     meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, sampled)
     dplant, qdd = plant.derivative(t, y.plant, tau, w, cache)
     rates, book = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
     dxc = jax.tree.map(jnp.zeros_like, out.dstate) if sampled else out.dstate
     return SimState(plant=dplant, xc=dxc, acc=rates), {**record, **book}
-
-
-#: Steps per compiled chunk, about: a run is a Python loop over chunks of one jit-compiled program
-#: (progress, Ctrl-C and one compilation for every horizon), never a loop over time steps.
-CHUNK_STEPS = 2000
-#: Record slots of a single run's chunk program (:func:`chunk_records`).
-SINGLE_RECORDS = 200
-
-
-def records_per_chunk(save_every: int) -> int:
-    """Stored samples per compiled chunk of a BATCH for a sample every ``save_every`` steps: 2000
-    for every step, 200 for 2–10 steps between samples (400–2,000 steps per chunk), 20 beyond
-    (220 steps or more: 20,000 for one sample per 1,000 steps, a few seconds of computing between
-    progress reports). ``save_every`` is a traced argument of the chunk program, so every output
-    interval and dt with the same count shares one program."""
-    if save_every <= 1:
-        return CHUNK_STEPS
-    return CHUNK_STEPS // 10 if save_every <= 10 else CHUNK_STEPS // 100
-
-
-def chunk_records(save_every: int, batched: bool) -> tuple[int, int]:
-    """(record slots of the compiled chunk program, samples a chunk takes) for a sample every
-    ``save_every`` steps.
-
-    A single run has one program whatever it stores and however often: :data:`SINGLE_RECORDS`
-    slots, of which a chunk fills about :data:`CHUNK_STEPS` steps' worth (200 for 1–10 steps
-    between samples, 182 for 11, 20 for 100, 1 from 2,000 on); the slots it leaves run no step.
-    The count is a traced argument, so a new output interval, dt, horizon or ``fields`` reuses the
-    compiled program. An unused slot runs no step (in the sampled mode it still evaluates the
-    controller's sample, as the padding records past t_final always did); measured on the paper's
-    adaptive 10-s run storing every 100th step (180 of 200 slots unused per chunk), the cost is
-    within this machine's ±20 % noise. A batch keeps a program per chunk size and per ``fields``
-    (:func:`records_per_chunk`): its records are B times larger, and its slots are all used."""
-    if batched:
-        n = records_per_chunk(save_every)
-        return n, n
-    return SINGLE_RECORDS, max(1, min(SINGLE_RECORDS, -(-CHUNK_STEPS // save_every)))
 
 
 @pytree_dataclass
@@ -139,12 +113,12 @@ class Carry:
 
     y: SimState
     held: jax.Array  # the zero-order-held torque (sampled mode)
-    status: jax.Array
+    status: jax.Array  # a RunStatus value
     t_fail: jax.Array
     bad_tau: jax.Array
     bad_pen: jax.Array
     bad_parts: jax.Array
-    bad_sigma: jax.Array
+    bad_fault: jax.Array  # the fault measure of the controller or the plant that stopped the run
     tau_peak: jax.Array
     tau_tv: jax.Array
     tau_prev: jax.Array
@@ -155,9 +129,9 @@ class Carry:
 def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rolled=None):
     """(sample, step): the sampled-mode controller update at step k, and one step k -> k + 1
     with failure detection (a no-op for k ≥ n_steps) that also returns the record at step k.
-    ``rolled``: RK4's stages as a loop (default: the ``rolled_rk4`` device's choice)."""
-    discrete = bool(getattr(plant, "discrete", False))
-    rolled = dev.rolled_rk4(plant.n) if rolled is None else rolled
+    ``rolled``: RK4's stages as a loop (default: the active loop options' choice)."""
+    discrete = plant.discrete
+    rolled = _loop.current().rolled(plant.n) if rolled is None else rolled
 
     def sample(c: Carry, k, skip=False):
         """At a sample instant: τ held from now on, controller state advanced by the controller's
@@ -181,7 +155,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             rates, book = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
             acc = jax.tree.map(lambda a, r: a + dt * r, y.acc, rates)
             return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **book}
-        y_new, aux = rk4_step(lambda tt, yy: _rhs(plant, ctrl, ref, tt, yy, w, held, sampled), t, y, dt,
+        y_new, aux = rk4_step(lambda tt, yy: rhs(plant, ctrl, ref, tt, yy, w, held, sampled), t, y, dt,
                               rolled=rolled)
         return SimState(plant=y_new.plant, xc=ctrl.constrain(y_new.xc), acc=y_new.acc), aux
 
@@ -204,10 +178,11 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         pen = aux["penetration"]
         finite_parts = (all_finite(y_new.plant), all_finite(y_new.xc), all_finite(y_new.acc))
         parts = sum(jnp.where(ok, 0, 1 << i) for i, ok in enumerate(finite_parts)).astype(jnp.int32)
-        code = jnp.where(parts != 0, 1,
-                         jnp.where(tau_peak > limits.torque, 2,
-                                   jnp.where(pen > limits.penetration, 3, jnp.where(aux["_fault"], 4, 0))))
-        code = jnp.where(active, code, 0)
+        code = jnp.select([parts != 0, tau_peak > limits.torque, pen > limits.penetration, aux["_cfault"],
+                           aux["_pfault"]],
+                          [int(RunStatus.NONFINITE), int(RunStatus.TORQUE_LIMIT), int(RunStatus.PENETRATION_LIMIT),
+                           int(RunStatus.CONTROLLER_FAULT), int(RunStatus.PLANT_FAULT)], int(RunStatus.OK))
+        code = jnp.where(active, code, int(RunStatus.OK))
         status = c.status
         first_fail = (status == 0) & (code != 0)
         status = jnp.where(status == 0, code, status)
@@ -224,7 +199,8 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             bad_tau=jnp.where(first_fail, tau_peak, c.bad_tau),
             bad_pen=jnp.where(first_fail, pen, c.bad_pen),
             bad_parts=jnp.where(first_fail, parts, c.bad_parts),
-            bad_sigma=jnp.where(first_fail, aux.get("sigma_min_J", jnp.nan), c.bad_sigma),
+            bad_fault=jnp.where(first_fail, jnp.where(code == int(RunStatus.PLANT_FAULT), aux["_pfault_value"],
+                                                      aux["_cfault_value"]), c.bad_fault),
             tau_peak=stat(rec["tau_abs_max"], c.tau_peak),
             tau_tv=stat(c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
             tau_prev=jnp.where(count | first, tau, c.tau_prev),
@@ -274,41 +250,52 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
 
 
 def _final(plant, ctrl, carry):
-    """The full final state (controller state flat again) and why the run stopped, from the
+    """The full final state (the controller's arrays by name) and why the run stopped, from the
     carry after the last chunk."""
     y_end = carry.y
     q, qd = plant.joints(y_end.plant)
-    xc = ctrl.from_loop(y_end.xc)
-    final = dict(q=q, qd=qd, z=xc.z, **xc.parts, J=y_end.acc.J, J_aug=y_end.acc.J_aug, supply=y_end.acc.supply)
+    final = dict(q=q, qd=qd, **ctrl.state_arrays(y_end.xc), J=y_end.acc.J, J_aug=y_end.acc.J_aug,
+                 supply=y_end.acc.supply)
     details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts,
-                   sigma_min_J=carry.bad_sigma)
+                   fault_value=carry.bad_fault)
     return carry.status, carry.t_fail, details, final
 
 
 def _init_carry(ctrl, y0, n):
-    """The first carry, with the controller state in the loop layout, strongly typed so that the
-    carry a chunk returns has the same types (no second compile)."""
+    """The first carry, strongly typed so that the carry a chunk returns has the same types (no
+    second compile)."""
     f64 = jnp.float64
     zero = jnp.zeros((), f64)
-    y0 = SimState(plant=y0.plant, xc=ctrl.to_loop(y0.xc), acc=y0.acc)
-    # per-coordinate sums: e_u1 has the controller's m entries, e_λ its k (1 if it does not say)
-    sizes = {"tau_sq": n, "e_u1_sq": getattr(ctrl, "m", 1), "e_lam_sq": getattr(ctrl, "k", 1)}
+    # per-coordinate sums: e_u1 has the controller's m entries, e_λ its k
+    sizes = {"tau_sq": n, "e_u1_sq": ctrl.m, "e_lam_sq": ctrl.k}
     return Carry(y=y0, held=jnp.zeros(n, f64), status=jnp.zeros((), jnp.int32),
                  t_fail=jnp.array(jnp.nan, dtype=f64), bad_tau=zero, bad_pen=zero,
-                 bad_parts=jnp.zeros((), jnp.int32), bad_sigma=jnp.array(jnp.nan, dtype=f64),
+                 bad_parts=jnp.zeros((), jnp.int32), bad_fault=jnp.array(jnp.nan, dtype=f64),
                  tau_peak=jnp.zeros(n, f64), tau_tv=jnp.zeros(n, f64),
                  tau_prev=jnp.full(n, jnp.nan, f64),
                  sums={k: jnp.zeros(sizes.get(k, ()), f64) for k in STEP_SUMS},
                  maxes={k: jnp.zeros((), f64) for k in STEP_MAXES})
 
 
+def _with_options(fn, loop: LoopOptions):
+    """``fn`` traced with ``loop`` active (:func:`hinfnn._loop.active`)."""
+
+    @functools.wraps(fn)
+    def traced(*args):
+        with _loop.active(loop):
+            return fn(*args)
+
+    return traced
+
+
 @functools.lru_cache(maxsize=128)
-def _compiled(in_axes, n_records, sampled, fields):
-    """(chunk, final, init) compiled for one structure; in_axes=None for a single run.
+def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptions()):
+    """(chunk, final, init) compiled for one structure; in_axes=None for a single run; traced with
+    the loop options ``loop`` (part of the key).
 
     Horizon, dt, the hold period, the steps between samples and the samples a chunk takes are
     traced arguments, so a new t_final, dt or output interval reuses the compiled program (see
-    :func:`chunk_records`)."""
+    :meth:`~hinfnn.sim.plan.StepPlan.chunk`)."""
     chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields)
     final, init = _final, _init_carry
     if in_axes is not None:
@@ -316,23 +303,23 @@ def _compiled(in_axes, n_records, sampled, fields):
         chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None, None, None))
         final = jax.vmap(final, in_axes=(p, c, 0))
         init = jax.vmap(_init_carry, in_axes=(c, 0, None))
-    return jax.jit(chunk), jax.jit(final), jax.jit(init, static_argnums=2)
+    return (jax.jit(_with_options(chunk, loop)), jax.jit(_with_options(final, loop)),
+            jax.jit(_with_options(init, loop), static_argnums=2))
 
 
-def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold, dt, n_joints,
-           fields, progress=None):
+def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, fields, loop: LoopOptions,
+           progress=None, what: str = ""):
     """Run the chunks from Python; returns (records, status, t_fail, details, final).
 
     The n_records + 1 records (t = 0, …, t_final) are copied chunk by chunk into arrays allocated
     once, so memory is what is stored, never proportional to the steps."""
-    n_total = n_steps // save_every + 1
-    slots, per_chunk = chunk_records(save_every, batched=in_axes is not None)  # independent of the horizon
-    sampled = n_hold > 0
+    n_total, n_steps, save_every = plan.samples, plan.n_steps, plan.save_every
+    slots, per_chunk = plan.chunk(batched=in_axes is not None)  # independent of the horizon
     # a single run's program stores every field; the driver keeps those asked for (one program)
-    chunk, final, init = _compiled(in_axes, slots, sampled, fields if in_axes is not None else None)
+    chunk, final, init = _compiled(in_axes, slots, plan.sampled, fields if in_axes is not None else None, loop)
     carry = init(ctrl, y0, n_joints)
     axis = 0 if in_axes is None else 1  # the time axis of the records
-    n_steps_a, dt_a, hold_a, every_a, take_a = _chunk_scalars(n_steps, dt, n_hold, save_every, per_chunk)
+    n_steps_a, dt_a, hold_a, every_a, take_a = _chunk_scalars(n_steps, plan.dt, plan.n_hold, save_every, per_chunk)
     out: dict[str, np.ndarray] = {}
     n_chunks = -(-n_total // per_chunk)
 
@@ -349,7 +336,7 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, n_steps, save_every, n_hold
             else:
                 out[k][:, start:stop] = v[:, :stop - start]
         if progress is not None:
-            progress(min(stop * save_every, n_steps), n_steps)
+            progress(min(stop * save_every, n_steps), n_steps, what)
 
     pending = None  # the previous chunk's records, copied while the next chunk runs
     for c in range(n_chunks):
@@ -371,48 +358,6 @@ def _chunk_scalars(n_steps, dt, n_hold, save_every, per_chunk):
             i64(per_chunk))
 
 
-def steps(t_final, dt, save_every, control_period, save_interval=None, discrete=False):
-    """(n_steps, n_hold, save_every) for a run, checked (ConfigError naming the key)."""
-    for name, v in (("t_final", t_final), ("dt", dt)):
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise ConfigError(f"must be a finite number > 0, got {v!r}", key=f"simulation.{name}")
-    n_steps = round(t_final / dt)
-    if n_steps < 1 or abs(n_steps * dt - t_final) > 1e-9 * max(1.0, t_final):
-        raise ConfigError(f"t_final = {t_final:g} is not a whole number of steps dt = {dt:g}",
-                          key="simulation.t_final")
-    if save_every is None:
-        save_every = save_every_for(n_steps, dt, DEFAULT_SAVE_INTERVAL if save_interval is None else save_interval)
-    if not (isinstance(save_every, int) and save_every >= 1 and n_steps % save_every == 0):
-        raise ConfigError(f"must be a positive integer dividing the {n_steps} steps, got {save_every!r}",
-                          key="simulation.save_every")
-    n_hold = 0
-    if control_period is None and discrete:
-        control_period = dt  # a discrete plant always runs the sampled-data path
-    if control_period is not None:
-        n_hold = round(control_period / dt)
-        if n_hold < 1 or abs(n_hold * dt - control_period) > 1e-9 * control_period:
-            raise ConfigError(f"control period {control_period:g} must be a whole multiple of dt = {dt:g}",
-                              key="simulation.control_period")
-        if n_steps % n_hold:
-            raise ConfigError(f"control period {control_period:g} s does not divide t_final = {t_final:g} s "
-                              f"({n_steps} steps of dt = {dt:g} s are not a whole number of {n_hold}-step "
-                              "periods)", key="simulation.control_period")
-    return n_steps, n_hold, save_every
-
-
-#: Default interval between stored samples, s (``save_interval``).
-DEFAULT_SAVE_INTERVAL = 1e-3
-
-
-def save_every_for(n_steps: int, dt: float, save_interval: float) -> int:
-    """The largest divisor s of ``n_steps`` with s·dt ≤ ``save_interval`` (at least 1): samples
-    stay uniform and the last one falls on t_final."""
-    if not (isinstance(save_interval, (int, float)) and math.isfinite(save_interval) and save_interval > 0):
-        raise ConfigError(f"must be a finite number > 0, got {save_interval!r}", key="simulation.output_interval")
-    limit = max(1, min(n_steps, int(math.floor(save_interval / dt * (1 + 1e-9)))))
-    return max(s for s in range(1, limit + 1) if n_steps % s == 0)
-
-
 def initial_state(plant, ctrl, *, q0=None, u1_0=None, qd0=None, xc0=None) -> SimState:
     """The state at t = 0: the plant at q0 (or, from ``u1_0``, the start pose with the TRUE
     end-effector at x1 = u1_0 on the TRUE surface, ``plant.initial_q``), q̇ = qd0 (default 0),
@@ -430,41 +375,37 @@ def initial_state(plant, ctrl, *, q0=None, u1_0=None, qd0=None, xc0=None) -> Sim
 def _started(plant, ctrl, ref, y0: SimState) -> SimState:
     """The state at t = 0 with the controller's ``start`` applied to the first measurement."""
     meas, _ = plant.sense(0.0, y0.plant)
-    xc = ctrl.from_loop(ctrl.start(0.0, ctrl.to_loop(y0.xc), meas, ref))
-    return SimState(plant=y0.plant, xc=xc, acc=y0.acc)
+    return SimState(plant=y0.plant, xc=ctrl.start(0.0, y0.xc, meas, ref), acc=y0.acc)
 
 
 def start(plant, ctrl, ref, y0: SimState) -> SimState:
     """:func:`_started` when the controller needs it (one compiled program), else ``y0``."""
-    return _started(plant, ctrl, ref, y0) if getattr(ctrl, "needs_start", False) else y0
+    return _started(plant, ctrl, ref, y0) if ctrl.needs_start else y0
 
 
-def _to_numpy(rec, status, t_fail, details, final, *, info, dt, save_every) -> Trajectory:
+def _to_numpy(rec, status, t_fail, details, final, *, info, plan: StepPlan, plant, ctrl) -> Trajectory:
     arrays = {k: np.asarray(v) for k, v in rec.items()}
-    return Trajectory(arrays=arrays, status=np.asarray(status), t_fail=np.asarray(t_fail),
-                      fail_details={k: np.asarray(v) for k, v in details.items()},
-                      dt=float(dt), save_every=int(save_every),
+    details = {k: np.asarray(v) for k, v in details.items()}
+    details.update(controller_fault=ctrl.fault_name, plant_fault=plant.fault_name)
+    return Trajectory(arrays=arrays, status=np.asarray(status), t_fail=np.asarray(t_fail), fail_details=details,
+                      dt=plan.dt, save_every=plan.save_every,
                       final={k: np.asarray(v) for k, v in final.items()}, info=info)
-
-
-def _check_start(controller, y0, plant):
-    check = getattr(controller, "check_start", None)
-    if check is not None:
-        check(plant.joints(y0.plant)[0])
 
 
 def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float = 1e-4,
              q0=None, u1_0=None, qd0=None, xc0=None, save_every: int | None = None,
-             save_interval: float = DEFAULT_SAVE_INTERVAL, fields=None,
+             save_interval: float | None = None, fields=None,
              control_period: float | None = None, limits: Limits | None = None,
-             info: RunInfo | None = None, raise_on_failure: bool = True, progress=None) -> Trajectory:
+             info: RunInfo | None = None, raise_on_failure: bool = True, progress=None,
+             loop: LoopOptions | None = None) -> Trajectory:
     """Simulate one closed-loop run; returns a :class:`Trajectory` sampled every ``save_every``
     steps (t = 0, …, t_final).
 
     Start: ``q0`` (joint angles), or ``u1_0`` (the end-effector's motion coordinate on the true
     surface; the plant's ``initial_q`` finds the pose). Storage: a sample every ``save_every``
     steps; by default the largest divisor of the step count with ``save_every · dt ≤
-    save_interval`` (1 ms: every 10th step at dt = 1e-4). The step summaries (``tau_abs_max``,
+    save_interval`` (default 1 ms: every 10th step at dt = 1e-4; :class:`~hinfnn.sim.plan.StepPlan`).
+    The step summaries (``tau_abs_max``,
     ``tau_variation``, ``tau_sq``, ``e_u1_sq``, ...) still cover every step, so
     :func:`~hinfnn.compute_metrics` does not depend on the decimation. ``fields``: what to store,
     names of :data:`hinfnn.fields.FIELDS` or ``"metrics"`` (default: everything the run
@@ -475,24 +416,24 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     Raises :class:`~hinfnn.errors.SimulationError` with the time and the offending quantities
     if the state becomes non-finite or a limit is passed (unless ``raise_on_failure=False``;
     the trajectory is then frozen at its last good state from the failing step on).
-    ``progress(steps_done, steps_total)``, if given, is called after each compiled chunk (about
-    :data:`CHUNK_STEPS` steps; 200 when every step is stored).
+    ``progress(steps_done, steps_total, what)``, if given, is called after each compiled chunk (about
+    :data:`~hinfnn.sim.plan.CHUNK_STEPS` steps; 200 when every step is stored). ``loop``: how the
+    compiled program is written (:class:`~hinfnn._loop.LoopOptions`; default: all options on).
     """
     from .._config import require_x64
 
     require_x64()
-    discrete = bool(getattr(plant, "discrete", False))
-    n_steps, n_hold, save_every = steps(t_final, dt, save_every, control_period, save_interval, discrete)
+    check_protocols(plant, controller)
+    plan = StepPlan.make(t_final, dt, control_period=control_period, save_interval=save_interval,
+                         save_every=save_every, discrete=plant.discrete)
     fields = select(fields)
     y0 = initial_state(plant, controller, q0=q0, u1_0=u1_0, qd0=qd0, xc0=xc0)
-    _check_start(controller, y0, plant)
+    controller.check_start(plant.joints(y0.plant)[0])
     if xc0 is None:
         y0 = start(plant, controller, reference, y0)
-    out = _drive(plant, controller, reference, limits or Limits(), y0, None, n_steps=n_steps,
-                 save_every=save_every, n_hold=n_hold, dt=float(dt), n_joints=plant.n,
-                 fields=fields, progress=progress)
-    traj = _to_numpy(*out, info=info or RunInfo(kind=getattr(controller, "kind", "")), dt=dt,
-                     save_every=save_every)
+    out = _drive(plant, controller, reference, limits or Limits(), y0, None, plan=plan, n_joints=plant.n,
+                 fields=fields, loop=loop or LoopOptions(), progress=progress, what=info.name if info else "")
+    traj = _to_numpy(*out, info=info or RunInfo(kind=controller.kind), plan=plan, plant=plant, ctrl=controller)
     if raise_on_failure and int(traj.status) != 0:
         raise failure_error(traj)
     return traj
@@ -500,28 +441,9 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
 
 def failure_error(traj: Trajectory) -> SimulationError:
     """A :class:`SimulationError` describing why a (single) run stopped."""
-    code = int(traj.status)
     t = float(traj.t_fail)
-    details = {k: float(v) for k, v in traj.fail_details.items()}
-    msg = f"run stopped at t = {t:.6g} s: {failure_reason(code, details)}"
-    return SimulationError(msg, t_fail=t, details=details)
-
-
-def failure_reason(code: int, details: dict) -> str:
-    """Why a run stopped, in words, with the numbers that decided it."""
-    what = STATUS.get(code, f"status {code}")
-    if code == 1:
-        parts = int(details.get("nonfinite_parts", 0))
-        names = [n for i, n in enumerate(NONFINITE_PARTS) if parts & (1 << i)]
-        peak = details.get("tau_peak", math.nan)
-        return f"{what} ({', '.join(names) or 'state'}; peak |tau| at the step before = {peak:.4g} N·m)"
-    if code == 2:
-        return f"{what} (peak |tau| = {details.get('tau_peak', math.nan):.4g} N·m)"
-    if code == 3:
-        return f"{what} (penetration = {details.get('penetration', math.nan):.4g} m)"
-    if code == 4:
-        return f"{what} (σ_min(Ĵ) = {details.get('sigma_min_J', math.nan):.4g}, below the guard's stop)"
-    return what
+    msg = f"run stopped at t = {t:.6g} s: {traj.reason}"
+    return SimulationError(msg, t_fail=t, details=traj.details())
 
 
 def stack(items):
@@ -535,9 +457,9 @@ def stack(items):
 
 def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt: float = 1e-4,
                    q0=None, u1_0=None, save_every: int | None = None,
-                   save_interval: float = DEFAULT_SAVE_INTERVAL, fields=None,
+                   save_interval: float | None = None, fields=None,
                    control_period: float | None = None, limits=None, infos: list | None = None,
-                   progress=None) -> Trajectory:
+                   progress=None, loop: LoopOptions | None = None) -> Trajectory:
     """Simulate B runs as ONE program (``jax.vmap`` of :func:`simulate`'s run).
 
     ``plants``, ``controllers``, ``references`` (and ``limits``): each either a list of B objects
@@ -545,12 +467,13 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     lists too. Members that fail are marked in ``status``/``t_fail`` and do not stop the others;
     nothing is raised for them. ``save_every``, ``save_interval``, ``fields`` and ``progress``
     as for :func:`simulate`; a batch of B runs stores B times what one run stores. More than
-    :data:`hinfnn._devices.BATCH_GROUP` members run as equal groups, one after the other, through
-    the same compiled program (``batch_groups``: faster, same numbers).
+    ``loop.batch_group`` members run as equal groups, one after the other, through the same
+    compiled program (:class:`~hinfnn._loop.LoopOptions`: faster, same numbers).
     """
     from .._config import require_x64
 
     require_x64()
+    loop = loop or LoopOptions()
     listed = [x for x in (plants, controllers, references, limits) if isinstance(x, (list, tuple))]
     if not listed:
         raise ConfigError("simulate_batch needs at least one list of plants, controllers or references")
@@ -562,18 +485,19 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     def member(x, i):
         return x[i] if isinstance(x, (list, tuple)) else x
 
+    for i in range(B):
+        check_protocols(member(plants, i), member(controllers, i))
     q0s = q0 if isinstance(q0, (list, tuple)) else [q0] * B
     u1s = u1_0 if isinstance(u1_0, (list, tuple, np.ndarray)) else [u1_0] * B
     y0s = [initial_state(member(plants, i), member(controllers, i), q0=q0s[i], u1_0=u1s[i]) for i in range(B)]
     for i in range(B):
-        _check_start(member(controllers, i), y0s[i], member(plants, i))
+        member(controllers, i).check_start(member(plants, i).joints(y0s[i].plant)[0])
         y0s[i] = start(member(plants, i), member(controllers, i), member(references, i), y0s[i])
-    plant0 = member(plants, 0)
-    n_steps, n_hold, save_every = steps(t_final, dt, save_every, control_period, save_interval,
-                                        bool(getattr(plant0, "discrete", False)))
+    plant0, ctrl0 = member(plants, 0), member(controllers, 0)
+    plan = StepPlan.make(t_final, dt, control_period=control_period, save_interval=save_interval,
+                         save_every=save_every, discrete=plant0.discrete)
     fields = select(fields)
-    info = tuple(infos) if infos else tuple(RunInfo(kind=getattr(member(controllers, i), "kind", ""))
-                                            for i in range(B))
+    info = tuple(infos) if infos else tuple(RunInfo(kind=member(controllers, i).kind) for i in range(B))
     limits = limits if limits is not None else Limits()
     if B == 1:  # the unbatched program (a vmap over one member runs about 6x slower), then a batch axis
         args, y0, axes = (member(plants, 0), member(controllers, 0), member(references, 0), member(limits, 0)), y0s[0], None
@@ -587,12 +511,11 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
                 args.append(x)
                 axes.append(None)
         y0, axes = stack(y0s), tuple(axes)
-    opts = dict(n_steps=n_steps, save_every=save_every, n_hold=n_hold, dt=float(dt), n_joints=plant0.n,
-                fields=fields)
-    groups = dev.batch_groups(B)
+    opts = dict(plan=plan, n_joints=plant0.n, fields=fields, loop=loop)
+    groups = loop.groups(B)
     if len(groups) == 1:
         out = _drive(*args, y0, axes, progress=progress, **opts)
-    else:  # a large batch as equal groups run one after the other (one program; hinfnn._devices)
+    else:  # a large batch as equal groups run one after the other (one program; hinfnn._loop)
         parts = []
         for i, idx in enumerate(groups):
             take = functools.partial(_take, idx=idx)
@@ -602,7 +525,7 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
         out = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:B], *parts)
     if B == 1:
         out = jax.tree.map(lambda a: np.expand_dims(np.asarray(a), 0), out)
-    return _to_numpy(*out, info=info, dt=dt, save_every=save_every)
+    return _to_numpy(*out, info=info, plan=plan, plant=plant0, ctrl=ctrl0)
 
 
 def _take(tree, idx):
@@ -610,12 +533,13 @@ def _take(tree, idx):
     return jax.tree.map(lambda a: jnp.asarray(a)[idx], tree)
 
 
-def _group_progress(progress, i, n_groups, done, total):
-    progress(i * total + done, n_groups * total)
+def _group_progress(progress, i, n_groups, done, total, what=""):
+    progress(i * total + done, n_groups * total, what)
 
 
 def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
-                  fields=None, limits: Limits | None = None, single: bool = False) -> dict:
+                  fields=None, limits: Limits | None = None, single: bool = False,
+                  loop: LoopOptions | None = None) -> dict:
     """``{field: (shape, dtype)}`` of one stored sample of a run, found by tracing (``eval_shape``:
     nothing is compiled or run). What a run stores is this times its number of samples;
     :mod:`hinfnn.resources` uses it to estimate memory before a run.
@@ -629,10 +553,11 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
     kept for the process's later runs of the same structure (the same pytree structure and array
     types)."""
     fields = select(fields)
-    sampled = control_period is not None or bool(getattr(plant, "discrete", False))
+    loop = loop or LoopOptions()
+    sampled = control_period is not None or plant.discrete
     y0 = initial_state(plant, controller, q0=q0)
     args = (plant, controller, reference, limits or Limits(), y0)
-    key = (*structure_key(args), float(dt), sampled, fields)
+    key = (*structure_key(args), float(dt), sampled, fields, loop)
     if key in _RECORD_SHAPES:
         return dict(_RECORD_SHAPES[key])
 
@@ -642,13 +567,13 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
         return step(carry, jnp.zeros((), jnp.int64), True)[1]
 
     if single:  # the arguments _drive gives the single-run program (their values do not matter)
-        chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None)
+        chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None, loop)
         carry = init.eval_shape(controller, y0, plant.n)
         k0 = jnp.zeros((), jnp.int64)
         records = chunk.eval_shape(*args[:4], carry, k0, *_chunk_scalars(1, dt, 1, 1, 1))[1]
         out = {k: jax.ShapeDtypeStruct(v.shape[1:], v.dtype) for k, v in pick(records, fields).items()}
     else:
-        out = jax.eval_shape(one, *args)
+        out = jax.eval_shape(_with_options(one, loop), *args)
     shapes = {k: (tuple(v.shape), np.dtype(v.dtype)) for k, v in out.items()}
     if len(_RECORD_SHAPES) < 256:
         _RECORD_SHAPES[key] = shapes

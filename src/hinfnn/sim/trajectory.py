@@ -8,24 +8,23 @@ from typing import Any
 import numpy as np
 
 from ..fields import FIELDS, SUMMARY_FIELDS
-
-#: Status codes of a run (``Trajectory.status``).
-STATUS = {0: "ok", 1: "non-finite state", 2: "torque limit exceeded", 3: "penetration limit exceeded",
-          4: "stopped by the controller's singularity guard"}
+from ..status import RunStatus, status_of
 
 _MERGE = {"max": np.maximum, "sum": np.add}
 
 
 @dataclasses.dataclass(frozen=True)
 class RunInfo:
-    """What a run was: its name, controller kind and how reports show it (label, colour), and
-    the resolved scenario it came from (a :class:`hinfnn.scenario.Scenario`, or None for runs
-    built by hand)."""
+    """What a run was: its name, controller kind, how reports show it (label, colour), its tags
+    (what it stands for in its experiment and the facts reports show of it:
+    :mod:`hinfnn.experiment.case`) and the resolved scenario it came from (a
+    :class:`hinfnn.scenario.Scenario`, or None for runs built by hand)."""
 
     name: str = ""
     kind: str = ""
     label: str = ""
     color: str = ""
+    tags: dict = dataclasses.field(default_factory=dict)
     scenario: Any = None
 
 
@@ -39,8 +38,10 @@ class Trajectory:
     augmented (else equals ``J``); ``supply`` is ρ²∫(‖f_p‖² + ‖f_f‖²) dt with f_p, f_f the actual
     residuals of eqs. (28)–(29)/(52)–(53); ``V`` the storage function. ``final`` holds the full
     state at t_final (q, qd, the controller state's arrays and the accumulators).
-    ``status``/``t_fail``: 0 and NaN for a completed run, else the code of :data:`STATUS` and the
-    time of the failing step. ``info``: a :class:`RunInfo` (a tuple of them for a batch).
+    ``status``/``t_fail``: 0 and NaN for a completed run, else the value of a
+    :class:`~hinfnn.status.RunStatus` member and the time of the failing step; ``fail_details``
+    the numbers that decided it (:attr:`reason` says it in words). ``info``: a :class:`RunInfo`
+    (a tuple of them for a batch).
     """
 
     arrays: dict[str, np.ndarray]
@@ -89,13 +90,41 @@ class Trajectory:
         return Trajectory(
             arrays={k: v[i] for k, v in self.arrays.items()},
             status=self.status[i], t_fail=self.t_fail[i],
-            fail_details={k: v[i] for k, v in self.fail_details.items()},
+            fail_details={k: (v[i] if np.ndim(v) else v) for k, v in self.fail_details.items()},
             dt=self.dt, save_every=self.save_every,
             final={k: v[i] for k, v in self.final.items()}, info=info)
 
     @property
     def ok(self):
         return np.asarray(self.status) == 0
+
+    @property
+    def run_status(self) -> RunStatus:
+        """How the (single) run ended."""
+        return status_of(self.status)
+
+    def details(self) -> dict:
+        """``fail_details`` as Python numbers and strings (a single run)."""
+        return {k: (v if isinstance(v, str) else float(v)) for k, v in self.fail_details.items()}
+
+    def valid_samples(self) -> int:
+        """Number of stored samples that belong to the (single) run: all of them, or those up to
+        its failing step for a run that stopped (the simulator repeats the last good state after
+        it); 1 when a stopped run's time is unknown. Metrics, figures and exports use this one
+        cut-off."""
+        t = np.asarray(self.arrays["t"])
+        if int(np.asarray(self.status).reshape(())) == 0:
+            return len(t)
+        tf = float(np.asarray(self.t_fail).reshape(()))
+        if not np.isfinite(tf):
+            return 1
+        return max(1, int(np.searchsorted(t, tf + 1e-12 * max(1.0, abs(tf)), side="right")))
+
+    @property
+    def reason(self) -> str | None:
+        """Why the (single) run stopped, in words with the numbers, or None when it completed."""
+        status = self.run_status
+        return None if status is RunStatus.OK else status.describe(self.details())
 
     def decimated(self, max_interval: float) -> "Trajectory":
         """Every s-th sample, s the largest divisor of the step count with s·dt·save_every ≤

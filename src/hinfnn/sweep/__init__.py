@@ -12,10 +12,14 @@ from .spec import SweepSpec, VarySpec, load_spec, spec_from_dict, spec_names
 
 
 def __getattr__(name):
-    if name in ("run_sweep", "SweepResult", "DEFAULT_MAX_BATCH"):
+    if name in ("run_sweep", "prepare_output", "SweepResult"):
         from . import run
 
         return getattr(run, name)
+    if name == "DEFAULT_MAX_BATCH":
+        from .worker import DEFAULT_MAX_BATCH
+
+        return DEFAULT_MAX_BATCH
     if name == "load_sweep":
         from .store import load_sweep
 
@@ -23,5 +27,5 @@ def __getattr__(name):
     raise AttributeError(f"module 'hinfnn.sweep' has no attribute {name!r}")
 
 
-__all__ = ["SweepSpec", "VarySpec", "load_spec", "spec_from_dict", "spec_names", "run_sweep", "SweepResult",
-           "load_sweep", "DEFAULT_MAX_BATCH"]
+__all__ = ["SweepSpec", "VarySpec", "load_spec", "spec_from_dict", "spec_names", "run_sweep", "prepare_output",
+           "SweepResult", "load_sweep", "DEFAULT_MAX_BATCH"]

@@ -41,7 +41,7 @@ def _configure_worker():
 
 
 def _check_task(chunk):
-    from .run import check_runs
+    from .worker import check_runs
 
     _configure_worker()
     return check_runs(*chunk)
@@ -64,7 +64,7 @@ def _fault_once():
 
 
 def _run_task(job, reporter=None):
-    from .run import execute_batch
+    from .worker import execute_batch
 
     _fault_once()
     _configure_worker()

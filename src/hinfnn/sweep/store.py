@@ -13,7 +13,6 @@ Layout of a sweep folder::
                                  before any batch runs
     parts/batch-000012.parquet   the rows of batch 12, written when it finished
     results.parquet     every row sorted by run, written when the last batch finished
-    .lock               held (flock) while a sweep runs in the folder
     report.md, *.png    the report and its figures
 
 Every file is written to a temporary sibling and renamed into place, so a part either exists
@@ -284,53 +283,21 @@ def is_sweep_folder(folder: Path) -> bool:
 def foreign_files(folder: Path) -> list[str]:
     """What in ``folder`` a sweep does not write (``--force`` refuses to delete a folder holding
     any): a sweep writes its manifest, plan, parts, table, report, figures, scenario and spec."""
-    ours = {MANIFEST, PLAN, PARTS, RESULTS, INVALID_PART, "report.md", "scenario.toml", "sweep.toml", FolderLock.NAME}
+    ours = {MANIFEST, PLAN, PARTS, RESULTS, INVALID_PART, "report.md", "scenario.toml", "sweep.toml"}
     return sorted(p.name for p in Path(folder).iterdir()
                   if p.name not in ours and not (p.suffix == ".png" and p.is_file()) and not p.name.startswith(".tmp"))
 
 
-class FolderLock:
-    """An exclusive lock on a sweep folder (``.lock``, ``fcntl.flock``), held while a sweep runs
-    in it, so that a second ``hinfnn sweep ... --resume`` on the same folder stops with a message
-    instead of racing the first. The operating system releases it when the process ends, however
-    it ends (SIGKILL included). Where ``fcntl`` is missing (Windows) it does nothing."""
-
-    NAME = ".lock"
-
-    def __init__(self, folder: Path):
-        self.path = Path(folder) / self.NAME
-        self._file = None
-
-    def acquire(self) -> None:
-        if self._file is not None:
-            return
-        try:
-            import fcntl
-        except ImportError:  # pragma: no cover - not POSIX
-            return
-        f = open(self.path, "a+", encoding="utf-8")
-        try:
-            fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            f.seek(0)
-            holder = f.read().strip() or "another process"
-            f.close()
-            raise ConfigError(f"{self.path.parent} is in use by another hinfnn sweep ({holder}); wait for it "
-                              "to finish or stop it first", key="--out") from None
-        f.seek(0)
-        f.truncate()
-        f.write(f"pid {os.getpid()}\n")
-        f.flush()
-        self._file = f
-
-    def release(self) -> None:
-        if self._file is not None:
-            self._file.close()  # closing the file releases the lock
-            self._file = None
-
-
 def prepare_folder(folder: Path) -> None:
     (Path(folder) / PARTS).mkdir(parents=True, exist_ok=True)
+
+
+def replace_folder(new: Path, old: Path) -> None:
+    """Put the complete sweep ``new`` in the place of the sweep ``old`` (``--force``), with the
+    same atomic exchange as every result folder (:class:`hinfnn.io.OutputFolder`)."""
+    from ..io.folders import replace_folder as replace
+
+    replace(Path(new), Path(old))
 
 
 __all__ = ["load_sweep", "read_manifest", "write_manifest", "rows_table", "write_table", "schema", "metric_columns",

@@ -1,27 +1,21 @@
-"""Results on disk: atomic output folders, saving runs, loading them back.
+"""Folders on disk: written atomically, reserved before any work, recognised by their marker.
 
-A result folder holds ``metrics.json``, ``trajectory.npz``, ``scenario.toml`` and figures. It is
-written as a whole: every file goes to a hidden temporary sibling folder first, and only a
-complete folder is renamed into place (:class:`OutputFolder`). An interrupted or failed run
-(exception, SIGINT, SIGTERM) removes the temporary folder and leaves the target as it was.
-
-``trajectory.npz`` stores, for each run NAME, the arrays as ``NAME/FIELD``, the run's resolved
-scenario as ``NAME/__scenario__`` (TOML text) and its status; plus ``__format__``,
-``__hinfnn_version__``, ``__runs__`` (the names in order) and ``__units__`` (JSON text: the unit of
-every stored field). :func:`load` reads a folder (or the
-npz file) back.
+Every result folder (``hinfnn run``, ``compare``, ``gallery``, ``reproduce``) is written as a
+whole: every file goes to a hidden temporary sibling folder first, and only a complete folder is
+renamed into place (:class:`OutputFolder`); an interrupted or failed command (exception, SIGINT,
+SIGTERM) leaves the target as it was. A folder is reserved before anything runs
+(:func:`reserve_output`): a lock file beside it (:class:`FolderLock`) that no second hinfnn process
+can take, for results and sweeps alike. ``.hinfnn-result`` marks a folder hinfnn wrote (and which
+files), so that ``--force`` replaces only such a folder.
 """
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import datetime
 import errno
-import io
 import itertools
 import json
-import math
 import os
 import re
 import shutil
@@ -30,21 +24,13 @@ import socket
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
-import numpy as np
-
-from ._signals import Terminated
-from ._signals import check as _check_signals
-from .errors import HinfnnError, LoadError
-
-FORMAT = "hinfnn-trajectory-1"
-
-
+from .._signals import check as _check_signals
 
 
 def version() -> str:
-    from . import __version__
+    from .. import __version__
 
     return __version__
 
@@ -194,7 +180,7 @@ def add_to_marker(folder: Path, names) -> None:
 
 
 def _out_error(message: str) -> Exception:
-    from .errors import ConfigError
+    from ..errors import ConfigError
 
     return ConfigError(message, key="--out")
 
@@ -209,31 +195,70 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def _lock_owner(lock: Path) -> int | None:
-    """The pid of the live process that holds ``lock`` (None: the lock is stale or unreadable
-    garbage left by a killed process on this host)."""
-    try:
-        doc = json.loads(lock.read_text(encoding="utf-8"))
-        pid, host = int(doc["pid"]), str(doc.get("host", ""))
-    except (OSError, ValueError, KeyError, TypeError):
-        try:  # being written right now (created, not yet filled): give it a moment
-            if time.time() - lock.stat().st_mtime < 5.0:
-                return -1
-        except OSError:
+class FolderLock:
+    """The lock that reserves a folder for one hinfnn process: a file beside it
+    (``.NAME.hinfnn-lock``) created with O_EXCL, holding the owner's pid and host. A lock whose
+    process is gone (killed, even by SIGKILL) is stale and taken over; one held by a live process
+    (or by another machine's, which cannot be checked) is not. Used by every command that writes a
+    folder: results (:func:`reserve_output`) and sweeps."""
+
+    def __init__(self, target: Path):
+        self.target = Path(target)
+        self.path = self.target.with_name(f".{self.target.name}.hinfnn-lock")
+        self.held = False
+
+    def owner(self) -> int | None:
+        """The pid of the live process that holds the lock (-1: being written this moment, or
+        unknown), or None when nobody holds it (no file, or a stale one)."""
+        try:
+            doc = json.loads(self.path.read_text(encoding="utf-8"))
+            pid, host = int(doc["pid"]), str(doc.get("host", ""))
+        except FileNotFoundError:
             return None
-        return None
-    if host and host != socket.gethostname():
-        return pid  # another machine's process: cannot tell, assume it is alive
-    return pid if _pid_alive(pid) else None
+        except (OSError, ValueError, KeyError, TypeError):
+            try:  # being written right now (created, not yet filled): give it a moment
+                if time.time() - self.path.stat().st_mtime < 5.0:
+                    return -1
+            except OSError:
+                return None
+            return None
+        if host and host != socket.gethostname():
+            return pid  # another machine's process: cannot tell, assume it is alive
+        return pid if _pid_alive(pid) else None
+
+    def acquire(self) -> int | None:
+        """Take the lock (returns None), or return the pid of the process holding it (-1: unknown).
+        OS errors other than an existing lock propagate."""
+        for _ in range(3):
+            try:
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                owner = self.owner()
+                if owner is not None:
+                    return owner
+                with contextlib.suppress(FileNotFoundError):
+                    self.path.unlink()  # stale: its process is gone
+                continue
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                json.dump({"pid": os.getpid(), "host": socket.gethostname(), "target": str(self.target),
+                           "since": time.time()}, f)
+            self.held = True
+            return None
+        return -1
+
+    def release(self) -> None:
+        if self.held:
+            with contextlib.suppress(FileNotFoundError):
+                self.path.unlink()
+            self.held = False
 
 
 class Reservation:
     """An output folder reserved for this process: ``target`` is where the result goes,
-    ``note`` says why it is not where the user asked (or None). Held by a lock file beside the
-    target (``.NAME.hinfnn-lock``, created with O_EXCL), released by :meth:`release` (the
-    :class:`OutputFolder` that writes the result releases it)."""
+    ``note`` says why it is not where the user asked (or None). Held by its :class:`FolderLock`,
+    released by :meth:`release` (the :class:`OutputFolder` that writes the result releases it)."""
 
-    def __init__(self, target: Path, lock: Path, note: str | None, created: list[Path], requested: Path):
+    def __init__(self, target: Path, lock: FolderLock, note: str | None, created: list[Path], requested: Path):
         self.target = target
         self.lock = lock
         self.note = note
@@ -241,8 +266,7 @@ class Reservation:
         self._created = created  # parent folders this reservation made (removed again if unused)
 
     def release(self, *, keep_parents: bool = False) -> None:
-        with contextlib.suppress(FileNotFoundError):
-            self.lock.unlink()
+        self.lock.release()
         if not keep_parents:
             for p in reversed(self._created):
                 with contextlib.suppress(OSError):
@@ -279,25 +303,6 @@ def _make_parents(parent: Path, shown: Path) -> list[Path]:
                 d.rmdir()
         raise _out_error(f"cannot create folder {err.filename or d}: {err.strerror or err}") from None
     return created
-
-
-def _take_lock(lock: Path, target: Path) -> int | None:
-    """Create the lock (None) or return the pid holding it. Other OS errors propagate."""
-    for _ in range(3):
-        try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            owner = _lock_owner(lock)
-            if owner is not None:
-                return owner
-            with contextlib.suppress(FileNotFoundError):
-                lock.unlink()  # stale: its process is gone
-            continue
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump({"pid": os.getpid(), "host": socket.gethostname(), "target": str(target),
-                       "since": time.time()}, f)
-        return None
-    return -1
 
 
 def reserve_output(out, *, command: str = "run", name: str = "result", force: bool = False) -> Reservation:
@@ -340,9 +345,9 @@ def reserve_output(out, *, command: str = "run", name: str = "result", force: bo
         for i in itertools.count(1):
             cand = path if i == 1 else path.with_name(f"{path.name}-{i}")
             cand_shown = shown if i == 1 else Path(f"{shown}-{i}")
-            lock = cand.with_name(f".{cand.name}.hinfnn-lock")
+            lock = FolderLock(cand)
             try:
-                owner = _take_lock(lock, cand)
+                owner = lock.acquire()
             except OSError as err:
                 raise _out_error(f"cannot create {cand_shown}: {err.strerror or err} (in {path.parent})") from None
             if owner is not None:
@@ -386,22 +391,11 @@ def reserve_output(out, *, command: str = "run", name: str = "result", force: bo
     return res
 
 
-def choose_output(out: Path, force: bool) -> tuple[Path, str | None]:
-    """(folder, note) of :func:`reserve_output`, released at once (no protection against a
-    concurrent writer: use :func:`reserve_output` and pass the reservation to OutputFolder)."""
-    res = reserve_output(out, force=force)
-    res.release(keep_parents=True)
-    return res.target, res.note
-
-
-_Interrupted = Terminated  # the name earlier versions raised from the SIGTERM handler
-
-
 @contextlib.contextmanager
 def _terminate_as_exception():
     """SIGTERM raises :class:`Terminated` in the block (as Ctrl-C raises KeyboardInterrupt), so
     that the temporary folder is removed; the ``hinfnn`` command has installed the same handler."""
-    from . import _signals
+    from .. import _signals
 
     try:
         previous = signal.signal(signal.SIGTERM, _signals.handler)
@@ -496,212 +490,30 @@ class OutputFolder:
                 res.release(keep_parents=True)
             self.moved_to = res.target
             return
-        blocked = {signal.SIGINT, signal.SIGTERM}
-        old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, blocked)
-        try:
-            if not self.target.exists():
-                os.replace(self.path, self.target)
-            elif _exchange(self.path, self.target):
-                shutil.rmtree(self.path, ignore_errors=True)  # now the old result
-            else:
-                backup = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.old-", dir=self.target.parent))
-                backup.rmdir()
-                os.replace(self.target, backup)
-                os.replace(self.path, self.target)
-                shutil.rmtree(backup, ignore_errors=True)
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
+        replace_folder(self.path, self.target)
 
 
-# --- saving ---------------------------------------------------------------------------------
-
-
-def _json_default(o):
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
-def _nan_to_none(x):
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _nan_to_none(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_nan_to_none(v) for v in x]
-    return x
-
-
-def dumps_json(obj) -> str:
-    """JSON with NaN/inf as null (strict JSON that any reader accepts)."""
-    return json.dumps(_nan_to_none(obj), indent=2, default=_json_default, allow_nan=False) + "\n"
-
-
-def trajectory_npz_bytes(runs: dict, max_interval: float | None = 1e-3, fields=None) -> bytes:
-    """The ``trajectory.npz`` content for named Trajectories (decimated to ``max_interval``;
-    ``fields``: only these arrays)."""
-    from .fields import unit
-
-    stored = sorted({f for traj in runs.values() for f in traj.arrays if fields is None or f in fields})
-    payload: dict[str, Any] = {
-        "__format__": np.array(FORMAT),
-        "__hinfnn_version__": np.array(version()),
-        "__runs__": np.array(list(runs), dtype=str),
-        "__units__": np.array(json.dumps({f: unit(f) for f in stored}, ensure_ascii=False)),
-    }
-    for name, traj in runs.items():
-        if "/" in name:
-            raise ValueError(f"run name {name!r} must not contain '/'")
-        t = traj.decimated(max_interval) if max_interval else traj
-        for field, arr in t.arrays.items():
-            if fields is None or field in fields:
-                payload[f"{name}/{field}"] = arr
-        for field, arr in t.final.items():
-            payload[f"{name}/__final__/{field}"] = arr
-        payload[f"{name}/__status__"] = np.asarray(t.status)
-        payload[f"{name}/__t_fail__"] = np.asarray(t.t_fail)
-        payload[f"{name}/__dt__"] = np.asarray(t.dt)
-        payload[f"{name}/__save_every__"] = np.asarray(t.save_every)
-        info = t.info
-        payload[f"{name}/__scenario__"] = np.array(info.scenario.to_toml() if info.scenario is not None else "")
-        payload[f"{name}/__kind__"] = np.array(info.kind)
-        payload[f"{name}/__label__"] = np.array(info.label)
-        payload[f"{name}/__color__"] = np.array(info.color)
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **payload)
-    return buf.getvalue()
-
-
-# --- loading ----------------------------------------------------------------------------------
-
-
-@dataclasses.dataclass(frozen=True)
-class SavedResult:
-    """What :func:`load` returns: the runs, their scenarios, the folder's metrics."""
-
-    trajectories: dict
-    scenario: Any  # the folder's resolved Scenario (None if only an npz was given)
-    metrics: dict | None
-    version: str
-    path: Path
-
-    def to_pandas(self, run: str | None = None):
-        """The trajectories as a pandas DataFrame: one row per stored sample, a ``run`` column,
-        then one column per field component with its unit (``tau_1 [N·m]``); ``run`` selects
-        one run. The same table as ``hinfnn export`` (see :mod:`hinfnn.export`)."""
-        from .export import to_pandas
-
-        return to_pandas(self, run)
-
-    @property
-    def trajectory(self):
-        """The single run's Trajectory (an error if the folder holds several)."""
-        if len(self.trajectories) != 1:
-            raise LoadError(f"{self.path} holds {len(self.trajectories)} runs "
-                            f"({', '.join(self.trajectories)}); use .trajectories[name]")
-        return next(iter(self.trajectories.values()))
-
-
-def load_npz(path: Path) -> tuple[dict, str]:
-    """Read a ``trajectory.npz``: ({name: Trajectory}, hinfnn version)."""
-    from .scenario import Scenario
-    from .scenario.core import parse_toml
-    from .sim.trajectory import RunInfo, Trajectory
-
-    path = Path(path)
+def replace_folder(new: Path, target: Path) -> None:
+    """Put the complete folder ``new`` at ``target`` in one step: renamed in, or over an existing
+    folder swapped with it atomically (the old one is then deleted), with SIGINT and SIGTERM
+    blocked meanwhile."""
+    blocked = {signal.SIGINT, signal.SIGTERM}
+    old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, blocked)
     try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise LoadError(f"{path} does not exist") from None
-    except Exception as err:  # BadZipFile, zlib.error, NotImplementedError, ValueError, OSError ...
-        raise LoadError(f"{path} is not a readable hinfnn trajectory file (truncated or foreign): "
-                        f"{type(err).__name__}: {err}") from None
-    fmt = str(data.get("__format__", ""))
-    if fmt != FORMAT:
-        raise LoadError(f"{path} is not a hinfnn trajectory file (format {fmt or 'missing'!r}, "
-                        f"expected {FORMAT!r})")
-    if "__runs__" not in data or "__hinfnn_version__" not in data:
-        raise LoadError(f"{path} is incomplete: no __runs__ or __hinfnn_version__")
-    out = {}
-    for name in [str(n) for n in np.atleast_1d(data["__runs__"])]:
-        prefix = f"{name}/"
-        try:
-            arrays = {k[len(prefix):]: v for k, v in data.items()
-                      if k.startswith(prefix) and "/__" not in k[len(prefix) - 1:]}
-            final = {k[len(prefix) + 10:]: v for k, v in data.items() if k.startswith(prefix + "__final__/")}
-            text = str(data[prefix + "__scenario__"])
-            scenario = None
-            if text:
-                try:
-                    scenario = Scenario.from_dict(parse_toml(text, f"{path}:{name}"), source=f"{path}:{name}",
-                                                  check=False)
-                except HinfnnError as err:
-                    raise LoadError(f"{path}: run {name!r} has a scenario hinfnn cannot read: {err}") from None
-            meta = {k: str(data[prefix + f"__{k}__"]) if prefix + f"__{k}__" in data else ""
-                    for k in ("kind", "label", "color")}
-            out[name] = Trajectory(
-                arrays=arrays, status=data[prefix + "__status__"], t_fail=data[prefix + "__t_fail__"],
-                fail_details={}, dt=float(data[prefix + "__dt__"]), save_every=int(data[prefix + "__save_every__"]),
-                final=final, info=RunInfo(name=name, scenario=scenario, **meta))
-        except KeyError as err:
-            raise LoadError(f"{path}: run {name!r} is incomplete (missing {err})") from None
-        if "t" not in arrays:
-            raise LoadError(f"{path}: run {name!r} has no time array")
-    return out, str(data["__hinfnn_version__"])
+        if not target.exists():
+            os.replace(new, target)
+        elif _exchange(new, target):
+            shutil.rmtree(new, ignore_errors=True)  # now the old one
+        else:
+            backup = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
+            backup.rmdir()
+            os.replace(target, backup)
+            os.replace(new, target)
+            shutil.rmtree(backup, ignore_errors=True)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
 
 
-def load(path: str | Path) -> SavedResult:
-    """Load a result folder written by ``hinfnn run``/``reproduce`` (or a ``trajectory.npz``).
-
-    Returns the Trajectories by run name, the resolved scenario and the metrics.
-    Raises :class:`LoadError` for a missing, truncated or foreign file.
-    """
-    from .errors import ConfigError
-    from .scenario import Scenario
-
-    path = Path(path)
-    folder = path if path.is_dir() else path.parent
-    npz = path if path.is_file() else path / "trajectory.npz"
-    if not folder.exists():
-        raise LoadError(f"{folder} does not exist")
-    runs, ver = load_npz(npz)
-    scenario = None
-    sc_file = folder / "scenario.toml"
-    if path.is_dir():
-        if not sc_file.exists():
-            raise LoadError(f"{folder} has no scenario.toml")
-        try:
-            scenario = Scenario.load(sc_file, check=False)
-        except ConfigError as err:
-            raise LoadError(f"{sc_file} is not a valid hinfnn scenario: {err}") from None
-    m_file = folder / "metrics.json"
-    metrics = load_metrics(m_file) if m_file.exists() else None
-    return SavedResult(trajectories=runs, scenario=scenario, metrics=metrics, version=ver, path=path)
-
-
-def load_metrics(path: str | Path) -> dict:
-    """The results document (``metrics.json``) of a result folder, or of the file given, checked
-    for the layout hinfnn writes (a ``runs`` list of objects with ``name`` and ``metrics``).
-    Needs nothing else of the folder. Raises :class:`LoadError` naming the file."""
-    path = Path(path)
-    m_file = path / "metrics.json" if path.is_dir() else path
-    if not m_file.exists():
-        where = path if path.is_dir() else path.parent
-        raise LoadError(f"{where} does not exist" if not where.exists() else f"{where} has no metrics.json")
-    try:
-        metrics = json.loads(m_file.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise LoadError(f"{m_file} is not valid JSON (truncated?): {err}") from None
-    except OSError as err:
-        raise LoadError(f"{m_file} cannot be read: {err.strerror or err}") from None
-    if not isinstance(metrics, dict) or not isinstance(metrics.get("runs"), list):
-        raise LoadError(f"{m_file} is not a hinfnn metrics file (no \"runs\" list)")
-    for i, run in enumerate(metrics["runs"]):
-        if not isinstance(run, dict) or not isinstance(run.get("name"), str) or not isinstance(run.get("metrics"), dict):
-            raise LoadError(f"{m_file} is not a hinfnn metrics file (run {i} has no \"name\" and \"metrics\")")
-    return metrics
+__all__ = ["atomic_write", "atomic_write_text", "atomic_write_bytes", "safe_name", "timestamp", "default_output",
+           "MARKER", "read_marker", "write_marker", "add_to_marker", "foreign_files", "FolderLock", "Reservation",
+           "reserve_output", "OutputFolder", "replace_folder", "version"]

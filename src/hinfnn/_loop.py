@@ -1,0 +1,107 @@
+"""How the compiled simulation loop is written for XLA's CPU runtime: the loop options, a value.
+
+Each option changes how XLA executes the loop, never what it computes (the numbers agree to
+rounding), and each has the benchmark line that justifies it (``python benchmarks/run.py --cases
+devices arm_devices batch_devices`` runs the paper's adaptive run, the UR5 and a 1,000-plant
+batch with each option off in turn; docs/performance.md has the numbers).
+
+:class:`LoopOptions` is passed to :func:`hinfnn.simulate` (``loop=``) and is part of the key of
+the compiled program: a program traced with some options is never reused with others. While a
+program is traced, the options are the *active* ones (:func:`active`), which the small helpers
+below read (:func:`hinfnn._linalg.mm`, :func:`hinfnn._linalg.sincos`). Outside a trace the
+defaults apply.
+
+``sincos``
+    Sines and cosines of a vector of angles computed once and shared. XLA counts them as cheap and
+    recomputes them inside every kernel that uses them (the paper's RK4 step made about 240 libm
+    calls for its 24 distinct values); a reduction is never recomputed, so the values pass through
+    a sum with 0·v (exact for finite values; NaN stays NaN).
+``small_mm``
+    Products of small matrices (contractions of at most :data:`hinfnn._linalg.SMALL_MM` terms)
+    written as multiply-and-sum, which XLA fuses with the neighbouring arithmetic; a ``dot`` is a
+    kernel of its own (1.9 s vs 2.5 s per 100,000 steps of the paper's adaptive run when this was
+    introduced).
+``rolled_rk4``
+    RK4's four stages as a loop of four iterations, so the compiled step holds the plant and the
+    controller once instead of four times (the same operations in the same order, bit for bit).
+    ``None`` (default): for arms of at least :data:`ROLL_FROM_JOINTS` joints, where it is for
+    compile time (the UR5's H∞ + NN first run took 14.1 s instead of 24.8 s written out); the
+    paper's 2-joint arm keeps the stages written out (rolled, its adaptive 10-s run took 3.0 s
+    instead of 1.9 s).
+``batch_group``
+    A batch of more than this many members runs as equal groups of at most that many, one after
+    the other, through one compiled program (the last group padded with copies of its first
+    member, whose results are dropped); 0: one group. Past a few hundred members the vmapped
+    step's arrays no longer stay in the cache: the paper's adaptive law at B = 1,000 (1 s, metrics)
+    ran 260,875 trajectory-steps/s in two groups of 500 and 179,791 in one group, with the same
+    numbers bit for bit.
+
+The controller's own layout (the networks' weights carried in blocks of at most 64 values, so that
+XLA runs the loop's kernels inline) is the controller's business
+(:class:`hinfnn.controllers.law.ReducedOrderController`, ``block``), not a loop option.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import dataclasses
+
+#: Arms with at least this many joints integrate with RK4's stages rolled (``rolled_rk4=None``).
+ROLL_FROM_JOINTS = 3
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopOptions:
+    """How the compiled loop is written (see the module docstring); hashable, part of the key of
+    every compiled simulation program."""
+
+    sincos: bool = True
+    small_mm: bool = True
+    rolled_rk4: bool | None = None
+    batch_group: int = 500
+
+    def __post_init__(self):
+        if not (isinstance(self.batch_group, int) and self.batch_group >= 0):
+            raise ValueError(f"batch_group must be a whole number >= 0 (0: off), got {self.batch_group!r}")
+
+    def rolled(self, n_joints: int) -> bool:
+        """Whether a plant with ``n_joints`` joints integrates with RK4's stages rolled."""
+        return n_joints >= ROLL_FROM_JOINTS if self.rolled_rk4 is None else bool(self.rolled_rk4)
+
+    def groups(self, B: int) -> list:
+        """Member indices of the groups a batch of B runs in: one group of all when B ≤
+        ``batch_group`` or grouping is off, else equal groups (NumPy index arrays, the last
+        padded with its first member)."""
+        import numpy as np
+
+        if not self.batch_group or B <= self.batch_group:
+            return [np.arange(B)]
+        n = -(-B // self.batch_group)
+        g = -(-B // n)
+        groups = []
+        for i in range(n):
+            idx = np.arange(i * g, min((i + 1) * g, B))
+            groups.append(np.concatenate([idx, np.full(g - idx.size, idx[0])]))
+        return groups
+
+
+_ACTIVE: contextvars.ContextVar = contextvars.ContextVar("hinfnn_loop_options", default=LoopOptions())
+
+
+def current() -> LoopOptions:
+    """The options the code being traced is written with."""
+    return _ACTIVE.get()
+
+
+@contextlib.contextmanager
+def active(options: LoopOptions):
+    """Trace with ``options`` (the simulator wraps each compiled program's trace in it)."""
+    token = _ACTIVE.set(options)
+    try:
+        yield options
+    finally:
+        _ACTIVE.reset(token)
+
+
+__all__ = ["LoopOptions", "ROLL_FROM_JOINTS", "current", "active"]

@@ -1,0 +1,261 @@
+"""The ``hinfnn`` command line's parser: every subcommand, its options and examples (parsing only)."""
+
+from __future__ import annotations
+
+import argparse
+import functools
+from pathlib import Path
+
+EXAMPLES_RUN = """examples:
+  hinfnn run paper                   # writes results/runs/paper-<UTC time>/
+  hinfnn run paper --set controller.kind=hinf --set plant.contact.damping=200
+  hinfnn run paper --set 'controller.kind=["fl", "hinf", "hinf_nn"]' --out results/three
+  hinfnn run my_scenario.toml --set simulation.t_final=2 --out results/mine --force
+  hinfnn run paper --set simulation.t_final=1000 --fields metrics   # long: store only what the metrics need
+  hinfnn run paper --no-figures --out results/fast   # scripted use: no PNG (`hinfnn plot DIR` draws them later)
+
+--force replaces OUT only if hinfnn wrote it (it holds .hinfnn-result and nothing else);
+without it, a non-empty OUT is kept and the result goes to OUT-2, OUT-3, ...
+"""
+EXAMPLES_REPRODUCE = """examples:
+  hinfnn reproduce                       # writes results/paper/ (report.md, figures, metrics.json)
+  hinfnn reproduce --out /tmp/study --force
+  hinfnn reproduce --set simulation.t_final=2   # a quick look (claims are judged on whatever ran)
+"""
+EXAMPLES_GALLERY = """examples:
+  hinfnn gallery                         # results/gallery/report.md: planar3-drum, ur5-table, ur5-sphere
+  hinfnn gallery --only ur5-table --out /tmp/table
+  hinfnn gallery --set simulation.t_final=2   # a quick look (the checks are judged on what ran)
+"""
+EXAMPLES_CACHE = """examples:
+  hinfnn cache                     where the compilation cache is, its number of files and size
+  hinfnn cache --clear             empty it (the next run compiles again, 4-7 s)
+  du -sh "$(hinfnn cache --path)"  the folder alone, for scripts (prints nothing when it is off)
+
+The folder is $HINFNN_CACHE_DIR, else $XDG_CACHE_HOME/hinfnn/jax, else ~/.cache/hinfnn/jax;
+HINFNN_CACHE_DIR=off disables the cache. Deleting the folder at any time is safe.
+"""
+EXAMPLES_PLOT = """examples:
+  hinfnn plot results/runs/paper-20261129T170102Z            redraw every figure in place
+  hinfnn plot results/three --figures tau,lambda --zoom 1:1.1,9:9.1
+  hinfnn plot results/paper --out /tmp/figs                  the study's Figs. 3-9 elsewhere
+"""
+EXAMPLES_EXPORT = """examples:
+  hinfnn export results/three --csv                 results/three/trajectory.csv (every run)
+  hinfnn export results/three --parquet --run hinf  results/three/trajectory-hinf.parquet
+  hinfnn export results/three --csv --out - | head  to standard output
+
+Columns: run, t [s], then one per component with its unit: tau_1 [N·m], tau_2 [N·m], lam [λ units] ...
+In Python: hinfnn.load("results/three").to_pandas() (the same table).
+"""
+EXAMPLES_SWEEP = """examples:
+  hinfnn sweep paper-uncertainty                       # 1,000 draws x 3 controllers into results/paper-uncertainty/
+  hinfnn sweep paper-uncertainty --samples 8 --set simulation.t_final=0.5   # a quick trial
+  hinfnn sweep paper-map --backend ray                 # batches as Ray tasks on a local Ray instance
+  hinfnn sweep my_sweep.toml --backend ray --address auto   # on the Ray cluster this machine belongs to
+  hinfnn sweep paper-uncertainty --out results/pu --resume  # continue an interrupted sweep
+  hinfnn sweep --list                                  # the shipped specs
+
+The table is OUT/results.parquet (hinfnn.load_sweep(OUT) gives a pandas DataFrame); OUT/report.md
+states the fractions that stayed bounded and held contact; see docs/sweeps.md for the spec format.
+"""
+EXAMPLES_MAIN = """examples:
+  hinfnn reproduce                 the paper's Sec. VI study into results/paper/
+  hinfnn gallery                   the shipped arms-and-surfaces scenarios into results/gallery/
+  hinfnn run paper --set controller.kind=hinf --set plant.contact.damping=200
+  hinfnn keys                      every scenario key, its meaning and allowed values
+  hinfnn show results/paper        the metrics and designed controllers of a saved result
+  hinfnn plot DIR / export DIR     redraw the figures / write the trajectories as CSV or Parquet
+  hinfnn sweep paper-uncertainty   a robustness sweep: 1,000 seeded draws of the true plant, 3 controllers
+  hinfnn cache                     the compilation cache that makes later starts fast
+
+exit codes:
+  0    ok
+  1    a run diverged (its metrics up to then are kept, marked partial), or another failure
+  2    bad input: scenario, override, infeasible gains, output folder, not enough memory,
+       unreadable result (one line naming the key or file)
+  130  interrupted (Ctrl-C / SIGINT); nothing half-written is left behind
+  143  terminated (SIGTERM); nothing half-written is left behind
+"""
+
+
+@functools.cache
+def _parser() -> argparse.ArgumentParser:
+    """The command line's parser, built once per process: it holds only constants (parsing does
+    not change it; ``--set``'s list default is copied, not appended to), and building its 13
+    subcommands takes about 5 ms, which every ``main()`` called from Python (a test, a notebook)
+    paid again."""
+    from .. import __version__
+
+    fmt = argparse.RawDescriptionHelpFormatter
+    p = argparse.ArgumentParser(
+        prog="hinfnn", formatter_class=fmt, epilog=EXAMPLES_MAIN,
+        description="Robust position/force learning control of constrained manipulators "
+                    "(Hwang & Hu: nonlinear H-infinity control with online neural networks).")
+    p.add_argument("--version", action="version", version=f"hinfnn {__version__}")
+    p.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    def common(sp):
+        sp.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a scenario value (repeatable); VALUE is read as TOML, bare words "
+                             "as strings; see `hinfnn keys`")
+        sp.add_argument("--force", action="store_true",
+                        help="replace a non-empty output folder (default: write to OUT-2, OUT-3, ...)")
+        sp.add_argument("--quiet", action="store_true", help="no progress or tables, only errors")
+        sp.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show full tracebacks on errors")
+
+    r = sub.add_parser(
+        "run", formatter_class=fmt, epilog=EXAMPLES_RUN,
+        help="simulate one scenario (one run per listed controller)",
+        description="Simulate SCENARIO (a shipped name such as 'paper', or a .toml file) and write "
+                    "OUT/metrics.json, OUT/trajectory.npz, OUT/scenario.toml and figures. Several "
+                    "controllers (controller.kind = [...]) give one run each.")
+    r.add_argument("scenario", help="shipped scenario name (see `hinfnn scenarios`) or path to a .toml file")
+    r.add_argument("--out", default=None, metavar="DIR",
+                   help="output folder (default: results/runs/<scenario name>-<UTC time>)")
+    r.add_argument("--fields", default="all", metavar="WHAT",
+                   help="what the runs store: all (default), metrics (only what the metrics need: less memory "
+                        "for long runs), or field names separated by commas")
+    r.add_argument("--no-figures", dest="figures", action="store_false",
+                   help="write no figures (2.5-3 s less); `hinfnn plot DIR` draws them later from the saved result")
+    common(r)
+
+    rp = sub.add_parser(
+        "reproduce", formatter_class=fmt, epilog=EXAMPLES_REPRODUCE,
+        help="reproduce the paper's Sec. VI study: figures, metrics, claims, report",
+        description="Run FL-like, H-infinity-only and adaptive H-infinity NN (both F_f centre presets) "
+                    "on the paper scenario, with the paper's undamped contact and with a damped one, "
+                    "then (unless --paper-only) the paper's laws against the stabilised ones (scenario "
+                    "paper-stable) at three contact stiffnesses, continuous and at 1 kHz; write "
+                    "OUT/report.md, fig3..fig9 and beyond_*.png, metrics.json, trajectory.npz, beyond.npz, "
+                    "scenario.toml.")
+    rp.add_argument("--out", default=None, metavar="DIR", help="output folder (default: results/paper)")
+    rp.add_argument("--scenario", default="paper", help="base scenario (default: paper)")
+    rp.add_argument("--paper-only", action="store_true",
+                    help="only the paper's Sec. VI study, without the Beyond-the-paper comparison (24 more runs)")
+    common(rp)
+
+    d = sub.add_parser(
+        "design", formatter_class=fmt,
+        help="print the designed controller: Riccati solution, gains, v_p gains, Theorem 1's bounds, contact mode",
+        description="Design the scenario's controller(s) from the nominal model, as a run would, and print the "
+                    "design: the resolved gains (beta_lam too), P_p of the Riccati-like equation with its residual "
+                    "and closed-loop eigenvalues, v_p's gains, Theorem 1's bounds with their margins, the networks, "
+                    "the force-rate term's design, and the linearised contact mode (frequency, damping ratio) at the "
+                    "scenario's contact stiffness with and without the force-rate term.",
+        epilog="examples:\n  hinfnn design paper\n  hinfnn design paper-stable --set controller.kind=hinf\n"
+               "  hinfnn design paper --json > design.json\n")
+    d.add_argument("scenario", help="shipped scenario name or path to a .toml file")
+    d.add_argument("--json", action="store_true", help="print the design as JSON")
+    d.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario value (repeatable)")
+    d.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+
+    cp = sub.add_parser(
+        "compare", formatter_class=fmt,
+        help="run a scenario with one key at several values side by side (e.g. the built-in plant vs MuJoCo)",
+        description="Run SCENARIO once per value of one key (given as --set KEY=V1,V2,...), with the same "
+                    "controller(s), and write metrics.json (metrics and ratios to the first value also in "
+                    "compare.md), trajectory.npz, scenario.toml and figures overlaying lambda(t), u1(t), tau(t) "
+                    "and the contact of every run.",
+        epilog="examples:\n  hinfnn compare paper --set plant.engine=hinfnn,mujoco --set plant.contact.damping=200 "
+               "--set controller.kind=hinf\n  hinfnn compare paper --set plant.contact.stiffness=1e4,1e5,1e6\n")
+    cp.add_argument("scenario", help="shipped scenario name or path to a .toml file")
+    cp.add_argument("--out", type=Path, default=None, help="output folder (default: results/compares/<name>-<UTC time>)")
+    common(cp)
+    ga = sub.add_parser(
+        "gallery", formatter_class=fmt, epilog=EXAMPLES_GALLERY,
+        help="run the shipped arms-and-surfaces scenarios into one report",
+        description="Run planar3-drum, ur5-table and ur5-sphere (each with the controllers it lists) and write "
+                    "OUT/report.md with their setups, designs, metrics, the issue's checks and figures, and one "
+                    "folder per scenario as `hinfnn run` writes it. `hinfnn reproduce` is the paper's study.")
+    ga.add_argument("--out", type=Path, default=None,
+                    help="output folder (default: results/gallery; if it holds a result, results/gallery-2 ...)")
+    ga.add_argument("--only", action="append", default=[], metavar="NAME",
+                    help="run only this gallery scenario (repeatable)")
+    common(ga)
+
+    k = sub.add_parser("keys", formatter_class=fmt, help="list every scenario key with its meaning and range",
+                       description="Every key a scenario file or --set accepts.",
+                       epilog="example:\n  hinfnn keys | grep contact\n")
+    k.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    s = sub.add_parser("scenarios", formatter_class=fmt, help="list the shipped scenarios",
+                       description="The scenarios shipped with hinfnn (usable by name).",
+                       epilog="example:\n  hinfnn scenarios\n")
+    s.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    sh = sub.add_parser("show", formatter_class=fmt, help="print the metrics and designed controllers of a saved result",
+                        description="Read DIR/metrics.json (nothing else is needed) of a result written by "
+                                    "`hinfnn run` or `reproduce` and print its metrics table, why any run stopped "
+                                    "early, and the designed controllers (gains with the resolved beta_lam, "
+                                    "Theorem 1's bounds and margins, P_p and the Riccati residual, v_p's gains, "
+                                    "the networks).",
+                        epilog="examples:\n  hinfnn show results/paper\n  hinfnn show results/three --no-design\n")
+    sh.add_argument("folder", type=Path, metavar="DIR")
+    sh.add_argument("--no-design", action="store_true", help="only the metrics table")
+    sh.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    pl = sub.add_parser("plot", formatter_class=fmt, epilog=EXAMPLES_PLOT,
+                        help="redraw the figures of a saved result from its trajectory.npz",
+                        description="Draw the figures of a result folder again from DIR/trajectory.npz: a run's "
+                                    "u1, lambda, tau, J, contact and weights figures, or the paper study's "
+                                    "Figs. 3-9 for both contacts. They replace the folder's figures unless --out "
+                                    "is given.")
+    pl.add_argument("folder", type=Path, metavar="DIR")
+    pl.add_argument("--figures", default=None, metavar="NAMES",
+                    help="only these figures, separated by commas (run: u1, lambda, tau, J, contact, weights; "
+                         "study: fig3_u1_fl ... fig9_J)")
+    pl.add_argument("--zoom", default=None, metavar="A0:A1,B0:B1",
+                    help="the time windows (s) of the two zoom panels (default: 6-7 %% and 96-98 %% of the run)")
+    pl.add_argument("--out", default=None, metavar="FOLDER", help="write the figures there instead of into DIR")
+    pl.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    ex = sub.add_parser("export", formatter_class=fmt, epilog=EXAMPLES_EXPORT,
+                        help="write the trajectories of a saved result as a CSV or Parquet table",
+                        description="Write DIR/trajectory.npz as a table: one row per stored sample, a column "
+                                    "'run', then one column per field component with its unit in the name. "
+                                    "A run that stopped early is exported up to t_fail. CSV numbers are exact "
+                                    "(they read back to the same float64).")
+    ex.add_argument("folder", type=Path, metavar="DIR")
+    ex.add_argument("--csv", action="store_true", help="write DIR/trajectory[-RUN].csv")
+    ex.add_argument("--parquet", action="store_true", help="write DIR/trajectory[-RUN].parquet (needs pyarrow)")
+    ex.add_argument("--run", default=None, metavar="NAME", help="only this run (default: every run, stacked)")
+    ex.add_argument("--out", default=None, metavar="FILE",
+                    help="write here instead (a file, an existing folder, or - for standard output with --csv)")
+    ex.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    sw = sub.add_parser(
+        "sweep", formatter_class=fmt, epilog=EXAMPLES_SWEEP,
+        help="robustness sweep: vary scenario keys (grids, seeded draws), run every controller, map where it holds",
+        description="Run the sweep SPEC (a shipped name such as 'paper-uncertainty', or a .toml file): the base "
+                    "scenario with the varied keys drawn or gridded, every listed controller on every draw, in "
+                    "vmap batches grouped by compiled program. Writes OUT/results.parquet (one row per run: "
+                    "varied values, controller, status, every metric), written in parts as batches finish, and "
+                    "OUT/report.md with the robustness maps and distributions. A killed sweep loses at most the "
+                    "batches in flight: --resume continues it.")
+    sw.add_argument("spec", nargs="?", help="shipped sweep spec name (see --list) or path to a .toml file")
+    sw.add_argument("--out", type=Path, default=None, help="output folder (default: results/<spec name>)")
+    sw.add_argument("--backend", choices=("local", "ray"), default="local",
+                    help="local: batches one after the other in this process (default); ray: batches as Ray "
+                         "tasks, one per CPU (pip install 'hinfnn[ray]')")
+    sw.add_argument("--address", default=None, metavar="ADDR",
+                    help="with --backend ray: the cluster to join, 'auto' (the cluster this machine belongs to) or "
+                         "'ray://HEAD:10001' (default: start a local Ray instance)")
+    sw.add_argument("--resume", action="store_true",
+                    help="continue the sweep in OUT (same spec and options): finished batches are kept")
+    sw.add_argument("--samples", type=int, default=None, metavar="N",
+                    help="number of random draws instead of the spec's (quick trials)")
+    sw.add_argument("--batch-size", type=int, default=None, metavar="B",
+                    help="largest vmap batch (default 256, fewer if memory is short)")
+    sw.add_argument("--list", action="store_true", help="list the shipped sweep specs and exit")
+    common(sw)
+    ca = sub.add_parser(
+        "cache", formatter_class=fmt, epilog=EXAMPLES_CACHE,
+        help="show or clear the compilation cache (compiled simulator programs reused across runs)",
+        description="The persistent compilation cache: XLA programs compiled by earlier hinfnn "
+                    "processes, so that a new process skips most of the 4-7 s of compilation. "
+                    "Without options: its folder, number of files and size.")
+    what = ca.add_mutually_exclusive_group()
+    what.add_argument("--clear", action="store_true", help="delete every cache entry and say how much was removed")
+    what.add_argument("--path", action="store_true",
+                      help="print only the cache folder (nothing when the cache is off), for scripts")
+    ca.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    return p

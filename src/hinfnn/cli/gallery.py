@@ -1,0 +1,26 @@
+"""``hinfnn gallery``: the shipped arms-and-surfaces scenarios into one report."""
+
+from __future__ import annotations
+
+import json
+import time
+
+from ._common import Progress, command_line, log_stderr
+
+
+def main(args) -> int:
+    from ..report.markdown import metrics_table
+    from ..workflows.gallery import gallery_scenarios, run_gallery
+
+    gallery_scenarios(args.overrides, args.only)  # every check before anything runs
+    progress = Progress(args.quiet, "gallery")
+    t0 = time.perf_counter()
+    target = run_gallery(args.out, overrides=args.overrides, only=args.only, force=args.force, progress=progress,
+                         log=(lambda m: None) if args.quiet else log_stderr, command=command_line(args))
+    progress.done()
+    if not args.quiet:
+        for sub in sorted(p for p in target.iterdir() if p.is_dir()):
+            print(f"{sub.name}:")
+            print(metrics_table(json.loads((sub / "metrics.json").read_text()), markdown=False))
+        print(f"report: {target}/report.md  ({time.perf_counter() - t0:.0f} s)")
+    return 0

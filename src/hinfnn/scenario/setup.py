@@ -1,0 +1,257 @@
+"""A scenario's objects, built once: :meth:`hinfnn.scenario.Scenario.build` returns a :class:`Setup`.
+
+Each object is built the first time it is asked for and kept (the scenario checks ask for them in
+the order their messages need, so a bad value is named by the check that reads it first): the task
+map, the true plant, the nominal arm and the controller's constraint, the reference, the start pose,
+the designed controllers by kind, the simulation options and the names of the coordinates and
+joints. Designed controllers are also kept per process by everything their design reads (the
+nominal arm and constraint by value, the controller section, the control period, the reference's
+span and the start pose), so the draws of a sweep that vary only the truth design each controller
+once.
+"""
+
+from __future__ import annotations
+
+import collections
+import functools
+import math
+
+import numpy as np
+
+from ..errors import ConfigError
+
+
+class Setup:
+    """The objects of one scenario (read-only; each built once, on first use)."""
+
+    def __init__(self, scenario):
+        self.scenario = scenario
+        self._controllers: dict = {}
+
+    # --- the models -----------------------------------------------------------------------------
+    @functools.cached_property
+    def task(self):
+        """The task map (:mod:`hinfnn.model.taskmap`) both arms are built with; None for the arm's
+        native coordinates (the two_link arm of Sec. VI)."""
+        sc = self.scenario
+        if not sc.nominal.arm.task_maps and sc.task.map != "native":
+            raise ConfigError(f"the {sc.nominal.arm.model!r} arm has only its native task coordinates (the tip "
+                              "position); use arm model \"planar\" or \"urdf\" for other coordinates", key="task.map")
+        geometry = sc.nominal.surface.build() if sc.task.fitted else None
+        return sc.task.build(sc.nominal.arm, geometry)
+
+    @functools.cached_property
+    def plant(self):
+        """The true plant (``plant.engine`` chooses the class)."""
+        sc = self.scenario
+        return sc.plant.build(task=self.task, dt=sc.simulation.dt, control_period=self.control_period)
+
+    @functools.cached_property
+    def nominal_arm(self):
+        return self.scenario.nominal.arm.build(self.task, key="nominal.arm")
+
+    @functools.cached_property
+    def nominal_surface(self):
+        """The nominal surface as its kind builds it: a task-space constraint or a Cartesian shape."""
+        return self.scenario.nominal.surface.build()
+
+    @functools.cached_property
+    def constraint(self):
+        """The controller's constraint θ̂(x) in task coordinates: the nominal surface itself for a
+        task-space kind; for a Cartesian shape, θ̂ = d in fitted coordinates
+        (:class:`~hinfnn.model.surface.FittedConstraint`) or θ̂(x) = θ(point(x))
+        (:class:`~hinfnn.model.surface.TaskConstraint`), with m = n − 1 and k = 1."""
+        from ..model.geometry import Geometry
+        from ..model.surface import FittedConstraint, TaskConstraint
+
+        sc = self.scenario
+        surface = self.nominal_surface
+        if not isinstance(surface, Geometry):
+            return surface
+        m = self.nominal_arm.n - 1
+        if sc.task.fitted:
+            return FittedConstraint(m=m, k=1)
+        task = self.task if sc.task.map != "native" else sc.nominal.arm.native_task()
+        if task is None:
+            raise ConfigError(f"a {sc.nominal.surface.kind!r} surface needs task coordinates that contain the tool "
+                              "point: set task.map", key="task.map")
+        return TaskConstraint(geometry=surface, task=task, m=m, k=1)
+
+    @functools.cached_property
+    def reference(self):
+        """The reference for the constraint's m motion and k force coordinates."""
+        c = self.constraint
+        return self.scenario.reference.build(m=c.m, k=c.k)
+
+    @functools.cached_property
+    def q0(self) -> np.ndarray:
+        """The start pose: the TRUE arm's tool at u1(0) on the TRUE surface (NaN when not found)."""
+        return self.start_pose(self.plant)
+
+    def start_pose(self, plant) -> np.ndarray:
+        """The start pose of ``initial`` on ``plant`` (the scenario's own plant: :attr:`q0`)."""
+        init = self.scenario.initial
+        if getattr(plant, "cartesian", False):
+            q = plant.initial_q(init.u1, elbow_up=init.elbow == "up", q_guess=init.q_guess or None)
+        else:
+            q = plant.initial_q(init.u1, elbow_up=init.elbow == "up")
+        return np.asarray(q)
+
+    # --- the controllers ------------------------------------------------------------------------
+    def controller(self, kind: str | None = None):
+        """The controller ``kind`` (default: the scenario's only kind), designed from the NOMINAL
+        model (:class:`~hinfnn.errors.DesignError` with the dotted key of what failed)."""
+        kind = kind or only(self.scenario.kinds)
+        if kind not in self._controllers:
+            self._controllers[kind] = _DESIGNS.get(self._design_key(kind), lambda: self._design(kind))
+        return self._controllers[kind]
+
+    def _design_inputs(self):
+        sc = self.scenario
+        if sc.controller.force_rate.kappa == 0.0:
+            return None, None
+        if sc.nominal.arm.model != "two_link" or sc.nominal.surface.kind != "inclined_line":
+            raise ConfigError("the force-rate term is designed for the two_link arm on an inclined_line (its κ "
+                              "rule uses the normal mass along the line's path; docs/beyond-the-paper.md), got "
+                              f"a {sc.nominal.arm.model!r} arm on a {sc.nominal.surface.kind!r}; set it to 0",
+                              key="controller.force_rate.kappa")
+        return sc.reference.u1_range(), self.q0
+
+    def _design_key(self, kind: str):
+        """Everything the design reads: the nominal arm and constraint (by value), the controller
+        section, the control period, and for the force-rate rule the reference's span and start pose."""
+        from .._pytree import value_key
+
+        u1_range, q_start = self._design_inputs()
+        start = None if q_start is None else np.asarray(q_start, float).tobytes()
+        models = value_key((self.nominal_arm, self.constraint))
+        return kind, models, repr(self.scenario.controller), self.control_period, u1_range, start
+
+    def _design(self, kind: str):
+        u1_range, q_start = self._design_inputs()
+        return self.scenario.controller.build(kind, self.nominal_arm, self.constraint, u1_range=u1_range,
+                                              q_start=q_start, period=self.control_period)
+
+    # --- the simulation -------------------------------------------------------------------------
+    @property
+    def control_period(self) -> float | None:
+        """The period the controller runs at: ``simulation.control_period`` under sampled control,
+        the simulation step for a plant that steps itself (MuJoCo: the torque is held over each of
+        its steps), None for continuous control. The controller is designed for it."""
+        sc = self.scenario
+        if sc.simulation.control == "sampled":
+            return sc.simulation.control_period
+        return sc.simulation.dt if type(sc.plant).discrete else None
+
+    @functools.cached_property
+    def limits(self):
+        return self.scenario.simulation.limits()
+
+    def options(self) -> dict:
+        """Keyword arguments of :func:`hinfnn.simulate` for this scenario."""
+        s = self.scenario.simulation
+        return dict(t_final=s.t_final, dt=s.dt, save_interval=s.output_interval, control_period=self.control_period,
+                    limits=self.limits)
+
+    def plan(self):
+        """The :class:`~hinfnn.sim.plan.StepPlan` of a run of this scenario."""
+        from ..sim.plan import StepPlan
+
+        s = self.scenario.simulation
+        return StepPlan.make(s.t_final, s.dt, control_period=self.control_period, save_interval=s.output_interval,
+                             discrete=type(self.scenario.plant).discrete)
+
+    def run(self, kind: str | None = None, name: str | None = None, *, info=None, controller=None):
+        """The :class:`hinfnn.sim.Run` of one controller kind (default: the only one)."""
+        from ..sim import Run, RunInfo
+
+        kind = kind or only(self.scenario.kinds)
+        info = info or RunInfo(name=name or kind, kind=kind, scenario=self.scenario.single(kind))
+        return Run(name=name or kind, plant=self.plant, controller=controller or self.controller(kind),
+                   reference=self.reference, q0=self.q0, info=info, **self.options())
+
+    # --- names ----------------------------------------------------------------------------------
+    @functools.cached_property
+    def coordinate_names(self) -> list[tuple[str, str]] | None:
+        """Names and units of the task coordinates (motion coordinates first, the constrained one
+        last), or None for the native coordinates of the two_link arm (x1, x2)."""
+        return None if self.task is None else self.task.names()
+
+    @functools.cached_property
+    def joint_names(self) -> list[str]:
+        """The moving joints' names (URDF), or joint1 … jointn."""
+        chain = getattr(self.nominal_arm, "chain", None)
+        n = self.nominal_arm.n
+        return list(chain.joint_names) if chain is not None else [f"joint{i + 1}" for i in range(n)]
+
+
+#: Colours of the shipped controller kinds in figures (other kinds take the next free colour of
+#: the report's palette).
+KIND_COLORS = {"fl": "#7b3294", "hinf": "#1f5fbf", "hinf_nn": "#d62728"}
+
+
+def describe(scenario) -> dict:
+    """The facts a report shows of a run of ``scenario`` (one controller kind): the controller's
+    label and colour, whether it learns (and its F_f centre preset), the contact, the scaling of λ,
+    the task coordinates' and joints' names and the reference's periods."""
+    from ..controllers import KINDS
+
+    kind = scenario.kinds[0]
+    comp = KINDS.get(kind)
+    ctrl = scenario.controller
+    learning = comp is not None and comp.learns
+    ref = scenario.reference
+    periods = [float(v) for key in ("u1_period", "lam_period")
+               for v in (getattr(ref, key) if isinstance(getattr(ref, key, ()), tuple) else (getattr(ref, key, math.nan),))
+               if isinstance(v, (int, float)) and math.isfinite(v)]
+    try:
+        coordinates, joints = scenario.coordinate_names(), scenario.joint_names()
+    except Exception:  # noqa: BLE001 - a description never fails over a label
+        coordinates, joints = None, None
+    return {
+        "kind": kind, "label": comp.label if comp is not None else kind, "color": KIND_COLORS.get(kind, ""),
+        "networks": learning, "f_f_preset": ctrl.network_f.preset if learning else None,
+        "augmented": bool(ctrl.augmented),
+        "contact_stiffness": float(scenario.plant.contact.stiffness),
+        "contact_damping": float(scenario.plant.contact.damping),
+        "lambda_scaling": getattr(scenario.nominal.surface, "scaling", None),
+        "coordinates": [list(c) for c in coordinates] if coordinates else None,
+        "joints": list(joints) if joints else None,
+        "reference_periods": periods,
+        "engine": scenario.plant.engine,
+        "control": scenario.simulation.control,
+    }
+
+
+def only(kinds):
+    """The one controller kind of a scenario (a ConfigError naming them when there are several)."""
+    if len(kinds) != 1:
+        raise ConfigError(f"the scenario lists {len(kinds)} controllers {list(kinds)}; name one", key="controller.kind")
+    return kinds[0]
+
+
+class _DesignCache:
+    """Designed controllers by what their design reads (a bounded, least-recently-used map)."""
+
+    def __init__(self, size: int = 64):
+        self.size = size
+        self._d: collections.OrderedDict = collections.OrderedDict()
+
+    def get(self, key, design):
+        if key in self._d:
+            self._d.move_to_end(key)
+            return self._d[key]
+        value = design()
+        self._d[key] = value
+        if len(self._d) > self.size:
+            self._d.popitem(last=False)
+        return value
+
+    def clear(self) -> None:
+        self._d.clear()
+
+
+#: The process's designed controllers (:meth:`Setup.controller`).
+_DESIGNS = _DesignCache()
+
+__all__ = ["Setup", "only", "describe", "KIND_COLORS"]
