@@ -13,9 +13,9 @@ cost estimate of the compiled program. No assertions: speed is measured here, ne
 Entry points timed (``--variants`` also times the alternatives that were tried, interleaved,
 see :func:`compare_variants`):
 
-* ``loop``: ``tau = loop.update(t, period, q, qd, F)`` of a :class:`hinfnn.controllers.SampledLoop`
+* ``loop``: ``tau = loop.update(t, period, q, qd, force)`` of a :class:`hinfnn.controllers.SampledLoop`
   (``SampledController.update_packed`` on one packed buffer, τ returned as NumPy): the fast path;
-* ``pytree``: ``tau, state = sc.update(t, period, state, Measurement(q, qd, F))`` followed by
+* ``pytree``: ``tau, state = sc.update(t, period, state, Measurement(q, qd, force))`` followed by
   ``np.asarray(tau)``.
 
 Two properties of XLA's CPU runtime decide much of the cost (JAX 0.10.2):
@@ -145,7 +145,7 @@ def _caller(sc, path: str, meas: dict):
 
         def call(i):
             j = i % m
-            tau, box[0] = update(i * PERIOD, PERIOD, box[0], Measurement(q=Q[j], qd=QD[j], F=F[j]))
+            tau, box[0] = update(i * PERIOD, PERIOD, box[0], Measurement(q=Q[j], qd=QD[j], force=F[j]))
             tau = np.asarray(tau)
             if not (tau[0] == tau[0]):
                 bad[0] += 1
@@ -162,7 +162,7 @@ def program_flops(sc, path: str = "loop") -> float:
         lowered = jax.jit(sc.step_packed).lower(np.zeros(sc.packed_size))
     else:
         n = sc.n_joints
-        m = Measurement(q=np.zeros(n), qd=np.zeros(n), F=np.zeros(n))
+        m = Measurement(q=np.zeros(n), qd=np.zeros(n), force=np.zeros(sc.force_size))
         lowered = jax.jit(sc.step).lower(0.0, PERIOD, sc.init(), m)
     cost = lowered.compile().cost_analysis()
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost
@@ -228,7 +228,7 @@ def compare_variants(kind: str = "hinf_nn", units: int | None = None, *, n_calls
 
     def meas_args(i):
         j = i % m
-        return i * PERIOD, PERIOD, Measurement(q=Q[j], qd=QD[j], F=F[j])
+        return i * PERIOD, PERIOD, Measurement(q=Q[j], qd=QD[j], force=F[j])
 
     def pytree_caller(fn, state, get=np.asarray):
         box = [state]
@@ -244,7 +244,7 @@ def compare_variants(kind: str = "hinf_nn", units: int | None = None, *, n_calls
         return lambda i: loop.update(i * PERIOD, PERIOD, Q[i % m], QD[i % m], F[i % m])
 
     def packed_caller(fn, get=np.asarray):
-        x = sc.pack(0.0, PERIOD, Measurement(q=Q[0], qd=QD[0], F=F[0]), xf)
+        x = sc.pack(0.0, PERIOD, Measurement(q=Q[0], qd=QD[0], force=F[0]), xf)
 
         def call(i):
             out = get(fn(fill(i, x)))
@@ -285,7 +285,7 @@ def compare_variants(kind: str = "hinf_nn", units: int | None = None, *, n_calls
         return pytree_caller(lambda s, t, p, mm: sc.update(t, p, s, mm), xf, get=jax.device_get)
 
     def state_y_step(state, y):
-        meas_ = Measurement(q=y[2:2 + n], qd=y[2 + n:2 + 2 * n], F=y[2 + 2 * n:ns])
+        meas_ = Measurement(q=y[2:2 + n], qd=y[2 + n:2 + 2 * n], force=y[2 + 2 * n:ns])
         return sc.step(y[0], y[1], state, meas_)
     state_y = jax.jit(state_y_step)
     state_y_donated = jax.jit(state_y_step, donate_argnums=0)

@@ -16,7 +16,8 @@ Cases (each runs in a fresh worker process so that its peak memory is its own):
 5. ``latency`` — the sampled controller ``update(t, period, state, measurement)`` called from
    Python as in a 1 kHz robot loop: median and 99th percentile over 10,000 calls
    (benchmarks/latency.py).
-6. ``devices`` — each performance device of ``hinfnn._devices`` off in turn (fresh processes):
+6. ``devices`` — each loop option of ``hinfnn._loop.LoopOptions`` (and the controller's block layout)
+   off in turn (fresh processes):
    the adaptive 10-s run and a 100-plant batch.
 7. ``arm_devices`` — ``rolled_rk4`` on and off on the UR5 (ur5-table, H∞ + NN): the first run
    (compile-dominated, empty cache) and a 0.5-s run.
@@ -303,42 +304,66 @@ def case_latency_sync(args) -> dict:
 
 
 def case_device_run(args) -> dict:
-    """The adaptive 10-s run and a 100-plant batch (1 s each), with the devices of
-    ``--disable`` turned off in this worker (hinfnn._devices)."""
+    """The adaptive 10-s run and a 100-plant batch (1 s each), with the loop options of
+    ``--disable`` turned off (``blocks``: the controller's block layout)."""
     import hinfnn as H
 
     sc = H.load_scenario("paper", {"controller.kind": "hinf_nn"})
-    plant, ctrl, ref = sc.build_plant(), sc.build_controller("hinf_nn"), sc.build_reference()
+    plant, ctrl, ref = sc.build_plant(), _controller(sc, "hinf_nn", args), sc.build_reference()
     q0 = sc.initial_q(plant)
+    loop = _loop_options(args)
     t0 = time.perf_counter()
-    H.simulate(plant, ctrl, ref, t_final=0.01, dt=DT, q0=q0)
+    H.simulate(plant, ctrl, ref, t_final=0.01, dt=DT, q0=q0, loop=loop)
     compile_s = time.perf_counter() - t0
     times = []
     for _ in range(args.repeats):
         t0 = time.perf_counter()
-        H.simulate(plant, ctrl, ref, t_final=args.horizon, dt=DT, q0=q0)
+        H.simulate(plant, ctrl, ref, t_final=args.horizon, dt=DT, q0=q0, loop=loop)
         times.append((time.perf_counter() - t0) * T_RUN / args.horizon)
     return dict(disabled=list(args.disable), compile_s=compile_s, s_per_10s_run=_stats(times),
-                batch100_traj_steps_per_s=_batch_1s(ctrl, ref, 100, args.seed)[1],
+                batch100_traj_steps_per_s=_batch_1s(ctrl, ref, 100, args.seed, loop=loop)[1],
                 ops=step_profile(plant, ctrl, ref))
 
 
-def _batch_1s(ctrl, ref, B: int, seed: int) -> tuple[float, float]:
+#: The switches of ``--disable``: the loop options (hinfnn._loop.LoopOptions) and the controller's
+#: block layout (``blocks``).
+SWITCHES = ("blocks", "sincos", "small_mm", "rolled_rk4", "batch_groups")
+
+
+def _loop_options(args):
+    """The LoopOptions of this worker: every option on but those of ``--disable``."""
+    from hinfnn._loop import LoopOptions
+
+    off = set(args.disable)
+    return LoopOptions(sincos="sincos" not in off, small_mm="small_mm" not in off,
+                       rolled_rk4=False if "rolled_rk4" in off else None,
+                       batch_group=0 if "batch_groups" in off else LoopOptions().batch_group)
+
+
+def _controller(sc, kind, args):
+    """The scenario's controller, its state in one array per part with ``--disable blocks``."""
+    import dataclasses
+
+    ctrl = sc.build_controller(kind)
+    return dataclasses.replace(ctrl, block=None) if "blocks" in args.disable else ctrl
+
+
+def _batch_1s(ctrl, ref, B: int, seed: int, loop=None) -> tuple[float, float]:
     """(wall s, trajectory-steps/s) of B plants of :func:`draw_plants` under one controller for
     1 s, storing the metrics; the program is compiled first by a 0.01-s run."""
     import hinfnn as H
 
     plants, q0s, _ = draw_plants(B, seed=seed)
-    H.simulate_batch(plants, ctrl, ref, t_final=0.01, dt=DT, q0=q0s, fields="metrics")
+    H.simulate_batch(plants, ctrl, ref, t_final=0.01, dt=DT, q0=q0s, fields="metrics", loop=loop)
     t0 = time.perf_counter()
-    H.simulate_batch(plants, ctrl, ref, t_final=1.0, dt=DT, q0=q0s, fields="metrics")
+    H.simulate_batch(plants, ctrl, ref, t_final=1.0, dt=DT, q0=q0s, fields="metrics", loop=loop)
     wall = time.perf_counter() - t0
     return wall, B * round(1.0 / DT) / wall
 
 
 def case_devices(args) -> dict:
-    """Each performance device of hinfnn._devices turned off in turn (a fresh process each),
-    against all on: the benchmark line that justifies each."""
+    """Each loop option (and the controller's block layout) turned off in turn (a fresh process
+    each), against all on: the benchmark line that justifies each."""
     return _each_off(args, "device_run", ("blocks", "sincos", "small_mm"))
 
 
@@ -357,14 +382,15 @@ def case_arm_run(args) -> dict:
     import hinfnn as H
 
     sc = H.load_scenario("ur5-table", {"controller.kind": "hinf_nn", "simulation.t_final": 0.05})
+    loop = _loop_options(args)
     t0 = time.perf_counter()
-    sc.simulate("hinf_nn")
+    sc.simulate("hinf_nn", loop=loop)
     first = time.perf_counter() - t0
     sc = sc.with_overrides({"simulation.t_final": 0.5})
     times = []
     for _ in range(max(1, args.repeats)):
         t0 = time.perf_counter()
-        sc.simulate("hinf_nn")
+        sc.simulate("hinf_nn", loop=loop)
         times.append(time.perf_counter() - t0)
     return dict(disabled=list(args.disable), first_run_s=first, s_per_half_second=_stats(times))
 
@@ -381,7 +407,8 @@ def case_batch_run(args) -> dict:
     import hinfnn as H
 
     sc = H.load_scenario("paper", {"controller.kind": "hinf_nn"})
-    wall, rate = _batch_1s(sc.build_controller("hinf_nn"), sc.build_reference(), 1000, args.seed)
+    wall, rate = _batch_1s(sc.build_controller("hinf_nn"), sc.build_reference(), 1000, args.seed,
+                           loop=_loop_options(args))
     return dict(disabled=list(args.disable), wall_s=wall, traj_steps_per_s=rate)
 
 
@@ -391,7 +418,7 @@ def case_batch_devices(args) -> dict:
 
 
 def case_program_gc(args) -> dict:
-    """``program_gc`` (hinfnn._devices) on and off, in alternating fresh processes: the short warm
+    """``program_gc`` (hinfnn.cli) on and off, in alternating fresh processes: the short warm
     ``hinfnn run paper --no-figures``, where tracing and loading the programs are most of the time.
     Off: ``HINFNN_DEFAULT_GC=1``."""
     sys.path.insert(0, str(HERE))
@@ -534,7 +561,7 @@ def print_report(res: dict) -> None:
         base = dev.get("all on", {})
         b_run = base.get("s_per_10s_run", {}).get("median")
         b_batch = base.get("batch100_traj_steps_per_s")
-        print("\n6. Performance devices (hinfnn._devices), each off in turn: adaptive 10-s run, 100-plant batch")
+        print("\n6. Loop options (hinfnn._loop) and the block layout, each off in turn: adaptive 10-s run, 100-plant batch")
         hdr = f"{'devices off':<14}{'s per run':>11}{'× all on':>10}{'batch traj-steps/s':>20}{'× all on':>10}{'kernels/step':>14}"
         print(hdr)
         print("-" * len(hdr))
@@ -635,10 +662,10 @@ def main(argv=None) -> int:
         import numpy as np
 
         import hinfnn
-        import hinfnn._devices  # `import hinfnn` imports its modules on first use only
 
-        for device in args.disable:
-            hinfnn._devices.disable(device)
+        unknown = sorted(set(args.disable) - set(SWITCHES))
+        if unknown:
+            raise SystemExit(f"unknown --disable {unknown}; allowed: {', '.join(SWITCHES)}")
         hinfnn.configure()
         np.seterr(all="ignore")
         res = CASES[args.worker](args)

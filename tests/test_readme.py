@@ -11,9 +11,12 @@ Every command line of the ```sh blocks runs, in order, with
 ``hinfnn gallery`` draws the same arms' figures right after); a scenario
 file a command names that does not exist is created as ``base = "paper"``. Skipped: ``make``
 (the demo and the test suite itself) and usage synopses (lines with placeholders such as
-``SCENARIO``, ``DIR``, ``KEY=VALUE`` or ``[--option]``). Each must exit 0. The commands fall into
-three independent groups (the arm scenarios, the sweeps, the rest), each run in its own fresh
-folder and process (:func:`test_readme_shell_examples_run`).
+``SCENARIO``, ``DIR``, ``KEY=VALUE`` or ``[--option]``). Each must exit 0 and print what a user
+is told it prints (:data:`PRINTS`: the metrics table and the folder of a run, the report's path of
+a study, the paths of the figures and tables drawn or exported, which must exist ...), and the
+Python examples must print their two lines with numbers. The commands fall into three independent
+groups (the arm scenarios, the sweeps, the rest), each run in its own fresh folder and process
+(:func:`test_readme_shell_examples_run`).
 """
 
 from __future__ import annotations
@@ -109,12 +112,16 @@ def test_readme_python_examples_run(tmp_path):
         "import numpy as _np\n"
         "import hinfnn as _h\n"
         "_sc = _h.load_scenario('paper', check=False)\n"
-        "t, q, qd, F = 0.0, _np.asarray(_sc.initial_q()), _np.zeros(2), _np.zeros(2)  # the robot's readings\n")
+        "t, q, qd, force = 0.0, _np.asarray(_sc.initial_q()), _np.zeros(2), _np.zeros(2)  # the robot's readings\n")
     script = tmp_path / "readme_examples.py"
     script.write_text(preamble + "\n" + code + "\n", encoding="utf-8")
     p = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=900,
                        env=_env())
     assert p.returncode == 0, f"README's Python examples fail:\n{p.stderr[-3000:]}"
+    # the first example prints its metrics and the theorem's verdict (True: the adaptive law is dissipative)
+    number = r"[0-9]+\.[0-9]+"
+    assert re.search(rf"^RMS e_u1 = {number} m, RMS e_λ = {number}, J\(T\) = {number}$", p.stdout, re.M), p.stdout
+    assert re.search(r"^dissipation inequality \(Theorem 1\) holds: True$", p.stdout, re.M), p.stdout
 
 
 def _sh_commands():
@@ -151,18 +158,54 @@ import contextlib, io, json, os, sys
 from hinfnn.cli import program_gc
 program_gc()  # as the hinfnn program does first (main(argv) called from Python does not)
 from hinfnn.cli import main
-failures = []
+done = []
 for argv in json.loads(sys.argv[1]):
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
         try:
             code = main(argv)
         except SystemExit as exc:
             code = exc.code
-    if code != 0:
-        failures.append(f"hinfnn {' '.join(argv)}  ->  exit {code}: {err.getvalue().strip()[-500:]}")
-print(json.dumps(failures))
+    done.append({"argv": argv, "code": code, "out": out.getvalue(), "err": err.getvalue()[-500:]})
+print(json.dumps(done))
 """
+
+#: What each command of the README prints on its standard output (a regular expression, or several,
+#: that must match, multi-line), by its verb (and ``--list`` for ``sweep``).
+PRINTS = {
+    "run": r"^run +status +RMS e_u1 .*\n-+\n(.*\n)+^results: (?P<folder>\S+)/ \(metrics\.json, trajectory\.npz, "
+           r"scenario\.toml",
+    "reproduce": r"^report: (?P<folder>\S+)/report\.md",
+    "gallery": r"^report: (?P<folder>\S+)/report\.md",
+    "design": r"^\w+: terms .*\n  gains: K_p .*\n(.*\n)*  P_p \[",
+    "compare": r"^results: (?P<folder>\S+)/ \(compare\.md",
+    "sweep": r"^controller +runs +invalid +simulated +bounded +held contact\n(.*\n)+^results: (?P<folder>\S+)/ "
+             r"\(results\.parquet",
+    "sweep --list": (r"^paper-uncertainty +\S", r"^paper-map +\S"),
+    "keys": r"^plant\.contact\.stiffness +\S",
+    "scenarios": r"^paper +\S.*\n(.*\n)*^ur5-table +\S",
+    "show": r"^run +status +RMS e_u1 .*\n-+\n\S+ +(ok|stopped)(.*\n)+^design of ",
+    "plot": r"^(?P<file>\S+\.png)$",
+    "export": r"^(?P<file>\S+\.(csv|parquet))$",
+    "cache": r"^compilation cache: ",
+}
+
+
+def check_prints(argv: list[str], out: str, cwd: Path) -> str | None:
+    """Why the output of one command is not what the README says it prints (None: it is): the
+    pattern of its verb matches, and the folder or files it names exist."""
+    verb = "sweep --list" if argv[:1] == ["sweep"] and "--list" in argv else argv[0]
+    patterns = PRINTS.get(verb)
+    if patterns is None:
+        return f"no expectation for `hinfnn {verb}` in PRINTS"
+    for pattern in (patterns,) if isinstance(patterns, str) else patterns:
+        found = re.search(pattern, out, re.M)
+        if found is None:
+            return f"does not print what it should ({pattern!r}):\n{out[-1500:]}"
+        for key in ("folder", "file"):
+            if key in found.groupdict() and not (cwd / found.group(key)).exists():
+                return f"names {found.group(key)}, which does not exist"
+    return None
 
 
 def test_readme_commands_are_grouped_without_losing_one():
@@ -182,10 +225,16 @@ def test_readme_shell_examples_run(tmp_path, group):
         p = subprocess.run(adapt(first, tmp_path), cwd=tmp_path, capture_output=True, text=True, timeout=300,
                            env=_env())
         assert p.returncode == 0, f"{shlex.join(first)}  ->  exit {p.returncode}: {p.stderr.strip()[-500:]}"
+        why = check_prints(first[1:], p.stdout, tmp_path)
+        assert why is None, f"{shlex.join(first)}  ->  {why}"
     argvs = [adapt(words, tmp_path, figures=group != "arms")[1:] for words in cmds]
     assert all(words[0] == "hinfnn" for words in cmds), cmds
     p = subprocess.run([sys.executable, "-c", _DRIVER, json.dumps(argvs)], cwd=tmp_path, capture_output=True,
                        text=True, timeout=1500, env=_env())
     assert p.returncode == 0, p.stderr[-3000:]
-    failures = json.loads(p.stdout.strip().splitlines()[-1])
+    failures = []
+    for r in json.loads(p.stdout.strip().splitlines()[-1]):
+        why = f"exit {r['code']}: {r['err'].strip()}" if r["code"] != 0 else check_prints(r["argv"], r["out"], tmp_path)
+        if why:
+            failures.append(f"hinfnn {' '.join(r['argv'])}  ->  {why}")
     assert not failures, "README commands that fail:\n" + "\n".join(failures)

@@ -570,7 +570,7 @@ def test_export_of_a_diverged_run_stops_at_t_fail(tmp_path, capsys):
     assert df["t [s]"].max() <= t_fail + 1e-12 and len(df) >= 1
 
 
-# --- the sampled robot loop documents and checks F ------------------------------------------------------------
+# --- the sampled robot loop documents and checks the tool force ------------------------------------------------
 
 
 def test_sampled_loop_rejects_a_wrong_force_shape():
@@ -579,10 +579,12 @@ def test_sampled_loop_rejects_a_wrong_force_shape():
     sc = H.load_scenario("paper", {"controller.kind": "fl"})
     loop = H.SampledController(sc.build_controller(), sc.build_reference()).loop()
     q = np.asarray(sc.initial_q())
-    assert "task-space force" in H.SampledLoop.update.__doc__ and "(n,)" in H.SampledLoop.update.__doc__
+    doc = H.SampledLoop.update.__doc__
+    assert "contact force the tool" in doc and "tool point" in doc and "base frame" in doc and "(d,)" in doc
     with pytest.raises(MeasurementError) as ex:
         loop.update(0.0, 1e-3, q, np.zeros(2), np.zeros(3))
-    assert "measurement.F" in str(ex.value) and "task-space force" in str(ex.value) and "(2,)" in str(ex.value)
+    assert ("measurement.force" in str(ex.value) and "contact force at the tool point" in str(ex.value)
+            and "(2,)" in str(ex.value))
     with pytest.raises(MeasurementError):
         loop.update(0.0, 1e-3, q, np.zeros(2), 5.0)
     assert np.all(np.isfinite(loop.update(0.0, 1e-3, q, np.zeros(2), np.zeros(2))))

@@ -114,7 +114,7 @@ def test_a_batch_in_groups_equals_the_batch_in_one(paper_plant, nominal_arm, nom
     assert [list(g) for g in grouped.groups(3)] == [[0, 1], [2, 2]]
     assert [list(g) for g in LoopOptions(batch_group=0).groups(3)] == [[0, 1, 2]]
     seen = []
-    two = run(progress=lambda done, total: seen.append((done, total)), loop=grouped)
+    two = run(progress=lambda done, total, what: seen.append((done, total)), loop=grouped)
     assert seen[-1] == (2 * 3000, 2 * 3000) and [d for d, _ in seen] == sorted(d for d, _ in seen)
     np.testing.assert_array_equal(two.status, one.status)
     np.testing.assert_array_equal(two.t_fail, one.t_fail)

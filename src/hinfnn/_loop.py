@@ -1,40 +1,34 @@
 """How the compiled simulation loop is written for XLA's CPU runtime: the loop options, a value.
 
 Each option changes how XLA executes the loop, never what it computes (the numbers agree to
-rounding), and each has the benchmark line that justifies it (``python benchmarks/run.py --cases
-devices arm_devices batch_devices`` runs the paper's adaptive run, the UR5 and a 1,000-plant
-batch with each option off in turn; docs/performance.md has the numbers).
+rounding); docs/performance.md ("Why the compiled loop is written as it is") has the benchmark
+line that justifies each (``python benchmarks/run.py --cases devices arm_devices batch_devices``
+turns each off in turn).
 
 :class:`LoopOptions` is passed to :func:`hinfnn.simulate` (``loop=``) and is part of the key of
 the compiled program: a program traced with some options is never reused with others. While a
 program is traced, the options are the *active* ones (:func:`active`), which the small helpers
-below read (:func:`hinfnn._linalg.mm`, :func:`hinfnn._linalg.sincos`). Outside a trace the
-defaults apply.
+of :mod:`hinfnn._linalg` read (:func:`~hinfnn._linalg.mm`, :func:`~hinfnn._linalg.sincos`).
+Outside a trace the defaults apply.
 
 ``sincos``
-    Sines and cosines of a vector of angles computed once and shared. XLA counts them as cheap and
-    recomputes them inside every kernel that uses them (the paper's RK4 step made about 240 libm
-    calls for its 24 distinct values); a reduction is never recomputed, so the values pass through
-    a sum with 0·v (exact for finite values; NaN stays NaN).
+    Sines and cosines of a vector of angles computed once and shared: XLA counts them as cheap and
+    recomputes them inside every kernel that uses them; a reduction is never recomputed, so the
+    values pass through a sum with 0·v (exact for finite values; NaN stays NaN).
 ``small_mm``
     Products of small matrices (contractions of at most :data:`hinfnn._linalg.SMALL_MM` terms)
     written as multiply-and-sum, which XLA fuses with the neighbouring arithmetic; a ``dot`` is a
-    kernel of its own (1.9 s vs 2.5 s per 100,000 steps of the paper's adaptive run when this was
-    introduced).
+    kernel of its own.
 ``rolled_rk4``
     RK4's four stages as a loop of four iterations, so the compiled step holds the plant and the
     controller once instead of four times (the same operations in the same order, bit for bit).
-    ``None`` (default): for arms of at least :data:`ROLL_FROM_JOINTS` joints, where it is for
-    compile time (the UR5's H∞ + NN first run took 14.1 s instead of 24.8 s written out); the
-    paper's 2-joint arm keeps the stages written out (rolled, its adaptive 10-s run took 3.0 s
-    instead of 1.9 s).
+    ``None`` (default): for arms of at least :data:`ROLL_FROM_JOINTS` joints, where it saves
+    compile time; the paper's 2-joint arm keeps the stages written out (rolled, it runs slower).
 ``batch_group``
     A batch of more than this many members runs as equal groups of at most that many, one after
     the other, through one compiled program (the last group padded with copies of its first
     member, whose results are dropped); 0: one group. Past a few hundred members the vmapped
-    step's arrays no longer stay in the cache: the paper's adaptive law at B = 1,000 (1 s, metrics)
-    ran 260,875 trajectory-steps/s in two groups of 500 and 179,791 in one group, with the same
-    numbers bit for bit.
+    step's arrays no longer stay in the cache.
 
 The controller's own layout (the networks' weights carried in blocks of at most 64 values, so that
 XLA runs the loop's kernels inline) is the controller's business

@@ -94,9 +94,9 @@ def main(argv=None) -> int:
 
 #: Python's garbage-collector thresholds in the ``hinfnn`` program; the default is (700, 10, 10).
 #: Importing JAX and tracing a program allocate millions of short-lived objects, and each collection
-#: walks them: ``hinfnn run paper --no-figures`` (0.05 s simulated, warm cache) took 3.97 s instead
-#: of 4.58 s (``python benchmarks/run.py --cases program_gc``). ``HINFNN_DEFAULT_GC=1`` keeps
-#: Python's default (the benchmark's A/B). :func:`main` called from Python keeps Python's default.
+#: walks them (docs/performance.md: ``python benchmarks/run.py --cases program_gc``).
+#: ``HINFNN_DEFAULT_GC=1`` keeps Python's default (the benchmark's A/B). :func:`main` called from
+#: Python keeps Python's default.
 PROGRAM_GC_THRESHOLD = (100_000, 50, 100)
 
 
@@ -112,7 +112,7 @@ def program_gc() -> None:
 def fast_exit(code: int) -> None:
     """End the ``hinfnn`` program now with ``code``: flush stdout and stderr, run the ``atexit``
     handlers, then ``os._exit``, skipping the interpreter's teardown of JAX, XLA and matplotlib
-    objects (0.5-0.7 s of wall and CPU time per process). ``HINFNN_SLOW_EXIT=1`` returns instead."""
+    objects (docs/performance.md). ``HINFNN_SLOW_EXIT=1`` returns instead."""
     if os.environ.get("HINFNN_SLOW_EXIT") == "1":
         return
     import atexit

@@ -36,9 +36,9 @@ from .network import block_bounds, join, split
 #: Largest number of float64 values the controller keeps in one array inside the compiled loop
 #: (512 bytes): XLA's CPU runtime runs a loop body's kernels inline only when no kernel touches a
 #: larger buffer; one larger buffer sends the step's kernels through its thread pool, which costs
-#: about as much as the step's arithmetic (2.0 s vs 1.0 s per 100,000 steps of the paper's adaptive
-#: run when this was introduced). The networks' weights Θ̂ (40 and 120 values) travel as blocks,
-#: and P_p, Q_p of more than this many entries are used by their m × m blocks.
+#: about as much as the step's arithmetic (docs/performance.md). The networks' weights Θ̂ (40 and
+#: 120 values) travel as blocks, and P_p, Q_p of more than this many entries are used by their
+#: m × m blocks.
 BLOCK = 64
 
 

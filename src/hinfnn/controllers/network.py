@@ -71,8 +71,39 @@ def _bounds(sizes) -> tuple:
     return tuple(zip(edges[:-1].tolist(), edges[1:].tolist()))
 
 
+class _Network:
+    """What both network forms share: their sizes, the centre blocks matching a blocked Θ, and
+    Remark 2's clip (subclasses hold ``centres`` with the units on the last axis, ``n_out``,
+    ``project`` and ``radius``)."""
+
+    @property
+    def n_units(self) -> int:
+        """Hidden units (per output), j."""
+        return int(self.centres.shape[-1])
+
+    @property
+    def size(self) -> int:
+        """Number of adjustable weights, n_out · j."""
+        return self.n_out * self.n_units
+
+    def layout(self, theta_blocks) -> tuple:
+        """[(start, stop)] of one output's centre blocks matching a blocked Θ."""
+        nb = len(theta_blocks) // self.n_out
+        return _bounds(int(t.shape[-1]) for t in theta_blocks[:nb])
+
+    def clip_blocks(self, theta_blocks) -> tuple:
+        """Θ put back on the ball ‖Θ‖ ≤ d if an integration step overshot it (Remark 2; the
+        identity without projection). The projected flow is tangent to the sphere, but its switch
+        at ‖Θ‖ = d lets a fixed step cross by O(dt); the radial clip makes ‖Θ̂(t)‖ ≤ d hold
+        exactly and only shrinks the storage function."""
+        if not self.project:
+            return theta_blocks
+        scale = jnp.minimum(1.0, self.radius / jnp.maximum(jnp.sqrt(sq_norm(theta_blocks)), 1e-300))
+        return tuple(t * scale for t in theta_blocks)
+
+
 @pytree_dataclass
-class TanhNetwork:
+class TanhNetwork(_Network):
     """One network of eq. (19) with optional projection onto ‖Θ‖ ≤ radius (Remark 2).
 
     Build it with :meth:`build`.
@@ -116,16 +147,6 @@ class TanhNetwork:
                    w_b=jnp.asarray(w_b), radius=jnp.asarray(np.inf if radius is None else radius),
                    n_out=int(n_out), project=radius is not None)
 
-    @property
-    def n_units(self) -> int:
-        """Number of hidden units j."""
-        return int(self.centres.shape[-1])
-
-    @property
-    def size(self) -> int:
-        """Number of adjustable weights, n_out · j."""
-        return self.n_out * self.n_units
-
     # --- flat arrays (the public form) ------------------------------------------------------------
     def features(self, a, b):
         """ξ = [σ_1 … σ_j], σ_i = tanh(α(φ − c_i)), φ = w_aᵀ a + w_bᵀ b. Implements eq. (17)."""
@@ -145,10 +166,6 @@ class TanhNetwork:
         return join(self.update_blocks((xi,), s, split(theta, self.n_out), gamma))
 
     # --- blocks (inside the compiled loop) ---------------------------------------------------------
-    def layout(self, theta_blocks) -> tuple:
-        """[(start, stop)] of the centre blocks matching a blocked Θ (one output's blocks)."""
-        nb = len(theta_blocks) // self.n_out
-        return _bounds(int(t.shape[-1]) for t in theta_blocks[:nb])
 
     def features_blocks(self, a, b, bounds) -> tuple:
         """ξ of eq. (17), one array per centre block ``bounds`` (:meth:`layout`)."""
@@ -166,16 +183,6 @@ class TanhNetwork:
         """Eqs. (30)–(31) (with Remark 2's projection) on blocks; returns Θ̇ as blocks."""
         raw = tuple(gamma * s[o] * x for o in range(self.n_out) for x in xi_blocks)
         return _projected(self, raw, xi_blocks, s, theta_blocks, gamma)
-
-    def clip_blocks(self, theta_blocks) -> tuple:
-        """Θ put back on the ball ‖Θ‖ ≤ d if an integration step overshot it (Remark 2; the
-        identity without projection). The projected flow is tangent to the sphere, but its switch
-        at ‖Θ‖ = d lets a fixed step cross by O(dt); the radial clip makes ‖Θ̂(t)‖ ≤ d hold
-        exactly and only shrinks the storage function."""
-        if not self.project:
-            return theta_blocks
-        scale = jnp.minimum(1.0, self.radius / jnp.maximum(jnp.sqrt(sq_norm(theta_blocks)), 1e-300))
-        return tuple(t * scale for t in theta_blocks)
 
 
 def sq_norm(blocks) -> jax.Array:
@@ -201,7 +208,7 @@ def paper_network_f(preset: str = "paper-likely", **overrides) -> TanhNetwork:
 
 
 @pytree_dataclass
-class CoordinateNetwork:
+class CoordinateNetwork(_Network):
     """Networks of eqs. (17)–(19) for m, k > 1: one output per coordinate, each with its OWN
     hidden layer on its own coordinate's inputs.
 
@@ -262,15 +269,6 @@ class CoordinateNetwork:
                    radius=jnp.asarray(np.inf if radius is None else radius), n_out=n_out,
                    project=radius is not None)
 
-    @property
-    def n_units(self) -> int:
-        """Hidden units per output, j."""
-        return int(self.centres.shape[-1])
-
-    @property
-    def size(self) -> int:
-        return self.n_out * self.n_units
-
     # flat arrays -----------------------------------------------------------------------------
     def features(self, a, b):
         """Ξ's rows ξ_o (n_out, j), eq. (17) per coordinate."""
@@ -286,11 +284,6 @@ class CoordinateNetwork:
         return join(self.update_blocks(tuple(xi[o] for o in range(self.n_out)), s, split(theta, self.n_out), gamma))
 
     # blocks (inside the compiled loop) ---------------------------------------------------------
-    def layout(self, theta_blocks) -> tuple:
-        """[(start, stop)] of one output's centre blocks matching a blocked Θ."""
-        nb = len(theta_blocks) // self.n_out
-        return _bounds(int(t.shape[-1]) for t in theta_blocks[:nb])
-
     def _xi_out(self, a, b, o, bounds):
         phi = self.w_a[o] * a[o] + self.w_b[o] * b[o]
         return tuple(jnp.tanh(self.slope[o] * (phi - self.centres[o, lo:hi])) for lo, hi in bounds)
@@ -308,12 +301,6 @@ class CoordinateNetwork:
         nb = len(theta_blocks) // self.n_out
         raw = tuple(gamma * s[o] * xi_blocks[o * nb + i] for o in range(self.n_out) for i in range(nb))
         return _projected(self, raw, xi_blocks, s, theta_blocks, gamma)
-
-    def clip_blocks(self, theta_blocks) -> tuple:
-        if not self.project:
-            return theta_blocks
-        scale = jnp.minimum(1.0, self.radius / jnp.maximum(jnp.sqrt(sq_norm(theta_blocks)), 1e-300))
-        return tuple(t * scale for t in theta_blocks)
 
 
 def _projected(net, raw, xi_blocks, s, theta_blocks, gamma) -> tuple:

@@ -142,38 +142,6 @@ def table(result, run: str | None = None) -> tuple[list[str], list[str], dict[st
     return runs, order, data
 
 
-def _text(v) -> str:
-    return repr(v) if isinstance(v, float) else str(v)
-
-
-def csv_text(result, run: str | None = None) -> str:
-    """The table as CSV text (header row, then one row per sample)."""
-    runs, cols, data = table(result, run)
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["run", *cols])
-    columns = [runs] + [list(map(_text, data[c].tolist())) for c in cols]
-    w.writerows(zip(*columns))
-    return buf.getvalue()
-
-
-def _pandas():
-    try:
-        import pandas as pd
-    except ImportError:
-        raise ConfigError("needs pandas (pip install 'hinfnn[export]')", key="pandas") from None
-    return pd
-
-
-def to_pandas(result, run: str | None = None):
-    """The table as a :class:`pandas.DataFrame` (column ``run``, then the fields with units)."""
-    pd = _pandas()
-    runs, cols, data = table(result, run)
-    frame = {"run": pd.Series(runs, dtype="string") if runs else pd.Series([], dtype="string")}
-    frame.update({c: data[c] for c in cols})
-    return pd.DataFrame(frame)
-
-
 def to_pandas(result, run: str | None = None):
     """The table as a :class:`pandas.DataFrame` (column ``run``, then the fields with units)."""
     try:

@@ -547,8 +547,7 @@ def _log_limits(ax, series, t_end: float):
 
 
 #: ``savefig`` keywords of every PNG hinfnn writes: zlib level 1 instead of matplotlib's 6, the same
-#: pixels in files about 15 % larger; the six PNGs of ``hinfnn run paper`` encode in 0.41 s instead
-#: of 0.81 s (``python benchmarks/run.py --cases whole``).
+#: pixels in files about 15 % larger, encoded in half the time (docs/performance.md).
 PNG_OPTIONS = {"pil_kwargs": {"compress_level": 1}}
 
 
@@ -833,7 +832,7 @@ def run_figures(runs: dict[str, Trajectory], out_dir, *,
          size=SIZE_TALL if len(contact) == 2 else _tall(3, True), extra=_CONTACT_NOTE)
 
     learners = [r for r in group if any(
-        f in r.traj.arrays and np.any(np.asarray(r.traj.arrays[f])[: _end(r.traj)] != 0)
+        f in r.traj.arrays and np.any(np.asarray(r.traj.arrays[f])[: r.traj.valid_samples()] != 0)
         for f in ("theta_p_norm", "theta_f_norm"))]
     if learners:
         emit("weights.png", r"Network weights $\|\hat\Theta_p\|$, $\|\hat\Theta_f\|$",

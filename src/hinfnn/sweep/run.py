@@ -148,6 +148,7 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
         raise ConfigError(f"output path {folder} exists and is not a folder", key="--out")
     locks = [FolderLock(folder)] + ([FolderLock(replaces)] if replaces is not None else [])
     try:
+        folder.parent.mkdir(parents=True, exist_ok=True)
         for lock in locks:
             owner = lock.acquire()
             if owner is not None:

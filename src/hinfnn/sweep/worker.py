@@ -36,9 +36,8 @@ from ..status import RunStatus
 from .sampling import RunSpec
 from .spec import PER_COORDINATE_METRICS
 
-#: Largest batch by default: past a few hundred members the throughput gains little (on the
-#: project's 2-core machine 202,000 trajectory-steps/s at 100 members, 237,000 at 1,000) and a
-#: killed sweep loses at most one batch.
+#: Largest batch by default: past a few hundred members the throughput gains little
+#: (docs/performance.md) and a killed sweep loses at most one batch.
 DEFAULT_MAX_BATCH = 256
 #: Fraction of the available memory a batch may hold.
 MEMORY_FRACTION = 0.5

@@ -57,7 +57,7 @@ def run_scenario(sc, *, out=None, force: bool = False, fields=None, progress=Non
         doc = write_result(written.path, sc, outcome, command=command)
         _startup.mark("files_written")
         if figures:
-            from ..report import run_figures  # matplotlib (0.5 s): imported once the simulation is done
+            from ..report import run_figures  # matplotlib: imported once the simulation is done
 
             run_figures(outcome.trajectories, written.path)
             _startup.mark("figures_written")
