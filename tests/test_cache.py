@@ -11,6 +11,7 @@ import sys
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hinfnn import _cache, cli
@@ -35,8 +36,11 @@ def _env(**set_vars) -> dict:
 
 
 def _entries(folder: Path) -> dict[str, int]:
-    """Cache entries (JAX's ``<name>-<hash>-cache`` files) with their modification times."""
-    return {p.name: p.stat().st_mtime_ns for p in folder.glob("*-cache")} if folder.is_dir() else {}
+    """Cache entries (JAX's ``<name>-<hash>-cache`` files and hinfnn's kept programs,
+    ``hinfnn-program-<name>-<hash>-export``) with their modification times."""
+    if not folder.is_dir():
+        return {}
+    return {p.name: p.stat().st_mtime_ns for pattern in ("*-cache", "*-export") for p in folder.glob(pattern)}
 
 
 # --- where the cache lives ------------------------------------------------------------------
@@ -112,16 +116,21 @@ def test_second_process_reuses_programs_and_an_unusable_folder_does_not_fail(tmp
         cold = _run(tmp_path / "cold", env)
         assert cold.returncode == 0, cold.stderr
         written = _entries(cache)
-        assert any(name.startswith("jit__chunk-") for name in written), sorted(written)
+        # the run's chunk program kept traced and lowered (hinfnn.sim.programs), and its compiled code
+        assert any(name.startswith("hinfnn-program-chunk-") and name.endswith("-export") for name in written), \
+            sorted(written)
+        assert any(name.startswith("jit_call-") for name in written), sorted(written)
         assert _first_chunk(cold.stderr)["programs"] > 0
 
         warm = _run(tmp_path / "warm", env)
         assert warm.returncode == 0, warm.stderr
         # nothing new compiled and written, nothing rewritten ...
         assert _entries(cache) == written
-        # ... because every program up to the first chunk was a hit (JAX's cache-hit events)
+        # ... because every program up to the first chunk was a hit (JAX's cache-hit events), and the
+        # chunk program was not traced again: the kept one was called (tracing it takes seconds)
         info = _first_chunk(warm.stderr)
         assert info["programs"] > 0 and info["cache_hits"] == info["programs"], info
+        assert "chunk" in _first_chunk(cold.stderr)["traced"] and "chunk" not in info["traced"], info
         assert "CacheWarning" not in cold.stderr + warm.stderr and not list(cache.glob(".tmp-*"))
         # and the loaded programs compute exactly what the compiled ones did
         m_cold = json.loads((tmp_path / "cold" / "metrics.json").read_text())["runs"]
@@ -279,3 +288,36 @@ def test_cache_command_usage_errors_and_help(capsys):
     assert e.value.code == 0
     text = capsys.readouterr().out
     assert "examples:" in text and "HINFNN_CACHE_DIR" in text and "--clear" in text
+
+
+# --- the kept programs (hinfnn.sim.programs) ------------------------------------------------------
+
+
+def test_a_kept_program_is_used_and_one_that_cannot_be_read_is_traced_again(tmp_path, cache_state):
+    """In one process with a fresh program cache: the first run keeps its chunk program; after the
+    in-memory programs are dropped, a run calls the kept one (the same numbers bit for bit); a kept
+    file that is garbage (a truncated write, another tool's) is traced as usual, with the same
+    numbers, and no error; with the cache off nothing is kept."""
+    import importlib
+
+    import hinfnn as H
+
+    S = importlib.import_module("hinfnn.sim.simulate")
+    sc = H.load_scenario("paper", {"controller.kind": "fl", "simulation.t_final": 0.02})
+    folder = _cache.enable_cache(tmp_path / "c")
+    S._compiled.cache_clear()
+    first = sc.simulate("fl")
+    (kept,) = folder.glob("hinfnn-program-chunk-*-export")
+    S._compiled.cache_clear()
+    again = sc.simulate("fl")
+    kept.write_bytes(b"\x10\x00\x00\x00\x00\x00\x00\x00{not json at all}")
+    S._compiled.cache_clear()
+    garbage = sc.simulate("fl")
+    for name, a in first.arrays.items():
+        np.testing.assert_array_equal(again.arrays[name], a, err_msg=name)
+        np.testing.assert_array_equal(garbage.arrays[name], a, err_msg=name)
+    _cache.enable_cache(None)
+    S._compiled.cache_clear()
+    off = sc.simulate("fl")
+    np.testing.assert_array_equal(off.arrays["tau"], first.arrays["tau"])
+    S._compiled.cache_clear()

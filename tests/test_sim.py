@@ -298,7 +298,7 @@ def test_a_chunk_traces_the_dynamics_once_per_written_stage(rolled, paper_plant,
     carry = S._init_carry(ctrl, S.initial_state(paper_plant, ctrl, u1_0=U1_0), 2)
     # a fresh jit (no trace cached), the paper's 2-joint arm with the stages rolled or written out
     chunk = S._compiled.__wrapped__(None, 3, False, S.select(None), LoopOptions(rolled_rk4=rolled))[0]
-    chunk.trace(paper_plant, ctrl, reference, S.Limits(), carry, jnp.asarray(0), jnp.asarray(6),
+    chunk.jitted.trace(paper_plant, ctrl, reference, S.Limits(), carry, jnp.asarray(0), jnp.asarray(6),
                 jnp.asarray(1e-4), jnp.asarray(1), jnp.asarray(2), jnp.asarray(3))
     assert len(rhs_traces) == (1 if rolled else 4)
 

@@ -47,7 +47,8 @@ _ENTRY_SUFFIX = "-cache"  # JAX's LRUCache naming: <module name>-<sha256>-cache
 _TMP_PREFIX = ".tmp-"     # the write probe
 #: The files the cache owns, the only ones cache_size/clear_cache look at: entries (and the
 #: "-atime" files JAX writes when its size limit is on), probe leftovers.
-_OWNED = re.compile(r"(.+-[0-9a-f]{64}-(cache|atime)|\.tmp-(probe-)?[a-z0-9_]{8})\Z")
+_OWNED = re.compile(r"(.+-[0-9a-f]{64}-(cache|atime)|\.tmp-(probe-)?[a-z0-9_]{8}"
+                    r"|hinfnn-program-.+-[0-9a-f]{64}-export(\.tmp-[0-9]+)?)\Z")
 
 _lock = threading.Lock()
 _active: Path | None = None       # the folder in use, None when the cache is off

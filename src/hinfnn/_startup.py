@@ -63,7 +63,9 @@ class StartupTrace:
     (``jax.monitoring``) between main and the first chunk, each counted once even when nested:
     ``compile`` (XLA compilation or loading from the persistent cache, ``cache_load`` of it),
     ``lower`` (jaxpr → StableHLO, outside compile) and ``trace`` (Python → jaxpr, outside both),
-    with the number of programs (``programs``) and persistent cache hits, and the CPU time of
+    with the number of programs (``programs``) and persistent cache hits, the names of the
+    functions traced (``traced``: the run's chunk program is not among them when it was kept,
+    :mod:`hinfnn.sim.programs`), and the CPU time of
     the process so far, all threads (``cpu``: tells a slow start from a busy machine). ``done`` adds
     ``chunk`` (wall time of the second chunk alone: what running a chunk costs once compiled), the
     points marked after the first chunk (``simulated``, ``files_written``, ``figures_written``:
@@ -82,6 +84,7 @@ class StartupTrace:
         self.spans: dict[str, list] = {v: [] for v in self._NAMES.values()}
         self.cache_load = 0.0
         self.cache_hits = 0
+        self.traced: set[str] = set()
         self.marks: dict[str, float] = {}
         self.first: dict | None = None
         self.chunk_times: list[float] = []
@@ -105,9 +108,11 @@ class StartupTrace:
         if name is not None:
             self.spans[name].append((start, end))
 
-    def _on_duration(self, event, seconds, **_):
+    def _on_duration(self, event, seconds, **kw):
         if event == "/jax/compilation_cache/cache_retrieval_time_sec":
             self.cache_load += seconds
+        elif event == "/jax/core/compile/jaxpr_trace_duration" and kw.get("fun_name"):
+            self.traced.add(str(kw["fun_name"]))
 
     def _on_event(self, event, **_):
         if event == "/jax/compilation_cache/cache_hits":
@@ -141,7 +146,7 @@ class StartupTrace:
         self.first = dict(since_main=now - self.t_main, age_at_main=self.age_at_main, **self.marks,
                           trace=tlc - lc, lower=lc - c, compile=c, cache_load=self.cache_load,
                           cache_hits=self.cache_hits, programs=len(clip["compile"]),
-                          cpu=time.process_time())
+                          traced=sorted(self.traced), cpu=time.process_time())
         print(f"hinfnn-startup: first-chunk {'None' if age is None else f'{age:.4f}'} "
               f"{json.dumps(self.first)}", file=sys.stderr, flush=True)
 

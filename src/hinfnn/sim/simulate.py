@@ -54,6 +54,7 @@ from ..protocols import check as check_protocols
 from ..status import RunStatus, status_of
 from .integrate import rk4_step
 from .plan import SINGLE_RECORDS, StepPlan
+from .programs import ExportedProgram
 from .recorder import STEP_MAXES, STEP_SUMS, Accumulators, bookkeeping, pick, select
 from .trajectory import RunInfo, Trajectory
 
@@ -298,7 +299,8 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
 
     Horizon, dt, the hold period, the steps between samples and the samples a chunk takes are
     traced arguments, so a new t_final, dt or output interval reuses the compiled program (see
-    :meth:`~hinfnn.sim.plan.StepPlan.chunk`)."""
+    :meth:`~hinfnn.sim.plan.StepPlan.chunk`). The chunk program is also kept traced and lowered
+    between processes (:class:`~hinfnn.sim.programs.ExportedProgram`)."""
     chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields)
     final, init = _final, _init_carry
     if in_axes is not None:
@@ -306,8 +308,9 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
         chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None, None, None))
         final = jax.vmap(final, in_axes=(p, c, 0))
         init = jax.vmap(_init_carry, in_axes=(c, 0, None))
-    return (jax.jit(_with_options(chunk, loop)), jax.jit(_with_options(final, loop)),
-            jax.jit(_with_options(init, loop), static_argnums=2))
+    chunk = ExportedProgram(_with_options(chunk, loop), "chunk", (in_axes, n_records, sampled, fields, loop),
+                            carry_arg=4)  # traced once, kept lowered on disk (hinfnn.sim.programs)
+    return chunk, jax.jit(_with_options(final, loop)), jax.jit(_with_options(init, loop), static_argnums=2)
 
 
 def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, fields, loop: LoopOptions,

@@ -1,0 +1,170 @@
+"""Compiled simulation programs kept traced and lowered on disk, so that a new process skips both.
+
+A run's chunk program (:mod:`hinfnn.sim.simulate`) is traced (Python walks the plant, the
+controller and RK4: seconds for a 6-DOF arm) and lowered to StableHLO in every process that runs it,
+even when JAX's persistent compilation cache then finds the compiled code. :class:`ExportedProgram`
+keeps the lowered program itself (:func:`jax.export.export`, serialised) in the compilation cache's
+folder (:func:`hinfnn.cache_dir`), keyed by everything that decides it:
+
+* the hinfnn source (a digest of every module of the package), JAX's and jaxlib's versions,
+  ``XLA_FLAGS``, float64 and the backend;
+* the program's own settings (its name, the batch axes, the record slots, sampled or continuous
+  control, the stored fields, the loop options);
+* the structure of its arguments (the pytree structure, static fields included) and every leaf's
+  shape, dtype and weak type.
+
+A later process with the same key loads it and calls it (``Exported.call``: nothing of hinfnn is
+traced; XLA's compilation is then found in the persistent cache), with the same numbers bit for bit
+(tests/test_cache.py). Programs that cannot be exported (a plant stepped by a host callback, such
+as MuJoCo) are traced as usual, and remembered as such. With the cache off
+(``HINFNN_CACHE_DIR=off``) everything is traced as usual.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import jax
+
+#: File names of the exported programs in the cache folder (:data:`hinfnn._cache` owns them).
+PREFIX = "hinfnn-program-"
+SUFFIX = "-export"
+
+
+@functools.cache
+def source_digest() -> str:
+    """A digest of every module of the hinfnn package (its code decides what a program is)."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def _environment() -> tuple:
+    import jaxlib
+
+    return (source_digest(), jax.__version__, jaxlib.__version__, os.environ.get("XLA_FLAGS", ""),
+            bool(jax.config.jax_enable_x64), jax.default_backend())
+
+
+def _leaf_spec(x) -> tuple:
+    """(shape, dtype, weakly typed) of an argument leaf (a Python number is weakly typed)."""
+    if isinstance(x, (bool, int, float, complex)):
+        return (), str(jax.numpy.asarray(x).dtype), True
+    return tuple(x.shape), str(x.dtype), bool(getattr(x, "weak_type", False))
+
+
+class ExportedProgram:
+    """``fn`` (a function of pytrees returning ``(carry, records)``: the carry of the same structure
+    as argument ``carry_arg``, the records a dict of arrays) jit-compiled, with its lowered form kept
+    on disk between processes (see the module docstring). ``settings``: what else decides the
+    program (hashable, its repr part of the key)."""
+
+    def __init__(self, fn, name: str, settings, carry_arg: int):
+        self.fn = fn
+        self.name = name
+        self.settings = settings
+        self.carry_arg = carry_arg
+        self.jitted = jax.jit(fn)
+        self._entries: dict = {}
+
+    # --- the key and the files ---------------------------------------------------------------------
+    def _key(self, treedef, leaves) -> str:
+        text = repr((_environment(), self.name, self.settings, str(treedef), [_leaf_spec(x) for x in leaves]))
+        return hashlib.sha256(text.encode()).hexdigest()
+
+    def _path(self, key: str) -> Path | None:
+        from .._cache import cache_dir
+
+        folder = cache_dir()
+        return None if folder is None else folder / f"{PREFIX}{self.name}-{key}{SUFFIX}"
+
+    # --- calling -------------------------------------------------------------------------------------
+    def __call__(self, *args):
+        entry = self._entry(args)
+        if entry is None:
+            return self.jitted(*args)
+        call, keys, _ = entry
+        leaves = jax.tree.leaves(args)
+        out = call(*leaves)
+        carry_def = jax.tree.structure(args[self.carry_arg])
+        n = carry_def.num_leaves
+        return jax.tree.unflatten(carry_def, out[:n]), dict(zip(keys, out[n:]))
+
+    def eval_shape(self, *args):
+        """The shapes of what a call returns (from the kept program, else by tracing)."""
+        entry = self._entry(args)
+        if entry is None:
+            return jax.eval_shape(self.jitted, *args)
+        _, keys, avals = entry
+        structs = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in avals]
+        carry_def = jax.tree.structure(args[self.carry_arg])
+        n = carry_def.num_leaves
+        return jax.tree.unflatten(carry_def, structs[:n]), dict(zip(keys, structs[n:]))
+
+    def _entry(self, args):
+        """(the compiled call on flat leaves, the record keys, the output avals), or None to trace."""
+        leaves, treedef = jax.tree.flatten(args)
+        key = self._key(treedef, leaves)
+        if key in self._entries:
+            return self._entries[key]
+        path = self._path(key)
+        entry = None
+        if path is not None:
+            entry = self._load(path) if path.exists() else self._export(path, args, leaves, treedef)
+        self._entries[key] = entry
+        return entry
+
+    def _load(self, path: Path):
+        try:
+            blob = path.read_bytes()
+            size = int.from_bytes(blob[:8], "little")
+            meta = json.loads(blob[8:8 + size])
+            if not meta.get("exportable", True):
+                return None
+            exported = jax.export.deserialize(bytearray(blob[8 + size:]))
+        except Exception:  # noqa: BLE001 - a truncated or foreign file: trace as usual
+            return None
+        return jax.jit(exported.call), meta["records"], exported.out_avals
+
+    def _export(self, path: Path, args, leaves, treedef):
+        keys: list = []
+
+        def flat(*xs):
+            carry, records = self.fn(*jax.tree.unflatten(treedef, xs))
+            keys[:] = sorted(records)
+            return [*jax.tree.leaves(carry), *(records[k] for k in keys)]
+
+        flat.__name__ = flat.__qualname__ = self.name  # what a trace of it is called
+
+        specs = [jax.ShapeDtypeStruct(shape, dtype, weak_type=weak) for shape, dtype, weak in map(_leaf_spec, leaves)]
+        try:
+            exported = jax.export.export(jax.jit(flat))(*specs)
+            payload = exported.serialize()
+        except Exception:  # noqa: BLE001 - not exportable (a host callback): trace as usual from now on
+            _write(path, {"exportable": False}, b"")
+            return None
+        _write(path, {"exportable": True, "records": keys, "name": self.name}, payload)
+        return jax.jit(exported.call), keys, exported.out_avals
+
+
+def _write(path: Path, meta: dict, payload: bytes) -> None:
+    """The file, written atomically (a process killed meanwhile leaves at most a temporary file,
+    which ``hinfnn cache --clear`` removes)."""
+    head = json.dumps(meta).encode()
+    data = len(head).to_bytes(8, "little") + head + bytes(payload)
+    tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    except OSError:  # a read-only or vanished cache folder: the program is simply not kept
+        tmp.unlink(missing_ok=True)
+
+
+__all__ = ["ExportedProgram", "source_digest"]
