@@ -381,18 +381,26 @@ def resolve_base(raw: dict, source: str, _chain: tuple = ()) -> dict:
 
 
 def _resolve_paths(raw: dict, source: str) -> dict:
-    """URDF paths (``*.arm.file`` ending in .urdf) relative to the scenario file that names them,
-    made absolute (so a scenario.toml written elsewhere still finds them)."""
+    """URDF paths (``*.arm.file``) relative to the scenario file that names them, made absolute
+    (so a scenario.toml written elsewhere still finds them): a value is a path when a file or
+    folder of that name exists beside the scenario, or when it looks like one (a '/' or an
+    extension) and is not the name of a shipped robot (then the error names the path tried)."""
     if source == "<dict>" or not Path(source).is_file():
         return raw
+    from ..model.urdf import shipped_robots
+
     out = raw
     for who in ("plant", "nominal"):
         arm = raw.get(who, {}).get("arm") if isinstance(raw.get(who), dict) else None
         f = arm.get("file") if isinstance(arm, dict) else None
-        if isinstance(f, str) and f.endswith(".urdf") and not Path(f).is_absolute():
+        if not isinstance(f, str) or not f or Path(f).is_absolute():
+            continue
+        candidate = Path(source).parent / f
+        looks_like_path = "/" in f or Path(f).suffix != ""
+        if candidate.exists() or (looks_like_path and f not in shipped_robots()):
             if out is raw:
                 out = copy.deepcopy(raw)
-            out[who]["arm"]["file"] = str((Path(source).parent / f).resolve())
+            out[who]["arm"]["file"] = str(candidate.resolve())
     return out
 
 

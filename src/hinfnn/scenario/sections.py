@@ -142,17 +142,16 @@ class PlanarArmConfig(ArmConfig):
         return max(0.0, L[-1] - sum(L[:-1])), float(sum(L))
 
 
-def urdf_path(value: str) -> str:
-    """A ``file`` value: a shipped robot (``"ur5"``, ``"planar/three_link"``: a name without
-    ``.urdf``) or a path to a ``.urdf`` file."""
-    if value.endswith(".urdf"):
-        return value
-    from ..model.urdf import asset_path
+def urdf_path(value: str, key: str = "arm.file") -> str:
+    """A ``file`` value: a file when one of that name exists (any extension), else a shipped
+    robot (``"ur5"``, ``"panda"``, ``"planar/three_link"``: :func:`hinfnn.model.urdf.shipped_robots`).
+    A folder, a xacro file or a name that is neither: ConfigError at ``key``."""
+    from ..model.urdf import UrdfError, robot_file
 
-    parts = value.split("/")
-    if len(parts) == 1:
-        parts = [parts[0], parts[0]]
-    return asset_path(*parts[:-1], parts[-1] + ".urdf")
+    try:
+        return robot_file(value)
+    except UrdfError as err:
+        raise ConfigError(f"{value}: {err.problem}", key=key) from None
 
 
 @functools.lru_cache(maxsize=32)
@@ -171,8 +170,9 @@ class UrdfArmConfig(ArmConfig):
     perturb the file's inertial parameters: ``mass_scale``, ``com_shift``, ``payload_*``; the
     nominal arm is usually the file as written."""
 
-    file: str = param(doc="URDF: a shipped robot ('ur5', 'planar/three_link', 'planar/sec6_two_link') or a path "
-                          "to a .urdf file (relative to the scenario file)")
+    file: str = param(doc="URDF: a path to a URDF file (any extension; relative to the scenario file), or a robot "
+                          "shipped with hinfnn when no such file exists ('ur5', 'panda', 'ur10', 'kinova', "
+                          "'planar/three_link', 'planar/sec6_two_link'); xacro files must be expanded first")
     base_link: str = param(doc="link the chain starts from (fixed)")
     ee_link: str = param(doc="end-effector link")
     tool_xyz: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="tool point in the end-effector link's frame, m",
@@ -210,7 +210,7 @@ class UrdfArmConfig(ArmConfig):
         """The (perturbed) chain; URDF problems as ConfigError at ``key.file`` (or the key named)."""
         from ..model.urdf import UrdfError
 
-        path = urdf_path(self.file)
+        path = urdf_path(self.file, f"{key}.file")
         try:
             mtime = Path(path).stat().st_mtime_ns
         except OSError:
