@@ -25,6 +25,9 @@ def require_multiple(key, value, step, message, allow_zero=False):
 
 def check(sc) -> None:
     """Every check of :meth:`hinfnn.scenario.Scenario.check`."""
+    from .._config import require_x64
+
+    require_x64()  # the start pose and the design are computed: float32 would fail them for the wrong reason
     s = sc.simulation
     dt, t_final = s.dt, s.t_final
     require_multiple("simulation.t_final", t_final, dt, f"{t_final:g} s is not a whole number of steps dt = {dt:g} s")
@@ -67,12 +70,7 @@ def check(sc) -> None:
         raise ConfigError(f"must be a number (m = 1 for this surface), got {list(sc.initial.u1)}", key="initial.u1")
     constraint = sc.build_constraint() if cartesian else sc.nominal.surface.build()
     m, k = constraint.m, constraint.k
-    rm, rk = sc.reference.sizes()
-    for name, got, want in (("u1_offset", rm, m), ("lam_offset", rk, k)):
-        if got is not None and got != want:
-            what = "motion" if name.startswith("u1") else "force"
-            raise ConfigError(f"gives {got if got != -1 else 'lists of different lengths of'} {what} coordinates, the "
-                              f"task coordinates have {want} (m = {m}, k = {k})", key=f"reference.{name}")
+    _check_reference_lengths(sc, m, k)
     q0 = np.asarray(sc.initial_q(plant))
     if not np.all(np.isfinite(q0)):
         if cartesian:
@@ -91,6 +89,32 @@ def check(sc) -> None:
     elif sc.controller.singularity_stop > 0:
         _check_path_against_singularity(sc, q0)
     _check_step_against_contact(sc, plant, q0)
+
+
+def _check_reference_lengths(sc, m: int, k: int) -> None:
+    """Every list of the reference has one entry per motion coordinate (m) or force coordinate
+    (k): a ConfigError at the first list that does not, saying the length expected and the
+    coordinates' names."""
+    ref = sc.reference
+    names = None
+    try:
+        names = sc.coordinate_names()
+    except ConfigError:
+        pass
+    groups = getattr(ref, "U1_KEYS", ()), getattr(ref, "LAM_KEYS", ())
+    e = sc.n_extra
+    for keys, want, what in ((groups[0], m, "motion"), (groups[1], k, "force")):
+        for key in keys:
+            value = getattr(ref, key)
+            if isinstance(value, tuple) and len(value) != want and not (what == "motion" and e and len(value) == m - e):
+                listed = ""
+                if what == "motion" and names:
+                    listed = ": " + ", ".join(f"{n} [{u}]" for n, u in names[:m])
+                if what == "motion" and e:
+                    listed += f"; or m − e = {m - e}: the extra coordinates then hold their start values"
+                raise ConfigError(f"must be a number or a list of {'m' if what == 'motion' else 'k'} = {want} numbers (one per {what} coordinate"
+                                  f"{listed}), got {len(value)}: [{', '.join(f'{float(v):g}' for v in value)}]",
+                                  key=f"reference.{key}")
 
 
 def _check_path_against_singularity(sc, q0) -> None:
@@ -126,10 +150,13 @@ def _check_cartesian(sc, plant) -> None:
             raise ConfigError(f"a {g.dim}-D surface ({getattr(sc, who).surface.kind!r}) for an arm whose tool moves in "
                               f"{space}", key=f"{who}.surface.kind")
     m = plant.n - 1
+    e = sc.n_extra
     u1 = sc.initial.u1
     got = len(u1) if isinstance(u1, tuple) else 1
-    if got != m:
-        raise ConfigError(f"must give the {m} motion coordinates (n − 1 for n = {plant.n} joints), got {got}",
+    if got != m and not (e and got == m - e):
+        extra = (f", or the {m - e} before the extra coordinates (task.extra: they then start where the arm's "
+                 "start pose nearest initial.q_guess puts them)") if e else ""
+        raise ConfigError(f"must give the {m} motion coordinates (n − 1 for n = {plant.n} joints){extra}, got {got}",
                           key="initial.u1")
     if sc.initial.q_guess and len(sc.initial.q_guess) != plant.n:
         raise ConfigError(f"must list {plant.n} joint angles, got {len(sc.initial.q_guess)}", key="initial.q_guess")

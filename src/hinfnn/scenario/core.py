@@ -21,6 +21,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import difflib
+import functools
 import inspect
 import math
 import tomllib
@@ -121,7 +122,34 @@ class Scenario:
         geometry = None
         if self.task.fitted:
             geometry = self.nominal.surface.build()
-        return self.task.build(self.nominal.arm, geometry)
+        base = self.task.build(self.nominal.arm, geometry)
+        if not self.task.extra:
+            return base
+        from ..model.augmented import AugmentedTask
+
+        if base is None:
+            base = self.nominal.arm.native_task()
+        if base is None:
+            self.task.extra_coordinates(None)  # the two_link arm: a ConfigError
+        return AugmentedTask(base=base, extra=self.task.extra_coordinates(self.nominal.arm.joint_chain("nominal.arm")))
+
+    @property
+    def n_extra(self) -> int:
+        """The number of extra task coordinates (``task.extra``)."""
+        return len(self.task.extra)
+
+    @functools.cached_property
+    def extra_start(self):
+        """The extra coordinates' values at the start pose (the nominal arm's h at the true start
+        pose q0): what their default reference holds. None without extra coordinates."""
+        if not self.task.extra:
+            return None
+        import numpy as np
+
+        q0 = np.asarray(self.initial_q())
+        arm = self.build_arm("nominal")
+        m = arm.n - 1
+        return np.asarray(arm.h(q0))[m - self.n_extra:m]
 
     def build_plant(self):
         """The true plant (``plant.engine`` chooses the class)."""
@@ -171,10 +199,17 @@ class Scenario:
         return list(chain.joint_names) if chain is not None else [f"joint{i + 1}" for i in range(arm.n)]
 
     def build_reference(self):
+        """The reference: u1d of the m motion coordinates and λd. With extra task coordinates
+        (``task.extra``) whose reference the lists do not give (numbers, or lists of m − e), those
+        hold their start values (:attr:`extra_start`)."""
         ref = self.reference
-        if "m" in inspect.signature(ref.build).parameters:
+        params = inspect.signature(ref.build).parameters
+        if "m" in params:
             n = self.nominal.arm.build(self.task_map(), key="nominal.arm").n
-            return ref.build(m=n - 1, k=1)
+            m, e = n - 1, self.n_extra
+            if e and "hold" in params and ref.sizes()[0] != m:
+                return ref.build(m=m - e, k=1, hold=self.extra_start)
+            return ref.build(m=m, k=1)
         return ref.build()
 
     @property
@@ -419,7 +454,9 @@ def _unknown_override(err: ConfigError, items) -> ConfigError:
     if err.key is None or "unknown key" not in str(err):
         return err
     for key, _ in items:
-        if key == err.key or key.startswith(err.key + "."):
+        if key == err.key:
+            return err  # the schema's suggestion knows the kind chosen (plant.arm.mass2 -> m2 on a two_link arm)
+        if key.startswith(err.key + "."):
             return ConfigError(f"unknown key{suggest_key(key)}", key=key)
     return err
 

@@ -31,6 +31,11 @@ def _length(path: str, name: str, value, sizes, what: str = "numbers") -> None:
         raise ConfigError(f"must be a list of {want} {what}, got {len(value)}: {list(value)}", key=f"{path}.{name}")
 
 
+def _shown(values) -> str:
+    """A list of numbers as the user wrote it ([0.1, 0.1, 0.0])."""
+    return "[" + ", ".join(f"{float(v):g}" for v in values) + "]"
+
+
 def per_item(value, n: int, key: str, what: str) -> np.ndarray:
     """A number broadcast to n items, or a list of exactly n (ConfigError at ``key``)."""
     a = np.atleast_1d(np.asarray(value, dtype=float))
@@ -42,6 +47,13 @@ def per_item(value, n: int, key: str, what: str) -> np.ndarray:
 
 
 # --- arms ------------------------------------------------------------------------------------------
+
+
+def _extra_joints(c) -> tuple:
+    """The chain indices an extra task coordinate uses."""
+    if hasattr(c, "index"):
+        return (c.index,)
+    return (c.shoulder, c.elbow, c.wrist)
 
 
 @section
@@ -64,6 +76,28 @@ class ArmConfig:
     def native_task(self, key: str = "task.map"):
         """The task map of ``task.map = "native"`` (None: h(q) is the arm's own)."""
         return None
+
+    def joint_chain(self, key: str = "arm"):
+        """The arm's :class:`~hinfnn.model.urdf.UrdfChain` (joint names, limits, frames), or None
+        for an arm that is not a chain (the two_link arm's closed form)."""
+        return None
+
+    def _chain_arm(self, chain, task, key):
+        """A chain arm with the task coordinates ``task`` (a task map, or an
+        :class:`~hinfnn.model.augmented.AugmentedTask` whose extra coordinates were resolved on the
+        nominal chain: the same joints must be there)."""
+        from ..model import UrdfArm
+        from ..model.augmented import AugmentedArm, AugmentedTask
+
+        if not isinstance(task, AugmentedTask):
+            return UrdfArm(chain, task)
+        for c in task.extra:
+            for i in _extra_joints(c):
+                if i >= chain.n or (getattr(c, "name", "") in chain.joint_names and chain.joint_names[i] != c.name):
+                    raise ConfigError(f"the extra coordinate {c.name!r} uses joint {i + 1} of the nominal chain, which "
+                                      f"this chain ({', '.join(chain.joint_names)}) does not have in that place",
+                                      key="task.extra")
+        return AugmentedArm(arm=UrdfArm(chain, task.base), task=task)
 
 
 @ARMS.register("two_link")
@@ -128,14 +162,18 @@ class PlanarArmConfig(ArmConfig):
                           "lock joints or use fewer links", key=key)
 
     def build(self, task=None, key: str = "arm"):
-        from ..model import UrdfArm
-        from ..model.urdf import planar_chain
-
         task = task if task is not None else self.native_task()
         if task.dim != self.n:
             raise ConfigError(f"the planar arm has n = {self.n} joints but the task coordinates have {task.dim}: the "
-                              "paper's reduced model needs a square Jacobian", key="task.map")
-        return UrdfArm(planar_chain(self.masses, self.lengths, self.g), task)
+                              "paper's reduced model needs a square Jacobian"
+                              + ("; add extra coordinates with task.extra (a joint's name, or 'arm_angle')"
+                                 if task.dim < self.n else ""), key="task.map")
+        return self._chain_arm(self.joint_chain(key), task, key)
+
+    def joint_chain(self, key: str = "arm"):
+        from ..model.urdf import planar_chain
+
+        return planar_chain(self.masses, self.lengths, self.g)
 
     def reach(self) -> tuple[float, float]:
         L = sorted(self.lengths)
@@ -240,20 +278,24 @@ class UrdfArmConfig(ArmConfig):
         raise ConfigError("a URDF arm has no native task coordinates: choose task.map = \"fitted\" (fitted to the "
                           "nominal surface), \"pose\" or \"planar\"", key=key)
 
-    def build(self, task=None, key: str = "arm"):
-        from ..model import UrdfArm
+    def joint_chain(self, key: str = "arm"):
+        return self.chain(key)
 
+    def build(self, task=None, key: str = "arm"):
         chain = self.chain(key)
         if task is None:
             self.native_task()
         if chain.n != task.dim:
             names = ", ".join(chain.joint_names)
-            hint = (f"lock {chain.n - task.dim} of them with {key}.locked_joints" if chain.n > task.dim
-                    else "use task coordinates with fewer entries or a longer chain")
+            e = chain.n - task.dim
+            hint = (f"add {e} extra task coordinate{'s' if e > 1 else ''} with task.extra (a joint's name, e.g. "
+                    f"{chain.joint_names[min(2, chain.n - 1)]!r}, or 'arm_angle': the redundancy stays) or lock {e} "
+                    f"joint{'s' if e > 1 else ''} with {key}.locked_joints" if e > 0
+                    else "use task coordinates with fewer entries, fewer task.extra, or a longer chain")
             raise ConfigError(f"the chain from {self.base_link!r} to {self.ee_link!r} has n = {chain.n} moving joints "
                               f"({names}) but the task coordinates have {task.dim}: the paper's reduced model needs a "
-                              f"square Jacobian; {hint}", key=f"{key}.locked_joints" if chain.n > task.dim else "task.map")
-        return UrdfArm(chain, task)
+                              f"square Jacobian; {hint}", key="task.extra" if e > 0 else "task.map")
+        return self._chain_arm(chain, task, key)
 
 
 # --- surfaces ------------------------------------------------------------------------------------
@@ -347,7 +389,7 @@ class SphereConfig(GeometryConfig):
 
     def validate(self, path):
         super().validate(path)
-        _not_parallel(path, "meridian", self.meridian, self.pole)
+        _not_parallel(path, "meridian", self.meridian, self.pole, other="pole")
 
     def build(self):
         from ..model.geometry import Sphere
@@ -355,12 +397,16 @@ class SphereConfig(GeometryConfig):
         return Sphere.build(self.centre, self.radius, self.pole, self.meridian)
 
 
-def _not_parallel(path, name, a, b):
+def _not_parallel(path, name, a, b, other="axis"):
+    """``name`` (vector a) must be nonzero and not parallel to the key ``other`` (vector b)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
-    if not (np.linalg.norm(b) > 0 and np.linalg.norm(a) > 0):
+    if not np.linalg.norm(b) > 0:
+        raise ConfigError("must not be zero", key=f"{path}.{other}")
+    if not np.linalg.norm(a) > 0:
         raise ConfigError("must not be zero", key=f"{path}.{name}")
     if np.linalg.norm(np.cross(a, b)) <= 1e-9 * np.linalg.norm(a) * np.linalg.norm(b):
-        raise ConfigError("must not be parallel to the axis", key=f"{path}.{name}")
+        raise ConfigError(f"{_shown(a)} must not be parallel to the {other} {_shown(b)} ({path}.{other})",
+                          key=f"{path}.{name}")
 
 
 @SURFACES.register("cylinder")
@@ -630,11 +676,79 @@ class TaskConfig:
 
     __registry__ = TASKS
     map: str = param(doc="task coordinates")
+    extra: tuple[str, ...] = param((), doc="extra motion coordinates for a redundant arm (more joints than task "
+                                   "coordinates), put before the constrained one: a joint's name (its angle, rad, or "
+                                   "position, m) or 'arm_angle' (the elbow's swivel angle psi about the shoulder-wrist "
+                                   "line); they hold their start values unless the reference lists them "
+                                   "(docs/arms-and-surfaces.md)")
+    arm_angle_joints: tuple[str, ...] = param((), doc="shoulder, elbow and wrist joints whose origins define "
+                                              "'arm_angle' (default: the 2nd, 4th and 6th joint of the chain)")
+    arm_angle_reference: tuple[float, ...] = param((0.0, 0.0, 1.0), doc="direction (base frame) of the half-plane "
+                                                   "where the arm angle is 0 (default: up)", ge=-1e6, le=1e6)
+    arm_angle_ref_deg: float = param(0.0, doc="arm angle at the middle of the working range, degrees (it jumps "
+                                     "180 degrees away)", ge=-360.0, le=360.0)
 
     fitted = False
 
     def build(self, arm, geometry):
         raise NotImplementedError
+
+    def validate(self, path):
+        _length(path, "arm_angle_reference", self.arm_angle_reference, (3,))
+        if not np.linalg.norm(self.arm_angle_reference) > 0:
+            raise ConfigError("must not be zero", key=f"{path}.arm_angle_reference")
+        if len(set(self.extra)) != len(self.extra):
+            raise ConfigError(f"lists a coordinate twice: {list(self.extra)}", key=f"{path}.extra")
+        if self.arm_angle_joints and len(self.arm_angle_joints) != 3:
+            raise ConfigError(f"must name 3 joints (shoulder, elbow, wrist), got {list(self.arm_angle_joints)}",
+                              key=f"{path}.arm_angle_joints")
+
+    def extra_coordinates(self, chain) -> tuple:
+        """The extra coordinates (:class:`~hinfnn.model.taskmap.JointCoordinate`,
+        :class:`~hinfnn.model.taskmap.ArmAngle`) resolved on ``chain`` (the nominal arm's)."""
+        import jax.numpy as jnp
+
+        from ..model.taskmap import ArmAngle, JointCoordinate
+
+        if not self.extra:
+            return ()
+        if chain is None:
+            raise ConfigError("the two_link arm has no extra coordinates (n = 2 = its task coordinates); remove "
+                              "task.extra", key="task.extra")
+        names = list(chain.joint_names)
+
+        def index(name, key):
+            if name not in names:
+                import difflib
+
+                close = difflib.get_close_matches(name, names, n=1)
+                hint = f"; did you mean {close[0]!r}?" if close else ""
+                raise ConfigError(f"{name!r} is not a moving joint of the chain (joints: {', '.join(names)}; or "
+                                  f"'arm_angle'){hint}", key=key)
+            return names.index(name)
+
+        out = []
+        for item in self.extra:
+            if item == "arm_angle":
+                if self.arm_angle_joints:
+                    idx = [index(n, "task.arm_angle_joints") for n in self.arm_angle_joints]
+                elif chain.n >= 6:
+                    idx = [1, 3, 5]
+                else:
+                    raise ConfigError(f"'arm_angle' needs shoulder, elbow and wrist joints: name them with "
+                                      f"task.arm_angle_joints (the chain has {chain.n} joints)", key="task.extra")
+                if not idx[0] < idx[1] < idx[2]:
+                    raise ConfigError(f"must be in chain order (shoulder, elbow, wrist), got "
+                                      f"{[names[i] for i in idx]}", key="task.arm_angle_joints")
+                out.append(ArmAngle(shoulder=idx[0], elbow=idx[1], wrist=idx[2],
+                                    reference=jnp.asarray(self.arm_angle_reference, float)
+                                    / float(np.linalg.norm(self.arm_angle_reference)),
+                                    psi_ref=jnp.asarray(math.radians(self.arm_angle_ref_deg))))
+            else:
+                i = index(item, "task.extra")
+                out.append(JointCoordinate(index=i, name=item, unit="m" if chain.joint_types[i] == "prismatic"
+                                           else "rad"))
+        return tuple(out)
 
     def _plane(self, arm, plane):
         if plane != "auto":
@@ -693,6 +807,7 @@ class PoseTaskConfig(TaskConfig):
                                         "constrains)")
 
     def validate(self, path):
+        super().validate(path)
         for name in ("frame_xyz", "frame_rpy_deg", "ref_rpy_deg"):
             _length(path, name, getattr(self, name), (3,))
 
@@ -725,6 +840,7 @@ class FittedTaskConfig(TaskConfig):
     fitted = True
 
     def validate(self, path):
+        super().validate(path)
         _length(path, "tool_rpy_deg", self.tool_rpy_deg, (3,))
 
     def build(self, arm, geometry):
@@ -1002,17 +1118,22 @@ class CosinesConfig(ReferenceConfig):
         return n(("u1_offset", "u1_amplitude", "u1_period", "u1_phase")), \
             n(("lam_offset", "lam_amplitude", "lam_period", "lam_phase"))
 
-    def validate(self, path):
-        for group in (("u1_offset", "u1_amplitude", "u1_period", "u1_phase"),
-                      ("lam_offset", "lam_amplitude", "lam_period", "lam_phase")):
-            lens = {len(getattr(self, k)) for k in group if isinstance(getattr(self, k), tuple)}
-            if len(lens) > 1:
-                bad = next(k for k in group if isinstance(getattr(self, k), tuple)
-                           and len(getattr(self, k)) != len(getattr(self, group[0]) if isinstance(
-                               getattr(self, group[0]), tuple) else max(lens)))
-                raise ConfigError(f"the lists of {', '.join(group)} must have the same length", key=f"{path}.{bad}")
+    U1_KEYS = ("u1_offset", "u1_amplitude", "u1_period", "u1_phase")
+    LAM_KEYS = ("lam_offset", "lam_amplitude", "lam_period", "lam_phase")
 
-    def build(self, m: int | None = None, k: int | None = None):
+    def validate(self, path):
+        for group, what in ((self.U1_KEYS, "motion"), (self.LAM_KEYS, "force")):
+            lists = [(k, getattr(self, k)) for k in group if isinstance(getattr(self, k), tuple)]
+            for k, v in lists[1:]:
+                first, ref = lists[0]
+                if len(v) != len(ref):
+                    raise ConfigError(f"must be a number or a list of {len(ref)} numbers, as {path}.{first} (one per "
+                                      f"{what} coordinate), got {len(v)}: {_shown(v)}", key=f"{path}.{k}")
+
+    def build(self, m: int | None = None, k: int | None = None, hold=None):
+        """The reference for m motion and k force coordinates; ``hold``: values of more motion
+        coordinates appended after the m (extra task coordinates held at their start values:
+        offset ``hold``, no cosine)."""
         import jax.numpy as jnp
 
         from ..reference import SmoothCosineReference
@@ -1020,13 +1141,17 @@ class CosinesConfig(ReferenceConfig):
         m0, k0 = self.sizes()
         m = m or m0 or 1
         k = k or k0 or 1
+        held = np.zeros(0) if hold is None else np.asarray(hold, float)
 
-        def v(key, n, f=lambda x: x):
-            return jnp.asarray(f(per_item(getattr(self, key), n, f"reference.{key}", "one per coordinate")))
+        def v(key, n, f=lambda x: x, fill=None):
+            own = f(per_item(getattr(self, key), n, f"reference.{key}", "one per coordinate"))
+            if fill is not None and held.size:
+                own = np.concatenate([own, np.full(held.size, fill) if np.ndim(fill) == 0 else fill])
+            return jnp.asarray(own)
 
         return SmoothCosineReference(
-            u1_offset=v("u1_offset", m), u1_amplitude=v("u1_amplitude", m),
-            u1_omega=v("u1_period", m, lambda p: 2 * math.pi / p), u1_phase=v("u1_phase", m),
+            u1_offset=v("u1_offset", m, fill=held), u1_amplitude=v("u1_amplitude", m, fill=0.0),
+            u1_omega=v("u1_period", m, lambda p: 2 * math.pi / p, fill=1.0), u1_phase=v("u1_phase", m, fill=0.0),
             lam_offset=v("lam_offset", k), lam_amplitude=v("lam_amplitude", k),
             lam_omega=v("lam_period", k, lambda p: 2 * math.pi / p), lam_phase=v("lam_phase", k),
             u1_ramp=jnp.asarray(self.u1_ramp), lam_ramp=jnp.asarray(self.lam_ramp))

@@ -145,6 +145,8 @@ class Carry:
     bad_pen: jax.Array
     bad_parts: jax.Array
     bad_sigma: jax.Array
+    bad_joint: jax.Array  # the joint past its limit (status 5), -1 before
+    bad_limit: jax.Array  # by how much (its joint_limit_margin, < 0)
     tau_peak: jax.Array
     tau_tv: jax.Array
     tau_prev: jax.Array
@@ -204,9 +206,13 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         pen = aux["penetration"]
         finite_parts = (all_finite(y_new.plant), all_finite(y_new.xc), all_finite(y_new.acc))
         parts = sum(jnp.where(ok, 0, 1 << i) for i, ok in enumerate(finite_parts)).astype(jnp.int32)
+        margins = aux.get("joint_limit_margin", jnp.full(1, jnp.inf))  # the plant's joints (±inf: none)
+        worst_joint = jnp.argmin(margins)
+        past_limit = margins[worst_joint] < 0
         code = jnp.where(parts != 0, 1,
                          jnp.where(tau_peak > limits.torque, 2,
-                                   jnp.where(pen > limits.penetration, 3, jnp.where(aux["_fault"], 4, 0))))
+                                   jnp.where(pen > limits.penetration, 3,
+                                             jnp.where(aux["_fault"], 4, jnp.where(past_limit, 5, 0)))))
         code = jnp.where(active, code, 0)
         status = c.status
         first_fail = (status == 0) & (code != 0)
@@ -225,6 +231,8 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             bad_pen=jnp.where(first_fail, pen, c.bad_pen),
             bad_parts=jnp.where(first_fail, parts, c.bad_parts),
             bad_sigma=jnp.where(first_fail, aux.get("sigma_min_J", jnp.nan), c.bad_sigma),
+            bad_joint=jnp.where(first_fail, worst_joint.astype(jnp.int32), c.bad_joint),
+            bad_limit=jnp.where(first_fail, margins[worst_joint], c.bad_limit),
             tau_peak=stat(rec["tau_abs_max"], c.tau_peak),
             tau_tv=stat(c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
             tau_prev=jnp.where(count | first, tau, c.tau_prev),
@@ -281,7 +289,7 @@ def _final(plant, ctrl, carry):
     xc = ctrl.from_loop(y_end.xc)
     final = dict(q=q, qd=qd, z=xc.z, **xc.parts, J=y_end.acc.J, J_aug=y_end.acc.J_aug, supply=y_end.acc.supply)
     details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts,
-                   sigma_min_J=carry.bad_sigma)
+                   sigma_min_J=carry.bad_sigma, joint=carry.bad_joint, joint_limit_margin=carry.bad_limit)
     return carry.status, carry.t_fail, details, final
 
 
@@ -296,6 +304,7 @@ def _init_carry(ctrl, y0, n):
     return Carry(y=y0, held=jnp.zeros(n, f64), status=jnp.zeros((), jnp.int32),
                  t_fail=jnp.array(jnp.nan, dtype=f64), bad_tau=zero, bad_pen=zero,
                  bad_parts=jnp.zeros((), jnp.int32), bad_sigma=jnp.array(jnp.nan, dtype=f64),
+                 bad_joint=jnp.full((), -1, jnp.int32), bad_limit=jnp.array(jnp.nan, dtype=f64),
                  tau_peak=jnp.zeros(n, f64), tau_tv=jnp.zeros(n, f64),
                  tau_prev=jnp.full(n, jnp.nan, f64),
                  sums={k: jnp.zeros(sizes.get(k, ()), f64) for k in STEP_SUMS},
@@ -521,6 +530,10 @@ def failure_reason(code: int, details: dict) -> str:
         return f"{what} (penetration = {details.get('penetration', math.nan):.4g} m)"
     if code == 4:
         return f"{what} (σ_min(Ĵ) = {details.get('sigma_min_J', math.nan):.4g}, below the guard's stop)"
+    if code == 5:
+        joint = details.get("joint_name") or f"joint {int(details.get('joint', -1)) + 1}"
+        return (f"{what} ({joint} past its range by {-details.get('joint_limit_margin', math.nan):.4g} rad or m; "
+                "the limits are the true arm's URDF)")
     return what
 
 

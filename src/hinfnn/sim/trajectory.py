@@ -11,7 +11,7 @@ from ..fields import FIELDS, SUMMARY_FIELDS
 
 #: Status codes of a run (``Trajectory.status``).
 STATUS = {0: "ok", 1: "non-finite state", 2: "torque limit exceeded", 3: "penetration limit exceeded",
-          4: "stopped by the controller's singularity guard"}
+          4: "stopped by the controller's singularity guard", 5: "joint limit crossed"}
 
 _MERGE = {"max": np.maximum, "sum": np.add}
 
