@@ -18,6 +18,12 @@ def run_entry(name: str, traj, *, overrides=None, design=None, metrics=None, lab
     status = int(traj.status)
     m = metrics if metrics is not None else compute_metrics(traj)
     info = traj.info
+    details = {k: float(v) for k, v in traj.fail_details.items()}
+    if status == 5 and getattr(traj, "scenario", None) is not None:
+        try:  # the joint past its limit by name
+            details["joint_name"] = traj.scenario.joint_names()[int(details.get("joint", -1))]
+        except Exception:  # noqa: BLE001 - the index is in the reason anyway
+            pass
     entry = {
         "name": name,
         "controller": info.kind,
@@ -25,7 +31,9 @@ def run_entry(name: str, traj, *, overrides=None, design=None, metrics=None, lab
         "overrides": dict(overrides or {}),
         "status": "ok" if status == 0 else "diverged",
         "t_fail": None if status == 0 else float(traj.t_fail),
-        "reason": None if status == 0 else failure_reason(status, {k: float(v) for k, v in traj.fail_details.items()}),
+        "reason": None if status == 0 else failure_reason(status, details),
+        "verdict": {k: m.get(k) for k in ("contact_held", "tracking_within_tolerance", "within_joint_limits")}
+        | {"notes": list(m.get("verdict_notes") or [])},
         "partial": bool(m.get("partial", False)),
         "metrics": {k: v for k, v in m.items() if k != "partial"},
     }

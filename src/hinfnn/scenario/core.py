@@ -33,7 +33,7 @@ from ..errors import ConfigError
 from . import schema
 from .schema import param, section
 from .sections import (ControllerConfig, InitialConfig, NativeTaskConfig, NominalConfig, PlantConfig, ReferenceConfig,
-                       SimulationConfig, TaskConfig)
+                       SimulationConfig, TaskConfig, VerdictConfig)
 
 SHIPPED = "files"
 
@@ -53,6 +53,7 @@ class Scenario:
     reference: ReferenceConfig = param(doc="the desired motion and force")
     initial: InitialConfig = param(doc="the start")
     simulation: SimulationConfig = param(doc="the simulation")
+    verdict: VerdictConfig = param(VerdictConfig(), doc="when a run did its job")
     source: str = dataclasses.field(default="<dict>", compare=False)
     overrides: tuple = dataclasses.field(default=(), compare=False)
 
@@ -241,7 +242,8 @@ class Scenario:
                                      period=self.control_period)
 
     def initial_q(self, plant=None):
-        """The start pose (the truth: inverse kinematics of the true arm onto the true surface)."""
+        """The start pose (the truth: inverse kinematics of the true arm onto the true surface,
+        within the true arm's joint limits)."""
         plant = plant or self.build_plant()
         if getattr(plant, "cartesian", False):
             guess = self.initial.q_guess or None
@@ -277,6 +279,13 @@ class Scenario:
         r = self.run(kind)
         opts = {**self.sim_options(), **options}
         return simulate(r.plant, r.controller, r.reference, q0=r.q0, info=r.info, **opts)
+
+    def disturbance_effect(self):
+        """The joint disturbance's steady effect on each motion coordinate through the nominal loop,
+        (name, unit, estimate): :func:`hinfnn.scenario.checks.disturbance_effect`."""
+        from .checks import disturbance_effect
+
+        return disturbance_effect(self)
 
     # --- the checks that need the models ---------------------------------------------------------------
     def check(self) -> None:

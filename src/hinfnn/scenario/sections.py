@@ -1167,6 +1167,28 @@ class InitialConfig:
 
 
 @section
+class VerdictConfig:
+    """When a run did its job (:func:`hinfnn.metrics.verdicts`): contact held, and tracking within
+    tolerance over the last 2 s, judged next to the status in the run summary and metrics.json."""
+
+    position_tolerance: float = param(0.005, doc="largest RMS error over the last 2 s of each motion coordinate in m", gt=0.0,
+                                      le=1e3)
+    angle_tolerance: float = param(0.02, doc="largest RMS error over the last 2 s of each motion coordinate in rad",
+                                   gt=0.0, le=10.0)
+    force_tolerance: float = param(0.1, doc="largest RMS force error e_lam over the last 2 s, as a fraction of the mean "
+                                   "magnitude of lam_d there", gt=0.0, le=100.0)
+    contact_after: float = param(0.5, doc="contact is judged from this time on (the force builds up before), s", ge=0.0,
+                                 le=1e5)
+    out_of_contact: float = param(0.0, doc="largest fraction of the steps after contact_after with the tool off the "
+                                  "true surface", ge=0.0, le=1.0)
+
+    def tolerances(self) -> dict:
+        return {"position_tolerance": self.position_tolerance, "angle_tolerance": self.angle_tolerance,
+                "force_tolerance": self.force_tolerance, "contact_after": self.contact_after,
+                "out_of_contact": self.out_of_contact}
+
+
+@section
 class SimulationConfig:
     t_final: float = param(doc="horizon, s", gt=0.0, le=1e5)
     dt: float = param(doc="RK4 step, s", gt=0.0, le=0.1)
