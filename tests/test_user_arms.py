@@ -303,7 +303,7 @@ def test_panda_runs_without_a_locked_joint(tmp_path):
     assert tr.e_u1.shape[1] == 6 and tr.joint_limit_margin.shape[1] == 7
     assert np.min(tr.joint_limit_margin) > 0.3
     m = H.compute_metrics(tr)
-    assert m["within_joint_limits"] is True and m["min_joint_limit_margin"] > 0.3
+    assert m["verdict"]["within_joint_limits"] is True and m["min_joint_limit_margin"] > 0.3
 
 
 @pytest.mark.parametrize("overrides, key, pattern", [
@@ -423,21 +423,23 @@ def test_verdicts_judge_each_coordinate_in_its_unit():
     pen[200] = pen[2500] = -1e-3
     tr = _fake_run(e_u1, np.full(n, 1.0), np.full(n, 20.0), pen)
     coords = [("s", "m"), ("phi", "rad")]
-    m = H.compute_metrics(tr, coordinates=coords)  # the defaults: 5 mm, 0.02 rad, 10 %, after 0.5 s, none off
+    m = H.compute_metrics(tr, coordinates=coords)["verdict"]  # the defaults: 5 mm, 0.02 rad, 10 %, after 0.5 s
     assert m["tracking_within_tolerance"] is False and m["contact_held"] is False
     assert m["force_error_ratio_last2s"] == pytest.approx(0.05)
     assert m["out_of_contact_after"] == pytest.approx(1 / 2500)
-    assert m["verdict_notes"] == ["off the surface for 0.04% of the steps after 0.5 s (allowed: 0.00%)",
+    assert m["notes"] == ["off the surface for 0.04% of the steps after 0.5 s (allowed: 0.00%)",
                                   "phi: RMS error 0.03 rad over the last 2 s (allowed: 0.02 rad)"]
-    loose = H.compute_metrics(tr, coordinates=coords, tolerances={"angle_tolerance": 0.05, "out_of_contact": 0.001})
-    assert loose["tracking_within_tolerance"] is True and loose["contact_held"] is True and not loose["verdict_notes"]
+    loose = H.compute_metrics(tr, coordinates=coords,
+                              tolerances={"angle_tolerance": 0.05, "out_of_contact": 0.001})["verdict"]
+    assert loose["tracking_within_tolerance"] is True and loose["contact_held"] is True and not loose["notes"]
     tight = H.compute_metrics(tr, coordinates=coords, tolerances={"position_tolerance": 0.001, "force_tolerance": 0.01,
                                                                    "angle_tolerance": 0.05, "contact_after": 3.0})
+    tight = tight["verdict"]
     assert tight["contact_held"] is True
-    assert tight["verdict_notes"] == ["s: RMS error 0.003 m over the last 2 s (allowed: 0.001 m)",
+    assert tight["notes"] == ["s: RMS error 0.003 m over the last 2 s (allowed: 0.001 m)",
                                       "force: RMS error over the last 2 s 5.0% of the mean |λd| (allowed: 1%)"]
     stopped = H.compute_metrics(_fake_run(e_u1 * 0, np.zeros(n), np.full(n, 20.0), np.zeros(n), status=2))
-    assert stopped["tracking_within_tolerance"] is False and stopped["partial"]
+    assert stopped["verdict"]["tracking_within_tolerance"] is False and stopped["partial"]
 
 
 def test_verdict_section_and_metrics_json(tmp_path):
@@ -461,8 +463,10 @@ def test_verdict_section_and_metrics_json(tmp_path):
     doc = json.loads((out / "metrics.json").read_text())
     (run,) = doc["runs"]
     assert list(run)[:7] == ["name", "controller", "label", "overrides", "status", "t_fail", "reason"]
-    assert run["verdict"] == {"contact_held": True, "tracking_within_tolerance": True, "within_joint_limits": None,
-                              "notes": []}
+    v = run["verdict"]
+    assert (v["contact_held"], v["tracking_within_tolerance"], v["within_joint_limits"], v["notes"]) == (
+        True, True, None, [])
+    assert "verdict" not in run["metrics"] and run["metrics"]["min_joint_limit_margin"] is None
     from hinfnn.report.markdown import metrics_table
 
     assert "did its job" in metrics_table(doc, markdown=False) and "| yes |" in metrics_table(doc)

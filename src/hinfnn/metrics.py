@@ -42,13 +42,14 @@ UNITS = {
     "rms_e_u1_each": "m or rad", "rms_e_u1_each_last2s": "m or rad", "rms_e_lam_each": "λ units",
     "rms_e_lam_each_last2s": "λ units", "min_task_margin": "rad or m",
 }
-#: The verdicts and what they rest on (:func:`verdicts`): in :func:`compute_metrics`' result and
-#: metrics.json, not among :data:`METRIC_KEYS` (a sweep's numeric columns).
-VERDICT_KEYS = ("contact_held", "tracking_within_tolerance", "within_joint_limits", "verdict_notes",
-                "out_of_contact_after", "force_error_ratio_last2s", "min_joint_limit_margin",
-                "min_joint_limit_margin_each")
+#: The verdicts and what they rest on (:func:`verdicts`): ``compute_metrics(...)["verdict"]``, one
+#: dict (metrics.json: each run's "verdict", next to its status); not among :data:`METRIC_KEYS` (a
+#: sweep's numeric columns). ``min_joint_limit_margin`` is a metric of its own (a number, or None
+#: when the arm records no limits).
+VERDICT_KEYS = ("contact_held", "tracking_within_tolerance", "within_joint_limits", "notes",
+                "out_of_contact_after", "force_error_ratio_last2s", "min_joint_limit_margin_each")
 UNITS.update({"contact_held": "bool", "tracking_within_tolerance": "bool", "within_joint_limits": "bool",
-              "verdict_notes": "-", "out_of_contact_after": "-", "force_error_ratio_last2s": "-",
+              "notes": "-", "out_of_contact_after": "-", "force_error_ratio_last2s": "-",
               "min_joint_limit_margin": "rad or m", "min_joint_limit_margin_each": "rad or m"})
 #: The verdicts' tolerances when the scenario does not give them (``[verdict]``, the same defaults).
 DEFAULT_TOLERANCES = {"position_tolerance": 0.005, "angle_tolerance": 0.02, "force_tolerance": 0.1,
@@ -85,7 +86,7 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
     theorems claim the inequality for every T, not only the final one. ``t_end`` is the time the
     metrics cover; for a run that stopped early (``partial``) it is the last sample before t_fail.
 
-    The verdicts (:data:`VERDICT_KEYS`, :func:`verdicts`) judge the run against ``tolerances``
+    ``verdict`` (:data:`VERDICT_KEYS`, :func:`verdicts`) judges the run against ``tolerances``
     (keys of :data:`DEFAULT_TOLERANCES`) with the motion coordinates' ``coordinates`` ((name, unit)
     pairs); both default to the run's scenario (``[verdict]``, the task coordinates' names), and
     without one to :data:`DEFAULT_TOLERANCES` with every coordinate in m.
@@ -195,12 +196,11 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
         "dissipation_holds_for_all_t": bool(margin >= 0) if np.isfinite(margin) else None,
         "t_end": float(t[-1]),
         "partial": partial,
-        "out_of_contact_after": out_after,
-        "force_error_ratio_last2s": ratio,
         "min_joint_limit_margin": margin_joint,
-        "min_joint_limit_margin_each": margin_joints,
-        **verdicts(u1_each_w, out_after, ratio, margin_joint, partial=partial, status=int(traj.status),
-                   tolerances=tol, coordinates=coords),
+        "verdict": {**verdicts(u1_each_w, out_after, ratio, margin_joint, partial=partial, status=int(traj.status),
+                               tolerances=tol, coordinates=coords),
+                    "out_of_contact_after": out_after, "force_error_ratio_last2s": ratio,
+                    "min_joint_limit_margin_each": margin_joints},
     }
 
 
@@ -234,7 +234,7 @@ def verdicts(rms_each_last, out_after, force_ratio, joint_margin, *, partial: bo
       stopped early;
     * ``within_joint_limits``: no joint passed its limit (None: the arm has none recorded);
 
-    and ``verdict_notes``, one line per failed criterion with its numbers."""
+    and ``notes``, one line per failed criterion with its numbers."""
     notes = []
     tol = tolerances
     contact = bool(out_after <= tol["out_of_contact"]) if math.isfinite(out_after) else None
@@ -259,4 +259,4 @@ def verdicts(rms_each_last, out_after, force_ratio, joint_margin, *, partial: bo
         notes.append("a joint passed its limit (the run stopped there)" if status == 5 else
                      f"a joint passed its limit (by {-joint_margin:.3g} rad or m)")
     return {"contact_held": contact, "tracking_within_tolerance": track, "within_joint_limits": limits,
-            "verdict_notes": notes}
+            "notes": notes}

@@ -32,10 +32,9 @@ def run_entry(name: str, traj, *, overrides=None, design=None, metrics=None, lab
         "status": "ok" if status == 0 else "diverged",
         "t_fail": None if status == 0 else float(traj.t_fail),
         "reason": None if status == 0 else failure_reason(status, details),
-        "verdict": {k: m.get(k) for k in ("contact_held", "tracking_within_tolerance", "within_joint_limits")}
-        | {"notes": list(m.get("verdict_notes") or [])},
+        "verdict": m.get("verdict"),
         "partial": bool(m.get("partial", False)),
-        "metrics": {k: v for k, v in m.items() if k != "partial"},
+        "metrics": {k: v for k, v in m.items() if k not in ("partial", "verdict")},
     }
     if design is not None:
         entry["design"] = design
