@@ -303,7 +303,7 @@ def test_panda_runs_without_a_locked_joint(tmp_path):
     assert tr.e_u1.shape[1] == 6 and tr.joint_limit_margin.shape[1] == 7
     assert np.min(tr.joint_limit_margin) > 0.3
     m = H.compute_metrics(tr)
-    assert m["verdict"]["within_joint_limits"] is True and m["min_joint_limit_margin"] > 0.3
+    assert m["verdict"]["within_joint_limits"] is True and m["verdict"]["min_joint_limit_margin"] > 0.3
 
 
 @pytest.mark.parametrize("overrides, key, pattern", [
@@ -466,7 +466,7 @@ def test_verdict_section_and_metrics_json(tmp_path):
     v = run["verdict"]
     assert (v["contact_held"], v["tracking_within_tolerance"], v["within_joint_limits"], v["notes"]) == (
         True, True, None, [])
-    assert "verdict" not in run["metrics"] and run["metrics"]["min_joint_limit_margin"] is None
+    assert "verdict" not in run["metrics"] and v["min_joint_limit_margin"] is None
     from hinfnn.report.markdown import metrics_table
 
     assert "did its job" in metrics_table(doc, markdown=False) and "| yes |" in metrics_table(doc)

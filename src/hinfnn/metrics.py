@@ -44,10 +44,11 @@ UNITS = {
 }
 #: The verdicts and what they rest on (:func:`verdicts`): ``compute_metrics(...)["verdict"]``, one
 #: dict (metrics.json: each run's "verdict", next to its status); not among :data:`METRIC_KEYS` (a
-#: sweep's numeric columns). ``min_joint_limit_margin`` is a metric of its own (a number, or None
-#: when the arm records no limits).
+#: sweep's numeric columns: a sweep's table does not have them yet). ``min_joint_limit_margin`` (and
+#: ``_each``, per joint) is None when the arm records no limits.
 VERDICT_KEYS = ("contact_held", "tracking_within_tolerance", "within_joint_limits", "notes",
-                "out_of_contact_after", "force_error_ratio_last2s", "min_joint_limit_margin_each")
+                "out_of_contact_after", "force_error_ratio_last2s", "min_joint_limit_margin",
+                "min_joint_limit_margin_each")
 UNITS.update({"contact_held": "bool", "tracking_within_tolerance": "bool", "within_joint_limits": "bool",
               "notes": "-", "out_of_contact_after": "-", "force_error_ratio_last2s": "-",
               "min_joint_limit_margin": "rad or m", "min_joint_limit_margin_each": "rad or m"})
@@ -196,11 +197,10 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
         "dissipation_holds_for_all_t": bool(margin >= 0) if np.isfinite(margin) else None,
         "t_end": float(t[-1]),
         "partial": partial,
-        "min_joint_limit_margin": margin_joint,
         "verdict": {**verdicts(u1_each_w, out_after, ratio, margin_joint, partial=partial, status=int(traj.status),
                                tolerances=tol, coordinates=coords),
                     "out_of_contact_after": out_after, "force_error_ratio_last2s": ratio,
-                    "min_joint_limit_margin_each": margin_joints},
+                    "min_joint_limit_margin": margin_joint, "min_joint_limit_margin_each": margin_joints},
     }
 
 
