@@ -31,7 +31,7 @@ from hinfnn.model.urdf import UrdfArm, load_urdf_string, planar_chain
 from hinfnn.plant import Friction
 from hinfnn.reference import CosineReference
 
-SHIPPED = ["planar3-drum", "ur5-table", "ur5-sphere"]
+SHIPPED = ["planar3-drum", "ur5-table", "ur5-sphere", "panda-table"]
 
 
 def rel(a, b):
@@ -559,15 +559,17 @@ def test_bad_urdf_exits_2_naming_the_problem(tmp_path, capsys, text, ee, key, wo
 
 
 def test_non_square_arm_is_refused_and_locking_a_joint_fixes_it(tmp_path):
-    """A 4-joint chain for 3 task coordinates: the error names n, the task dimension and the key
-    to lock joints with; locking one by name gives the 3-link arm."""
+    """A 4-joint chain for 3 task coordinates: the error names n, the task dimension and the keys
+    to add a coordinate (task.extra) or lock joints with; locking one by name gives the 3-link arm."""
     extra = ('<joint name="j4" type="revolute"><parent link="tool"/><child link="tip"/><axis xyz="0 0 1"/></joint>'
              '<link name="tip"><inertial><mass value="0.1"/><inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/>'
              '</inertial></link>')
     scen = _urdf_scenario(tmp_path, GOOD3.format(m1="2.0", parent2="l1", extra=extra), ee="tip")
-    with pytest.raises(H.ConfigError, match=r"n = 4 moving joints \(j1, j2, j3, j4\).*have 3") as info:
+    with pytest.raises(H.ConfigError, match=r"n = 4 moving joints \(j1, j2, j3, j4\).*have 3.*task.extra.*"
+                       r"plant.arm.locked_joints") as info:
         H.load_scenario(scen, check=False).build_plant()
-    assert info.value.key == "plant.arm.locked_joints"
+    assert info.value.key == "task.extra"
+    assert H.load_scenario(scen, {"task.extra": ["j4"]}, check=False).build_plant().n == 4
     sc = H.load_scenario(scen, {"plant.arm.locked_joints": ["j4"], "nominal.arm.locked_joints": ["j4"]}, check=False)
     assert sc.build_plant().n == 3
     with pytest.raises(H.ConfigError, match="cannot lock joint 'j9'"):

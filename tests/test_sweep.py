@@ -267,6 +267,8 @@ def test_table_equals_individual_simulate_runs(small):
         sc = scenario_of(base, spec.base.source, values, "hinf")
         m = H.compute_metrics(sc.simulate("hinf"))
         for k, v in m.items():
+            if k == "verdict":  # the verdicts are not columns of a sweep's table yet
+                continue
             if k in PER_COORDINATE_METRICS:  # one list column
                 assert list(row[k]) == pytest.approx(v, rel=1e-9, abs=1e-12), k
             elif isinstance(v, list):

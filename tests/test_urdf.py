@@ -17,7 +17,7 @@ import pytest
 import hinfnn as H
 from hinfnn.model.arm import Arm, PlanarPointMassArm
 from hinfnn.model.taskmap import PlanarTaskMap, PoseTaskMap, PositionTaskMap, so3_exp, so3_log
-from hinfnn.model.urdf import UrdfArm, UrdfError, asset_path, load_urdf, load_urdf_string, rpy_matrix
+from hinfnn.model.urdf import UrdfArm, UrdfError, UrdfWarning, asset_path, load_urdf, load_urdf_string, rpy_matrix
 
 #: one xdist worker runs this module: its tests share compiled programs and expensive fixtures
 pytestmark = pytest.mark.xdist_group("urdf")
@@ -489,12 +489,12 @@ def test_good_file_loads(tmp_path):
     (_good(extra='<joint name="j3" type="fixed"><parent link="base"/><child link="tool"/></joint>'), "tool",
      "kinematic loop.*'tool' has two parents", '<joint name="j3">'),
     (_good(mass="0"), "tool", "mass 0.0 \\(allowed: > 0\\)", '<joint name="j1">'),
-    (_good(mass="-1"), "tool", "negative mass", '<link name="arm">/<inertial>/<mass>'),
+    (_good(mass="-1"), "tool", "link 'arm' of the body moved by this joint has negative mass", '<joint name="j1">'),
     (_good(jtype="floating"), "tool", "joint type 'floating'.*not supported", '<joint name="j1">'),
     (_good(jtype="planar"), "tool", "joint type 'planar'.*not supported", '<joint name="j1">'),
     (_good(jtype="ball"), "tool", "unknown joint type 'ball'", '<joint name="j1">'),
-    (_good(ixx="-0.01"), "tool", "not positive definite", '<link name="arm">/<inertial>/<inertia>'),
-    (_good(ixx="0.5"), "tool", "triangle inequality", '<link name="arm">/<inertial>/<inertia>'),
+    (_good(ixx="-0.01"), "tool", "body moved by this joint \\(links arm, tool\\) is not positive semidefinite",
+     '<joint name="j1">'),
     (_good(extra='<link name="alone"/>'), "alone", "not reachable from base link 'base'", "ee_link"),
 ])
 def test_bad_urdf_raises(tmp_path, text, ee, pattern, element):
@@ -509,3 +509,30 @@ def test_bad_urdf_raises(tmp_path, text, ee, pattern, element):
 def test_base_below_end_effector_hint(tmp_path):
     with pytest.raises(UrdfError, match="swap them"):
         load_urdf(_write(tmp_path, _good()), "tool", "base")
+
+
+def test_triangle_inequality_is_a_warning(tmp_path):
+    """A lumped body whose principal moments violate I1 + I2 >= I3 (CAD exports do): loaded as
+    written, as Pinocchio does, with a warning naming the joint and the links."""
+    with pytest.warns(UrdfWarning, match='<joint name="j1">: the inertia tensor of the body moved by this joint '
+                      r'\(links arm, tool\) is not physical .* by 96.0%'):
+        chain = load_urdf(_write(tmp_path, _good(ixx="0.5")), "base", "tool")
+    assert chain.n == 1
+
+
+def test_links_off_the_chain_are_not_checked(tmp_path):
+    """Inertias are checked for the chain that is extracted only: a link above the base, or hanging
+    from the base, with a negative mass or an indefinite inertia does not stop the arm loading."""
+    bad = ('<link name="antenna"><inertial><mass value="-1"/><inertia ixx="-1" ixy="0" ixz="0" iyy="0.1" iyz="0" '
+           'izz="0.1"/></inertial></link><joint name="ja" type="fixed"><parent link="base"/><child link="antenna"/>'
+           '</joint><link name="world"><inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="0" iyz="0" '
+           'izz="0"/></inertial></link><joint name="jw" type="fixed"><parent link="world"/><child link="base"/></joint>')
+    chain = load_urdf(_write(tmp_path, _good(extra=bad)), "base", "tool")
+    assert chain.n == 1 and float(chain.mass[0]) == 1.0
+
+
+def test_mimic_joint_on_the_chain_is_a_coordinate_with_a_warning(tmp_path):
+    mimic = _good().replace('<axis xyz="0 0 1"/></joint>', '<axis xyz="0 0 1"/><mimic joint="jx"/></joint>')
+    with pytest.warns(UrdfWarning, match="<mimic> joint on the chain .* independent coordinate"):
+        chain = load_urdf(_write(tmp_path, mimic), "base", "tool")
+    assert chain.n == 1

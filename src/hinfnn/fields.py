@@ -36,6 +36,8 @@ _CORE = [
     ("F_contact", "N", "contact force at the tool point, Cartesian (the arm's space; Cartesian surfaces)"),
     ("friction_force", "N", "magnitude of the friction force along the surface"),
     ("task_margin", "rad", "distance of the true pose's task coordinates from their singularities (rad or m)"),
+    ("joint_limit_margin", "rad or m", "each joint's distance from its nearer limit (the true arm's URDF; < 0: past it, "
+     "the run stops)"),
     # the controller (what it measures and computes)
     ("u1", "m", "motion coordinate u1 = ĥ1(q) (nominal kinematics)"),
     ("u1_dot", "m/s", "u̇1"),
@@ -94,7 +96,7 @@ SUMMARY_FIELDS = {f.name: f.summary for f in FIELDS.values() if f.summary}
 
 #: What :func:`hinfnn.compute_metrics` needs: ``fields="metrics"`` stores only these.
 METRICS_FIELDS = ("t", "e_u1", "e_lam", "tau", "normal_force", "J", "J_aug", "V", "supply", "task_margin",
-                  *SUMMARY_FIELDS)
+                  "joint_limit_margin", "lam_d", *SUMMARY_FIELDS)
 
 
 def unit(name: str) -> str:

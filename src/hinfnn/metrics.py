@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from .fields import SUMMARY_FIELDS
+from .status import RunStatus
 
 METRIC_KEYS = (
     "rms_e_u1", "max_abs_e_u1", "rms_e_u1_last2s",
@@ -42,6 +43,19 @@ UNITS = {
     "rms_e_u1_each": "m or rad", "rms_e_u1_each_last2s": "m or rad", "rms_e_lam_each": "λ units",
     "rms_e_lam_each_last2s": "λ units", "min_task_margin": "rad or m",
 }
+#: The verdicts and what they rest on (:func:`verdicts`): ``compute_metrics(...)["verdict"]``, one
+#: dict (metrics.json: each run's "verdict", next to its status); not among :data:`METRIC_KEYS` (a
+#: sweep's numeric columns: a sweep's table does not have them yet). ``min_joint_limit_margin`` (and
+#: ``_each``, per joint) is None when the arm records no limits.
+VERDICT_KEYS = ("contact_held", "tracking_within_tolerance", "within_joint_limits", "notes",
+                "out_of_contact_after", "force_error_ratio_last2s", "min_joint_limit_margin",
+                "min_joint_limit_margin_each")
+UNITS.update({"contact_held": "bool", "tracking_within_tolerance": "bool", "within_joint_limits": "bool",
+              "notes": "-", "out_of_contact_after": "-", "force_error_ratio_last2s": "-",
+              "min_joint_limit_margin": "rad or m", "min_joint_limit_margin_each": "rad or m"})
+#: The verdicts' tolerances when the scenario does not give them (``[verdict]``, the same defaults).
+DEFAULT_TOLERANCES = {"position_tolerance": 0.005, "angle_tolerance": 0.02, "force_tolerance": 0.1,
+                      "contact_after": 0.5, "out_of_contact": 0.0}
 #: Trajectory fields that summarise every step between samples (see hinfnn.sim.recorder).
 STEP_FIELDS = tuple(SUMMARY_FIELDS)
 
@@ -51,7 +65,7 @@ def _rms(x, axis=0):
     return np.sqrt(np.mean(x**2, axis=axis))
 
 
-def compute_metrics(traj, last: float = 2.0) -> dict:
+def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, coordinates=None) -> dict:
     """Metrics of one run (a dict of floats, lists and bools; JSON-ready).
 
     ``*_last2s`` are over t ≥ t_end − ``last``. ``tv_rate_tau_last2s`` is the total variation
@@ -62,6 +76,11 @@ def compute_metrics(traj, last: float = 2.0) -> dict:
     ``dissipation_min_margin`` is min over t > 0 of ρ²∫₀ᵗ(‖f_p‖²+‖f_f‖²) − (J(t) + V(t) − V(0)): the
     theorems claim the inequality for every T, not only the final one. ``t_end`` is the time the
     metrics cover; for a run that stopped early (``partial``) it is the last sample before t_fail.
+
+    ``verdict`` (:data:`VERDICT_KEYS`, :func:`verdicts`) judges the run against ``tolerances``
+    (keys of :data:`DEFAULT_TOLERANCES`) with the motion coordinates' ``coordinates`` ((name, unit)
+    pairs); both default to the run's scenario (``[verdict]``, the task coordinates' names), and
+    without one to :data:`DEFAULT_TOLERANCES` with every coordinate in m.
     """
     if traj.batched:
         raise ValueError("compute_metrics takes one run; use traj.member(i) for a batch")
@@ -124,6 +143,25 @@ def compute_metrics(traj, last: float = 2.0) -> dict:
         lhs = rhs = margin = J_T = math.nan
         holds = None
     margin_task = float(np.min(arr["task_margin"])) if "task_margin" in arr else None
+    # contact after the build-up, the force error relative to the force asked, the joints' limits
+    tol, coords = _judging(traj, tolerances, coordinates, arr["e_u1"].reshape(n, -1).shape[1])
+    after = t > tol["contact_after"] + 1e-9 * max(1.0, abs(tol["contact_after"]))
+    if "steps_out_of_contact" in arr:
+        steps_after = int(np.sum(after)) * int(traj.save_every)
+        out_after = float(np.sum(arr["steps_out_of_contact"][after]) / steps_after) if steps_after else 0.0
+    elif "penetration" in arr:
+        out_after = float(np.mean(arr["penetration"][after] < -1e-9)) if after.any() else 0.0
+    else:
+        out_after = math.nan
+    lam_scale = float(np.mean(np.linalg.norm(arr["lam_d"].reshape(n, -1)[first:], axis=1))) if "lam_d" in arr else math.nan
+    ratio = float(rms_lam_w / lam_scale) if lam_scale > 0 else None
+    if "joint_limit_margin" in arr:
+        each = np.min(arr["joint_limit_margin"].reshape(n, -1), axis=0)
+        margin_joints = [float(v) if math.isfinite(v) else None for v in each]
+        finite = [v for v in margin_joints if v is not None]
+        margin_joint = min(finite) if finite else None
+    else:
+        margin_joints, margin_joint = None, None
     return {
         "rms_e_u1_each": [float(v) for v in u1_each],
         "rms_e_u1_each_last2s": [float(v) for v in u1_each_w],
@@ -149,4 +187,67 @@ def compute_metrics(traj, last: float = 2.0) -> dict:
         "dissipation_holds_for_all_t": bool(margin >= 0) if np.isfinite(margin) else None,
         "t_end": float(t[-1]),
         "partial": partial,
+        "verdict": {**verdicts(u1_each_w, out_after, ratio, margin_joint, partial=partial, status=int(traj.status),
+                               tolerances=tol, coordinates=coords),
+                    "out_of_contact_after": out_after, "force_error_ratio_last2s": ratio,
+                    "min_joint_limit_margin": margin_joint, "min_joint_limit_margin_each": margin_joints},
     }
+
+
+def _judging(traj, tolerances, coordinates, m: int):
+    """The tolerances and the motion coordinates' (name, unit) a run is judged with."""
+    sc = getattr(traj, "scenario", None)
+    tol = dict(DEFAULT_TOLERANCES)
+    if tolerances is None and sc is not None and hasattr(sc, "verdict"):
+        tolerances = sc.verdict.tolerances()
+    tol.update(tolerances or {})
+    if coordinates is None and sc is not None:
+        try:
+            names = sc.coordinate_names()
+        except Exception:  # noqa: BLE001 - a scenario that no longer builds: judge in m
+            names = None
+        coordinates = names[:m] if names else None
+    if coordinates is None or len(coordinates) != m:
+        coordinates = [(f"u1[{i + 1}]" if m > 1 else "u1", "m") for i in range(m)]
+    return tol, list(coordinates)
+
+
+def verdicts(rms_each_last, out_after, force_ratio, joint_margin, *, partial: bool, status: int, tolerances: dict,
+             coordinates) -> dict:
+    """Whether a run did its job, next to its status:
+
+    * ``contact_held``: the share of steps with the tool off the true surface after
+      ``contact_after`` is at most ``out_of_contact``;
+    * ``tracking_within_tolerance``: over the last 2 s, the RMS error of each motion coordinate is
+      at most ``position_tolerance`` (coordinates in m) or ``angle_tolerance`` (rad), and the RMS
+      force error at most ``force_tolerance`` times the mean |λd| there; False for a run that
+      stopped early;
+    * ``within_joint_limits``: no joint passed its limit (None: the arm has none recorded);
+
+    and ``notes``, one line per failed criterion with its numbers."""
+    notes = []
+    tol = tolerances
+    contact = bool(out_after <= tol["out_of_contact"]) if math.isfinite(out_after) else None
+    if contact is False:
+        notes.append(f"off the surface for {out_after:.2%} of the steps after {tol['contact_after']:g} s (allowed: "
+                     f"{tol['out_of_contact']:.2%})")
+    track = True
+    for (name, unit), v in zip(coordinates, rms_each_last):
+        limit = tol["angle_tolerance"] if unit == "rad" else tol["position_tolerance"]
+        if not v <= limit:
+            track = False
+            notes.append(f"{name}: RMS error {v:.3g} {unit} over the last 2 s (allowed: {limit:g} {unit})")
+    if force_ratio is not None and not force_ratio <= tol["force_tolerance"]:
+        track = False
+        notes.append(f"force: RMS error over the last 2 s {force_ratio:.1%} of the mean |λd| (allowed: "
+                     f"{tol['force_tolerance']:.0%})")
+    if partial:
+        track = False
+        notes.append("the run stopped early (status ≠ ok): it did not finish its task")
+    past = status == int(RunStatus.PLANT_FAULT) and joint_margin is not None
+    limits = None if joint_margin is None else bool(not past and joint_margin >= 0)
+    if limits is False:
+        notes.append("a joint passed its limit (the run stopped there)" if past else
+                     f"a joint passed its limit (by {-joint_margin:.3g} rad or m)")
+    return {"contact_held": contact, "tracking_within_tolerance": track, "within_joint_limits": limits,
+            "notes": notes}

@@ -51,24 +51,31 @@ class PlantRecord:
     """What the plant records at one instant: the penetration of the true surface (m, < 0: the
     tool is above it; the recorder's contact bookkeeping needs it), a fault flag that stops the run
     (:attr:`hinfnn.status.RunStatus.PLANT_FAULT`, e.g. a joint past its limit) with the measure
-    that decided it, and any further named signals (units in :data:`hinfnn.fields.FIELDS`)."""
+    that decided it and the item it is of (``fault_index``: a joint, numbered from 0; -1: none),
+    and any further named signals (units in :data:`hinfnn.fields.FIELDS`)."""
 
     penetration: jax.Array
     signals: dict
     fault: jax.Array = False
     fault_value: jax.Array = jnp.nan
+    fault_index: jax.Array = -1
 
 
 class Plant(abc.ABC):
     """The truth: true arm and surface, contact, friction, disturbance (never seen by a controller).
 
     Subclasses set ``n`` (number of joints, a static int) and implement the abstract methods;
-    ``fault_name`` names the measure of :attr:`PlantRecord.fault_value` in failure messages.
+    ``fault_name`` names the measure of :attr:`PlantRecord.fault_value` in failure messages and
+    :meth:`fault_item` the item of :attr:`PlantRecord.fault_index`.
     Use :class:`ContinuousPlant` or :class:`DiscretePlant`.
     """
 
     discrete: ClassVar[bool]
     fault_name: ClassVar[str] = "plant fault measure"
+
+    def fault_item(self, index: int) -> str:
+        """The name of item ``index`` of a fault (:attr:`PlantRecord.fault_index`) in messages."""
+        return f"item {index}"
 
     @abc.abstractmethod
     def initial_state(self, q0, qd0=None) -> Any:

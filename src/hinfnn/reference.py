@@ -6,6 +6,8 @@ Controllers and the simulator evaluate it; both import it from here (not from ea
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 
@@ -80,6 +82,18 @@ class CosineReference:
             lam_omega=jnp.array([jnp.pi]),
             lam_phase=jnp.array([0.0]),
         )
+
+    def holding(self, values) -> "CosineReference":
+        """This reference with more motion coordinates appended, each held at its value of
+        ``values`` (offset, no cosine): the extra task coordinates a scenario does not move."""
+        held = jnp.asarray(values, dtype=float).reshape(-1)
+
+        def cat(a, fill):
+            return jnp.concatenate([jnp.asarray(a, dtype=float), jnp.full(held.shape, fill) if fill is not None
+                                    else held])
+
+        return dataclasses.replace(self, u1_offset=cat(self.u1_offset, None), u1_amplitude=cat(self.u1_amplitude, 0.0),
+                                   u1_omega=cat(self.u1_omega, 1.0), u1_phase=cat(self.u1_phase, 0.0))
 
     def __call__(self, t) -> RefSample:
         s, c = la.sincos(self.u1_omega * t + self.u1_phase)  # computed once and shared (hinfnn._linalg.sincos)

@@ -25,8 +25,9 @@ def run_entry(name: str, traj, *, overrides=None, design=None, metrics=None, lab
         "status": traj.run_status.outcome,
         "t_fail": None if status == 0 else float(traj.t_fail),
         "reason": traj.reason,
+        "verdict": m.get("verdict"),
         "partial": bool(m.get("partial", False)),
-        "metrics": {k: v for k, v in m.items() if k != "partial"},
+        "metrics": {k: v for k, v in m.items() if k not in ("partial", "verdict")},
     }
     if design is not None:
         entry["design"] = design

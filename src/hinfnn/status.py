@@ -44,8 +44,9 @@ class RunStatus(enum.IntEnum):
 
     def describe(self, details: dict | None = None) -> str:
         """Why the run stopped, in words, with the numbers that decided it (``details``: the
-        trajectory's ``fail_details``: the numbers, and the names the controller and the plant give
-        their fault measures, ``controller_fault`` and ``plant_fault``)."""
+        trajectory's ``fail_details``: the numbers, the names the controller and the plant give
+        their fault measures, ``controller_fault`` and ``plant_fault``, and the plant's name for
+        the item of its fault, ``fault_item``)."""
         d = details or {}
         what = self.message
         if self is RunStatus.NONFINITE:
@@ -59,7 +60,9 @@ class RunStatus(enum.IntEnum):
             return f"{what} (penetration = {_num(d.get('penetration')):.4g} m)"
         if self in (RunStatus.CONTROLLER_FAULT, RunStatus.PLANT_FAULT):
             name = d.get("controller_fault" if self is RunStatus.CONTROLLER_FAULT else "plant_fault")
-            return f"{what} ({name or 'its measure'} = {_num(d.get('fault_value')):.4g})"
+            item = d.get("fault_item") if self is RunStatus.PLANT_FAULT else None
+            at = f" at {item}" if item else ""
+            return f"{what} ({name or 'its measure'} = {_num(d.get('fault_value')):.4g}{at})"
         return what
 
 

@@ -367,3 +367,124 @@ class FittedTaskMap:
         if self.space_dim == 3:
             return jnp.minimum(m, PoseTaskMap.singularity_margin(jnp.concatenate([jnp.zeros(3), r])))
         return jnp.minimum(m, jnp.pi - jnp.abs(r[0]))
+
+
+# ---------------------------------------------------------------------------------------------
+# Extra task coordinates of redundant arms: functions of the joint angles (not of the tool frame)
+# ---------------------------------------------------------------------------------------------
+# A redundant arm (n joints, a task map of n − e coordinates) gets e more motion coordinates so
+# that x = h(q) is square again ((A1)): :class:`~hinfnn.model.augmented.AugmentedArm` inserts them
+# before the constrained coordinate, where they are motion coordinates u1 like the others
+# (tracked to a reference, with their own K_p, K_v and network output). Each has a value, its
+# gradient (a row of Ĵ) and that row's time derivative (a row of J̇̂), its name and unit, and its
+# distance from where it is singular or wraps.
+
+
+@pytree_dataclass
+class JointCoordinate:
+    """x_e = q_i: one joint's angle (rad) or position (m) as a task coordinate. Its row of Ĵ is
+    e_iᵀ (constant: its row of J̇̂ is 0). Never singular itself; with it, Ĵ is singular exactly
+    where the task map's Jacobian without column i is (the arm with joint i locked)."""
+
+    index: int = static_field()
+    name: str = static_field(default="")
+    unit: str = static_field(default="rad")
+
+    def value(self, chain, q):
+        return q[self.index]
+
+    def jacobian(self, chain, q):
+        return jnp.zeros_like(q).at[self.index].set(1.0)
+
+    def jacobian_dot(self, chain, q, qd):
+        return jnp.zeros_like(q)
+
+    def margin(self, chain, q):
+        return jnp.asarray(jnp.inf)
+
+    def margin_x(self, value):
+        return jnp.asarray(jnp.inf)
+
+
+def joint_origins(chain, q, count: int):
+    """The origins (base frame) of the first ``count`` joint frames of a
+    :class:`~hinfnn.model.urdf.UrdfChain` at q: joint i's frame is ``placement_pos[i],
+    placement_rot[i]`` in body i − 1 (a joint's own motion does not move its origin)."""
+    R, p = jnp.eye(3), jnp.zeros(3)
+    out = []
+    for i in range(count):
+        p = p + la.mm(R, chain.placement_pos[i])
+        R = la.mm(R, chain.placement_rot[i])
+        out.append(p)
+        a = chain.axes[i]
+        if chain.joint_types[i] == "prismatic":
+            p = p + la.mm(R, a) * q[i]
+        else:
+            K = jnp.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+            s, c = jnp.sin(q[i]), jnp.cos(q[i])
+            R = la.mm(R, jnp.eye(3) + s * K + (1.0 - c) * la.mm(K, K))
+    return out
+
+
+@pytree_dataclass
+class ArmAngle:
+    """ψ, the elbow's angle ("arm angle", the swivel of the arm plane; Kreutz-Delgado, Long and
+    Seraji, 1992): the angle about the shoulder–wrist axis u = (W − S)/‖W − S‖ from the reference
+    half-plane (u, ``reference`` v) to the arm plane (u, elbow E):
+
+        ψ = atan2(u · (v⊥ × e⊥), v⊥ · e⊥),   v⊥ = v − (v·u)u,   e⊥ = (E − S) − ((E − S)·u)u,
+
+    S, E, W the origins of the joints ``shoulder``, ``elbow``, ``wrist`` (indices into the chain),
+    wrapped into (psi_ref − π, psi_ref + π]. It moves the elbow about the shoulder–wrist line, the
+    self-motion of a 7-DOF arm with the tool held. Its gradient and the gradient's rate are
+    autodiff (forward mode). Singular where u ∥ v (v⊥ = 0: the shoulder–wrist line along the
+    reference) or the arm is stretched (e⊥ = 0), and it jumps where ψ crosses psi_ref ± π:
+    :meth:`margin` is the smallest of the angle from u to ±v, the angle at S between E − S and
+    ±u, and π − |ψ − psi_ref| (rad)."""
+
+    shoulder: int = static_field()
+    elbow: int = static_field()
+    wrist: int = static_field()
+    reference: jax.Array = None
+    psi_ref: jax.Array = 0.0
+    name: str = static_field(default="psi")
+    unit: str = static_field(default="rad")
+
+    def _points(self, chain, q):
+        origins = joint_origins(chain, q, max(self.shoulder, self.elbow, self.wrist) + 1)
+        return origins[self.shoulder], origins[self.elbow], origins[self.wrist]
+
+    def _geometry(self, chain, q):
+        S, E, W = self._points(chain, q)
+        d = W - S
+        u = d / jnp.sqrt(jnp.sum(d * d))
+        a = E - S
+        e = a - jnp.sum(a * u) * u
+        v = self.reference - jnp.sum(self.reference * u) * u
+        return u, a, e, v
+
+    def value(self, chain, q):
+        u, _, e, v = self._geometry(chain, q)
+        x, y = jnp.sum(v * e), jnp.sum(u * jnp.cross(v, e))
+        s, c = jnp.sin(self.psi_ref), jnp.cos(self.psi_ref)
+        return self.psi_ref + jnp.arctan2(c * y - s * x, c * x + s * y)
+
+    def jacobian(self, chain, q):
+        return jax.jacfwd(lambda qq: self.value(chain, qq))(q)
+
+    def jacobian_dot(self, chain, q, qd):
+        return jax.jvp(lambda qq: self.jacobian(chain, qq), (q,), (qd,))[1]
+
+    def margin(self, chain, q):
+        u, a, _, _ = self._geometry(chain, q)
+
+        def off_axis(w, axis):  # angle between w and the line of the unit vector axis
+            w = w / jnp.sqrt(jnp.sum(w * w))
+            return jnp.arcsin(jnp.clip(jnp.sqrt(jnp.sum(jnp.cross(w, axis) ** 2)), 0.0, 1.0))
+
+        wrap = self.margin_x(self.value(chain, q))
+        return jnp.minimum(jnp.minimum(off_axis(self.reference, u), off_axis(a, u)), wrap)
+
+    def margin_x(self, value):
+        """π − |ψ − psi_ref| (rad): how far ψ is from where it jumps."""
+        return jnp.pi - jnp.abs(value - self.psi_ref)

@@ -12,12 +12,18 @@ a base link to an end-effector link into a :class:`UrdfChain`:
 * links above the base and the base's own rigid subtree do not move and are ignored;
 * continuous joints are revolute joints without limits (one coordinate q, not Pinocchio's
   (cos q, sin q)); joint limits are kept, not enforced; <dynamics> (damping, friction) is
-  ignored; floating, planar and <mimic> joints on the chain are errors.
+  ignored; floating and planar joints on the chain are errors; a <mimic> joint on the chain is
+  an independent coordinate (as in Pinocchio's default), with a :class:`UrdfWarning`.
 
 Inertias follow URDF: <inertial>/<origin> places the centre of mass and the axes of the
-<inertia> tensor (about the centre of mass); a link without <inertial> is massless. Rotational
-inertia may be zero (point masses); it must be positive semidefinite and physical (triangle
-inequality), and every moving body must have mass > 0 after merging.
+<inertia> tensor (about the centre of mass); a link without <inertial> is massless. Only the
+chain that is extracted is checked, after merging (as Pinocchio, which loads a file whatever
+the inertias of the links a chain does not use: an antenna on a mobile base, a gripper's
+fingers): every moving body must have mass > 0, no link in it a negative mass, and its lumped
+rotational inertia (zero allowed: point masses) must be positive semidefinite; it should be
+physical (triangle inequality; a violation, frequent in CAD exports, is a :class:`UrdfWarning`: the
+dynamics stay well defined, M(q) positive definite). A xacro file, an MJCF or SDF file and a
+folder are refused, each with what to do instead.
 
 :class:`UrdfChain` computes, with 6-D spatial algebra in the base frame (Featherstone,
 *Rigid Body Dynamics Algorithms*, ch. 2–6; motion vectors (linear, angular) at the base origin,
@@ -38,6 +44,7 @@ import difflib
 import importlib.resources
 import math
 import os
+import warnings
 import xml.etree.ElementTree as ET
 from typing import Any, NamedTuple
 
@@ -51,6 +58,15 @@ from ..errors import ConfigError
 from .arm import Arm, ArmTerms
 
 MOVING_TYPES = ("revolute", "continuous", "prismatic")
+
+
+def _is_xacro(el) -> bool:
+    """An element of the xacro namespace (``<xacro:macro>``, any of its URLs) or an attribute with
+    a xacro property or substitution (``${...}``, ``$(find ...)``)."""
+    tag = el.tag if isinstance(el.tag, str) else ""
+    if tag.startswith("{") and "xacro" in tag[1:tag.find("}")]:
+        return True
+    return any("${" in v or "$(" in v for v in el.attrib.values())
 JOINT_TYPES = MOVING_TYPES + ("fixed", "floating", "planar")
 
 
@@ -66,9 +82,61 @@ class UrdfError(ConfigError):
         super().__init__(problem, key=key)
 
 
+class UrdfWarning(UserWarning):
+    """Something in a URDF that hinfnn loads but a user should know: a lumped body whose inertia
+    violates the triangle inequality (not realisable by a mass distribution, though the dynamics
+    stay well defined), a <mimic> joint on the chain taken as an independent coordinate."""
+
+
 def asset_path(*parts: str) -> str:
     """Path of a robot file shipped with hinfnn, e.g. ``asset_path("ur5", "ur5.urdf")``."""
     return str(importlib.resources.files("hinfnn").joinpath("assets", *parts))
+
+
+def shipped_robots() -> dict[str, str]:
+    """The robots shipped with hinfnn by name (``"ur5"``, ``"panda"``, ``"planar/three_link"``):
+    ``assets/NAME/NAME.urdf`` is ``NAME``, any other ``assets/DIR/FILE.urdf`` is ``DIR/FILE``."""
+    root = importlib.resources.files("hinfnn").joinpath("assets")
+    out = {}
+    for folder in sorted((d for d in root.iterdir() if d.is_dir()), key=lambda d: d.name):
+        for f in sorted((f for f in folder.iterdir() if f.name.endswith(".urdf")), key=lambda f: f.name):
+            stem = f.name[:-5]
+            out[folder.name if stem == folder.name else f"{folder.name}/{stem}"] = str(f)
+    return out
+
+
+def robot_file(value: str) -> str:
+    """The URDF a ``file`` value names: a file when a file of that name exists (any extension:
+    ``.urdf``, ``.xml``, none), else a shipped robot (:func:`shipped_robots`). A folder, a xacro
+    file (``.xacro``) and a name that is neither raise :class:`UrdfError` saying what is allowed."""
+    value = os.fspath(value)
+    if value.endswith(".xacro"):
+        raise UrdfError("is a xacro file: expand it with xacro first (`xacro FILE.urdf.xacro > robot.urdf`, in a "
+                        "ROS environment) and give the .urdf it writes", value)
+    if os.path.isdir(value):
+        raise UrdfError("is a folder, not a URDF file; give the path of the .urdf file in it"
+                        + _urdf_in_folder(value), value)
+    if os.path.isfile(value):
+        return value
+    shipped = shipped_robots()
+    if value in shipped:
+        return shipped[value]
+    looks_like_path = os.sep in value or "/" in value or os.path.splitext(value)[1] != ""
+    names = ", ".join(repr(k) for k in shipped)
+    close = difflib.get_close_matches(value, list(shipped), n=1, cutoff=0.6)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    if looks_like_path:
+        raise UrdfError(f"no such file; give the path of a URDF file (relative to the scenario file) or a robot "
+                        f"shipped with hinfnn: {names}{hint}", value)
+    raise UrdfError(f"is neither a file nor a robot shipped with hinfnn ({names}){hint}", value)
+
+
+def _urdf_in_folder(folder) -> str:
+    try:
+        found = sorted(f for f in os.listdir(folder) if f.endswith(".urdf"))
+    except OSError:
+        return ""
+    return f" (it holds {', '.join(found[:5])}{', ...' if len(found) > 5 else ''})" if found else ""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -131,7 +199,11 @@ class _Parser:
         except ET.ParseError as e:
             raise UrdfError(f"not an XML file ({e})", source) from None
         if root.tag != "robot":
-            raise UrdfError(f"no <robot> element: the root element is <{root.tag}>", source)
+            hint = {"mujoco": " (an MJCF file: hinfnn reads URDF)", "sdf": " (an SDF file: hinfnn reads URDF)"}
+            raise UrdfError(f"no <robot> element: the root element is <{root.tag}>{hint.get(root.tag, '')}", source)
+        if any(_is_xacro(el) for el in root.iter()):
+            raise UrdfError("contains xacro macros or properties: expand it with xacro first (`xacro FILE > "
+                            "robot.urdf`, in a ROS environment) and give the .urdf it writes", source)
         self.robot_name = root.get("name", "")
         self.links: dict[str, _Link] = {}
         self.joints: list[_Joint] = []
@@ -184,8 +256,6 @@ class _Parser:
         if mass_el is None:
             raise self._err("<inertial> without <mass>", w)
         mass = float(self._floats(mass_el, "value", 1, w + "/<mass>")[0])
-        if mass < 0:
-            raise self._err(f"negative mass {mass} (allowed: mass ≥ 0)", w + "/<mass>")
         R, com = self._origin(inertial, w)
         iel = inertial.find("inertia")
         if iel is None:
@@ -194,7 +264,8 @@ class _Parser:
              for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
         I_in = np.array([[v["ixx"], v["ixy"], v["ixz"]], [v["ixy"], v["iyy"], v["iyz"]],
                          [v["ixz"], v["iyz"], v["izz"]]])
-        _check_inertia(I_in, self.source, w + "/<inertia>")
+        # mass and inertia are checked only for the links of the chain that is extracted (after
+        # merging: _extract_chain), as Pinocchio loads a file whatever its unused links hold
         return _Link(name, mass, com, R @ I_in @ R.T)
 
     def _joint(self, el):
@@ -227,18 +298,21 @@ class _Parser:
                       mimic=el.find("mimic") is not None)
 
 
-def _check_inertia(I, source, where):
-    """Rotational inertia about the centre of mass: symmetric positive semidefinite and
-    physically consistent (principal moments satisfy the triangle inequality). Zero is allowed
-    (point mass)."""
+def _check_inertia(I, source, where, what="inertia tensor"):
+    """Rotational inertia about the centre of mass: symmetric positive semidefinite (else
+    :class:`UrdfError`: M(q) could lose definiteness) and physically consistent (principal moments
+    satisfy the triangle inequality; else a :class:`UrdfWarning`, as Pinocchio loads such files).
+    Zero is allowed (point mass)."""
     lam = np.linalg.eigvalsh(I)
     tol = 1e-12 * max(1.0, float(np.abs(lam).max()))
     if lam[0] < -tol:
-        raise UrdfError(f"inertia tensor not positive definite (principal moments {lam.tolist()}; "
+        raise UrdfError(f"{what} not positive semidefinite (principal moments {lam.tolist()}; "
                         "allowed: all ≥ 0)", source, where)
     if lam[0] + lam[1] < lam[2] - tol:
-        raise UrdfError(f"inertia tensor not physical (principal moments {lam.tolist()} violate "
-                        "the triangle inequality I1 + I2 ≥ I3)", source, where)
+        warnings.warn(f"{source}: {where}: {what} not physical (principal moments {lam.tolist()} violate the "
+                      "triangle inequality I1 + I2 ≥ I3 by "
+                      f"{(lam[2] - lam[0] - lam[1]) / lam[2]:.1%}); loaded as written (the dynamics stay well "
+                      "defined)", UrdfWarning, stacklevel=4)
 
 
 def _did_you_mean(name, names):
@@ -317,8 +391,9 @@ def _extract_chain(parsed: _Parser, base_link, ee_link, tool_T):
                             f"not supported (allowed: {', '.join(MOVING_TYPES)}, fixed)",
                             src, f'<joint name="{j.name}">')
         if j.mimic and j.type in MOVING_TYPES:
-            raise UrdfError("a <mimic> joint on the chain is not supported (each moving joint on the "
-                            "chain is an independent coordinate)", src, f'<joint name="{j.name}">')
+            warnings.warn(f"{src}: <joint name=\"{j.name}\">: a <mimic> joint on the chain from {base_link!r} to "
+                          f"{ee_link!r}: taken as an independent coordinate (as Pinocchio does by default); lock "
+                          "it (locked_joints) to hold it", UrdfWarning, stacklevel=3)
     moving = [j for j in path if j.type in MOVING_TYPES]
     if not moving:
         raise UrdfError(f"no moving joint between {base_link!r} and {ee_link!r}", src, "ee_link")
@@ -345,15 +420,19 @@ def _extract_chain(parsed: _Parser, base_link, ee_link, tool_T):
         placements.append(nxt[1])
         members, nxt = rigid(j.child)
         parts = []
+        where = f'<joint name="{j.name}">'
         for name, (R, p) in members.items():
             L = links[name]
+            if L.mass < 0:
+                raise UrdfError(f"link {name!r} of the body moved by this joint has negative mass {L.mass} "
+                                "(allowed: mass ≥ 0)", src, where)
             parts.append((L.mass, R @ L.com + p, R @ L.inertia @ R.T))
         m, c, inertia = _lump(parts)
-        where = f'<joint name="{j.name}">'
+        body = f"links {', '.join(sorted(members))}"
         if m <= 0:
-            raise UrdfError(f"the body moved by this joint (links {', '.join(sorted(members))}) has "
+            raise UrdfError(f"the body moved by this joint ({body}) has "
                             f"mass {m} (allowed: > 0)", src, where)
-        _check_inertia(inertia, src, where + " (lumped body)")
+        _check_inertia(inertia, src, where, what=f"the inertia tensor of the body moved by this joint ({body}) is")
         bodies.append((m, c, inertia, sorted(members)))
         if i == len(moving) - 1:
             tool = _compose(members[ee_link], tool_T)
@@ -691,11 +770,11 @@ def load_urdf_string(text: str, base_link: str, ee_link: str, *, tool_xyz=(0.0, 
 def load_urdf(path, base_link: str, ee_link: str, *, tool_xyz=(0.0, 0.0, 0.0),
               tool_rpy=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.81), locked: dict | None = None) -> UrdfChain:
     """Serial chain from ``base_link`` to ``ee_link`` of a URDF file, with a fixed tool offset
-    (xyz, rpy in the end-effector link's frame) and gravity (base frame). ``locked`` maps joint
-    names to positions (rad or m) at which they are held fixed (e.g. one joint of a 7-DOF arm, so
-    that n equals the task dimension). Raises :class:`UrdfError` naming the file, the element and
-    the problem."""
-    path = os.fspath(path)
+    (xyz, rpy in the end-effector link's frame) and gravity (base frame). ``path`` is a file (any
+    extension) or the name of a robot shipped with hinfnn (:func:`robot_file`). ``locked`` maps
+    joint names to positions (rad or m) at which they are held fixed. Raises :class:`UrdfError`
+    naming the file, the element and the problem."""
+    path = robot_file(path)
     try:
         with open(path, encoding="utf-8") as fh:
             text = fh.read()

@@ -25,6 +25,7 @@ Two kinds of true surface:
 from __future__ import annotations
 
 import functools
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -61,7 +62,11 @@ class ContactCache:
 
 @pytree_dataclass
 class RigidBodyPlant(ContinuousPlant):
-    """True arm and surface (model types, true parameters), contact law and disturbance."""
+    """True arm and surface (model types, true parameters), contact law and disturbance. A joint
+    past its limit (a URDF chain's; :meth:`joint_limits`) stops the run
+    (:attr:`~hinfnn.status.RunStatus.PLANT_FAULT`, the margin of that joint)."""
+
+    fault_name: ClassVar[str] = "joint limit margin (rad or m, < 0: past the true arm's URDF limit)"
 
     arm: object
     surface: object
@@ -133,7 +138,26 @@ class RigidBodyPlant(ContinuousPlant):
             out["F_contact"] = cache.F
             out["friction_force"] = jnp.sqrt(jnp.sum(cache.friction**2))
             out["task_margin"] = self.arm.task_margin(state.q)
+        if hasattr(self.arm, "chain"):  # a chain has joint limits (±inf where none): the run stops past them
+            lo, hi = self.joint_limits()
+            margin = jnp.minimum(state.q - lo, hi - state.q)
+            out["joint_limit_margin"] = margin
+            worst = jnp.argmin(margin)
+            return PlantRecord(penetration=cache.penetration, signals=out, fault=margin[worst] < 0,
+                               fault_value=margin[worst], fault_index=worst.astype(jnp.int32))
         return PlantRecord(penetration=cache.penetration, signals=out)
+
+    def fault_item(self, index: int) -> str:
+        """The joint ``index`` by its name (the URDF's)."""
+        names = getattr(getattr(self.arm, "chain", None), "joint_names", ()) or ()
+        return f"joint {index + 1} ({names[index]})" if 0 <= index < len(names) else f"joint {index + 1}"
+
+    def joint_limits(self):
+        """(lower, upper) of the TRUE arm's joints (its URDF's; rad or m, ±inf where none)."""
+        chain = getattr(self.arm, "chain", None)
+        if chain is None:
+            return jnp.full(self.n, -jnp.inf), jnp.full(self.n, jnp.inf)
+        return chain.lower, chain.upper
 
     # --- contact and start pose ---------------------------------------------------------------------
     def contact_state(self, q, qd, terms=None):
@@ -161,7 +185,7 @@ class RigidBodyPlant(ContinuousPlant):
         """The measurement at (q, q̇) (:meth:`sense` without its cache)."""
         return self.sense(0.0, JointState(q=jnp.asarray(q, dtype=float), qd=jnp.asarray(qd, dtype=float)))[0]
 
-    def initial_q(self, u1_0, elbow_up: bool = True, q_guess=None):
+    def initial_q(self, u1_0, elbow_up: bool = True, q_guess=None, within_limits: bool = True):
         """Joint angles with the TRUE end-effector at x1 = u1_0 on the TRUE surface, zero
         penetration (docs/paper-conventions.md, Initial state: elbow up, q2 < 0). One compiled
         program (a new process lowers each eager operation separately, about 5 ms apiece).
@@ -169,11 +193,13 @@ class RigidBodyPlant(ContinuousPlant):
         Cartesian surfaces: the first n − 1 task coordinates of the TRUE arm equal ``u1_0`` and
         the tool point is on the true surface (signed distance 0), solved by damped Newton
         steps from ``q_guess`` (joint angles near the intended branch; default: the arm's
-        zero pose); NaN when that does not converge (out of reach, or another branch)."""
+        zero pose), kept within the joint limits (:meth:`joint_limits`; ``within_limits=False``:
+        not); NaN when that does not converge (out of reach, or another branch)."""
         if self.cartesian:
             u1 = jnp.atleast_1d(jnp.asarray(u1_0, dtype=float))
             guess = jnp.zeros(self.n) if q_guess is None else jnp.asarray(q_guess, dtype=float)
-            return _initial_q_cartesian(self, u1, guess)
+            lo, hi = self.joint_limits() if within_limits else (jnp.full(self.n, -jnp.inf), jnp.full(self.n, jnp.inf))
+            return _initial_q_cartesian(self, u1, guess, lo, hi)
         return _initial_q(self, jnp.asarray(u1_0, dtype=float), bool(elbow_up))
 
     def effective_mass(self, q):
@@ -194,23 +220,30 @@ def _effective_mass(plant, q):
 
 
 @jax.jit
-def _initial_q_cartesian(plant, u1, q):
-    """Damped Newton (Levenberg–Marquardt) on r(q) = (h(q)[:m] − u1, d(p(q))) = 0."""
+def _initial_q_cartesian(plant, u1, q, lo, hi):
+    """Damped Newton (Levenberg–Marquardt) on r(q) = (h(q)[:m] − u1, d(p(q))) = 0, projected onto
+    the joint limits [lo, hi]: the guess is clipped into them, a joint at a limit that the step
+    would push past it is held (its column dropped from that step), every iterate is clipped."""
     arm, surf = plant.arm, plant.surface
     m = u1.shape[0]
 
     def residual(q):
         return jnp.concatenate([arm.h(q)[:m] - u1, jnp.atleast_1d(surf.signed_distance(arm.point(q)))])
 
+    def lm_step(Jr, r):
+        A = Jr.T @ Jr + 1e-10 * jnp.eye(Jr.shape[1])
+        return jnp.linalg.solve(A, Jr.T @ r)
+
     def body(_, q):
         r = residual(q)
         Jr = jax.jacfwd(residual)(q)
-        A = Jr.T @ Jr + 1e-10 * jnp.eye(q.shape[0])
-        step = jnp.linalg.solve(A, Jr.T @ r)
+        step = lm_step(Jr, r)  # q − step
+        held = ((q <= lo) & (step > 0)) | ((q >= hi) & (step < 0))
+        step = jnp.where(held, 0.0, lm_step(jnp.where(held[None, :], 0.0, Jr), r))
         scale = jnp.minimum(1.0, 0.5 / jnp.maximum(jnp.max(jnp.abs(step)), 1e-300))  # ≤ 0.5 rad a step
-        return q - scale * step
+        return jnp.clip(q - scale * step, lo, hi)
 
-    q = jax.lax.fori_loop(0, 100, body, q)
+    q = jax.lax.fori_loop(0, 100, body, jnp.clip(q, lo, hi))
     ok = jnp.max(jnp.abs(residual(q))) < 1e-10
     return jnp.where(ok, q, jnp.nan)
 

@@ -49,7 +49,7 @@ def _design(doc, kind: str) -> dict | None:
 def metrics_table(doc, *, markdown: bool = True) -> str:
     """The metrics of every run of a results document, as Markdown (the report) or as aligned
     text (``hinfnn run`` / ``show``): one table model, two renderings."""
-    head = ["run", "status", "RMS e_u1 (m)", "last 2 s", "RMS e_λ", "last 2 s", "J(T)", "peak τ (N·m)",
+    head = ["run", "status", "did its job", "RMS e_u1 (m)", "last 2 s", "RMS e_λ", "last 2 s", "J(T)", "peak τ (N·m)",
             "peak τ last 2 s", "RMS τ last 2 s", "out of contact", "dissipation holds"]
     rows = []
     for r in doc["runs"]:
@@ -60,7 +60,7 @@ def metrics_table(doc, *, markdown: bool = True) -> str:
             if markdown and r.get("reason"):
                 status += ": " + r["reason"].replace("|", "\\|")
         g = m.get
-        rows.append([r.get("label") or r["name"] if markdown else r["name"], status, _f(g("rms_e_u1")),
+        rows.append([r.get("label") or r["name"] if markdown else r["name"], status, job_done(r), _f(g("rms_e_u1")),
                      _f(g("rms_e_u1_last2s")), _f(g("rms_e_lam")), _f(g("rms_e_lam_last2s")), _f(g("J_T")),
                      _pair(g("peak_abs_tau")), _pair(g("peak_abs_tau_last2s")), _pair(g("rms_tau_last2s")),
                      percent(g("fraction_out_of_contact")), _f(g("dissipation_holds_for_all_t"))])
@@ -68,15 +68,27 @@ def metrics_table(doc, *, markdown: bool = True) -> str:
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         lines += ["| " + " | ".join(row) + " |" for row in rows]
         return "\n".join(lines)
-    keep = [0, 1, 2, 3, 4, 5, 6, 7, 10, 11]
+    keep = [0, 1, 2, 3, 4, 5, 6, 7, 8, 11, 12]
     head = [head[i] for i in keep]
     rows = [[row[i].replace("**", "") for i in keep] for row in rows]
     widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(head)]
-    fmt = lambda cells: "  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths)))  # noqa: E731
+    fmt = lambda cells: "  ".join(c.ljust(w) if i < 3 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths)))  # noqa: E731
     lines = [fmt(head), "-" * (sum(widths) + 2 * (len(widths) - 1))]
     lines += [fmt(row) for row in rows]
     lines += stopped_notes(doc)
+    lines += [f"{r['name']}: {note}" for r in doc["runs"] for note in (r.get("verdict") or {}).get("notes", ())]
     return "\n".join(lines)
+
+
+def job_done(run) -> str:
+    """The run's verdicts in a few words (hinfnn.metrics.verdicts): "yes", or "no: contact lost,
+    tracking off" ("-" for a document written before the verdicts)."""
+    v = run.get("verdict")
+    if not v:
+        return "-"
+    bad = [word for key, word in (("contact_held", "contact lost"), ("tracking_within_tolerance", "tracking off"),
+                                  ("within_joint_limits", "joint limit")) if v.get(key) is False]
+    return "no: " + ", ".join(bad) if bad else "yes"
 
 
 def stopped_notes(doc) -> list[str]:

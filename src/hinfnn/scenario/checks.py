@@ -25,6 +25,9 @@ def require_multiple(key, value, step, message, allow_zero=False):
 
 def check(sc) -> None:
     """Every check of :meth:`hinfnn.scenario.Scenario.check`."""
+    from .._config import require_x64
+
+    require_x64()  # the start pose and the design are computed: float32 would fail them for the wrong reason
     s = sc.simulation
     dt, t_final = s.dt, s.t_final
     require_multiple("simulation.t_final", t_final, dt, f"{t_final:g} s is not a whole number of steps dt = {dt:g} s")
@@ -68,15 +71,11 @@ def check(sc) -> None:
         raise ConfigError(f"must be a number (m = 1 for this surface), got {list(sc.initial.u1)}", key="initial.u1")
     constraint = setup.constraint
     m, k = constraint.m, constraint.k
-    rm, rk = sc.reference.sizes()
-    for name, got, want in (("u1_offset", rm, m), ("lam_offset", rk, k)):
-        if got is not None and got != want:
-            what = "motion" if name.startswith("u1") else "force"
-            raise ConfigError(f"gives {got if got != -1 else 'lists of different lengths of'} {what} coordinates, the "
-                              f"task coordinates have {want} (m = {m}, k = {k})", key=f"reference.{name}")
+    _check_reference_lengths(sc, m, k)
     q0 = setup.q0
     if not np.all(np.isfinite(q0)):
         if cartesian:
+            _start_outside_limits(sc, plant)
             raise ConfigError(f"u1(0) = {_fmt(sc.initial.u1)} on the true surface: the start pose was not found from "
                               f"initial.q_guess = {list(sc.initial.q_guess) or 'zeros'} (out of reach, or give joint "
                               "angles near the intended pose)", key="initial.u1")
@@ -89,9 +88,122 @@ def check(sc) -> None:
         ctrl.check_start(q0)
     if cartesian:
         _check_path(sc, controllers[0], q0)
+        _check_path_joint_limits(sc, controllers[0], plant, q0)
     elif sc.controller.singularity_stop > 0:
         _check_path_against_singularity(sc, q0)
     _check_step_against_contact(sc, plant, q0)
+
+
+def _check_reference_lengths(sc, m: int, k: int) -> None:
+    """Every list of the reference has one entry per motion coordinate (m) or force coordinate
+    (k): a ConfigError at the first list that does not, saying the length expected and the
+    coordinates' names."""
+    ref = sc.reference
+    names = None
+    try:
+        names = sc.coordinate_names()
+    except ConfigError:
+        pass
+    groups = getattr(ref, "U1_KEYS", ()), getattr(ref, "LAM_KEYS", ())
+    e = sc.n_extra
+    for keys, want, what in ((groups[0], m, "motion"), (groups[1], k, "force")):
+        for key in keys:
+            value = getattr(ref, key)
+            if isinstance(value, tuple) and len(value) != want and not (what == "motion" and e and len(value) == m - e):
+                listed = ""
+                if what == "motion" and names:
+                    listed = ": " + ", ".join(f"{n} [{u}]" for n, u in names[:m])
+                if what == "motion" and e:
+                    listed += f"; or m − e = {m - e}: the extra coordinates then hold their start values"
+                raise ConfigError(f"must be a number or a list of {'m' if what == 'motion' else 'k'} = {want} numbers (one per {what} coordinate"
+                                  f"{listed}), got {len(value)}: [{', '.join(f'{float(v):g}' for v in value)}]",
+                                  key=f"reference.{key}")
+
+
+def _joint_names(plant) -> list[str]:
+    chain = getattr(plant.arm, "chain", None)
+    names = getattr(chain, "joint_names", ()) or ()
+    return list(names) if len(names) == plant.n else [f"joint {i + 1}" for i in range(plant.n)]
+
+
+def _start_outside_limits(sc, plant) -> None:
+    """No start pose within the joint limits: if one exists outside them (the same solve without
+    the limits), a ConfigError naming the joints outside their range, their values and ranges."""
+    guess = sc.initial.q_guess or None
+    q = np.asarray(plant.initial_q(sc.initial.u1, q_guess=guess, within_limits=False))
+    if not np.all(np.isfinite(q)):
+        return
+    lo, hi = (np.asarray(v) for v in plant.joint_limits())
+    names = _joint_names(plant)
+    out = [f"{names[i]} = {q[i]:.4g} {_unit(plant, i)} (range [{lo[i]:.4g}, {hi[i]:.4g}])"
+           for i in range(plant.n) if not lo[i] <= q[i] <= hi[i]]
+    if out:
+        raise ConfigError(f"u1(0) = {_fmt(sc.initial.u1)} on the true surface: no start pose within the true arm's "
+                          f"joint limits was found from initial.q_guess = {list(sc.initial.q_guess) or 'zeros'}; the "
+                          f"pose found without them puts {', '.join(out)}: give initial.q_guess near a pose inside the "
+                          "ranges, or another u1(0)", key="initial.u1")
+
+
+def _unit(plant, i) -> str:
+    chain = getattr(plant.arm, "chain", None)
+    return "m" if chain is not None and chain.joint_types[i] == "prismatic" else "rad"
+
+
+def _check_path_joint_limits(sc, ctrl, plant, q0) -> None:
+    """The reference's path must keep every joint inside the TRUE arm's limits (its URDF): the
+    joint angles along the path are the nominal arm's inverse kinematics of x_d(t) = (u1d(t),
+    Ω(u1d(t))) on 201 samples over the run (Newton steps continued from the start pose); a
+    DesignError at ``reference`` naming the joint, its value on the path, its range and the time.
+    (With the nominal model, what the controller aims for; the true arm follows it to within the
+    tracking error.)"""
+    from ..errors import DesignError
+
+    lo, hi = (np.asarray(v) for v in plant.joint_limits())
+    if not (np.isfinite(lo).any() or np.isfinite(hi).any()):
+        return
+    t = np.linspace(0.0, sc.simulation.t_final, 201)
+    qs, res = (np.asarray(v) for v in _path_joints(ctrl.arm, ctrl.surface, sc.build().reference, t, np.asarray(q0)))
+    # the path is followed while Newton converges and the joints move continuously (where it loses
+    # the path, near a singularity or out of reach, the other checks and the run speak)
+    jumps = np.concatenate([[0.0], np.max(np.abs(np.diff(qs, axis=0)), axis=1)])
+    lost = (res >= 1e-8) | (jumps > 0.5)
+    end = int(np.argmax(lost)) if lost.any() else len(t)
+    if end == 0:
+        return
+    margin = np.full(qs.shape, np.inf)
+    margin[:end] = np.minimum(qs[:end] - lo, hi - qs[:end])
+    k, i = np.unravel_index(np.argmin(margin), margin.shape)
+    if margin[k, i] < 0:
+        names = _joint_names(plant)
+        raise DesignError(f"the reference's path takes {names[i]} to {qs[k, i]:.4g} {_unit(plant, i)} at t = {t[k]:.3g} "
+                          f"s, outside its range [{lo[i]:.4g}, {hi[i]:.4g}] (the true arm's URDF; joint angles from the "
+                          "nominal model's inverse kinematics along the path): move the path, or start from another "
+                          "pose (initial.q_guess, or the extra coordinates' reference)", key="reference",
+                          value=float(qs[k, i]), bound=float(lo[i] if qs[k, i] < lo[i] else hi[i]))
+
+
+def _path_joints(arm, surf, ref, t, q0):
+    """Joint angles along x_d(t) (nominal inverse kinematics, 8 Newton steps of at most 0.2 rad per
+    sample, continued from the previous one) and each sample's residual ‖ĥ(q) − x_d‖∞."""
+    import jax
+    import jax.numpy as jnp
+
+    @jax.jit
+    def run(arm, surf, ref, t, q0):
+        def one(q, ti):
+            u1 = ref(ti).u1_d
+            x = jnp.concatenate([u1, surf.Omega(u1)])
+
+            def newton(_, q):
+                step = jnp.linalg.solve(arm.J(q), arm.h(q) - x)
+                return q - step * jnp.minimum(1.0, 0.2 / jnp.maximum(jnp.max(jnp.abs(step)), 1e-300))
+
+            q = jax.lax.fori_loop(0, 8, newton, q)
+            return q, (q, jnp.max(jnp.abs(arm.h(q) - x)))
+
+        return jax.lax.scan(one, q0, t)[1]
+
+    return run(arm, surf, ref, jnp.asarray(t), jnp.asarray(q0))
 
 
 def _check_path_against_singularity(sc, q0) -> None:
@@ -127,10 +239,13 @@ def _check_cartesian(sc, plant) -> None:
             raise ConfigError(f"a {g.dim}-D surface ({getattr(sc, who).surface.kind!r}) for an arm whose tool moves in "
                               f"{space}", key=f"{who}.surface.kind")
     m = plant.n - 1
+    e = sc.n_extra
     u1 = sc.initial.u1
     got = len(u1) if isinstance(u1, tuple) else 1
-    if got != m:
-        raise ConfigError(f"must give the {m} motion coordinates (n − 1 for n = {plant.n} joints), got {got}",
+    if got != m and not (e and got == m - e):
+        extra = (f", or the {m - e} before the extra coordinates (task.extra: they then start where the arm's "
+                 "start pose nearest initial.q_guess puts them)") if e else ""
+        raise ConfigError(f"must give the {m} motion coordinates (n − 1 for n = {plant.n} joints){extra}, got {got}",
                           key="initial.u1")
     if sc.initial.q_guess and len(sc.initial.q_guess) != plant.n:
         raise ConfigError(f"must list {plant.n} joint angles, got {len(sc.initial.q_guess)}", key="initial.q_guess")
@@ -223,3 +338,31 @@ def _force_scale(sc) -> float:
     t = jnp.linspace(0.0, sc.simulation.t_final, 201)
     lam = np.asarray(lam_d_at(sc.build().reference, t))
     return float(np.max(np.abs(lam))) if lam.size else 0.0
+
+
+def disturbance_effect(sc, q0=None) -> list[tuple[str, str, float]]:
+    """The steady effect of the joint disturbance's amplitude ω on each motion coordinate through
+    the nominal closed loop, at the start pose: with the law (24)-(25) the motion error obeys
+    ë + K_v ė + K_p e = M̄11⁻¹ B̄1 ω (eq. 11 with the nominal model), so a constant ω leaves
+
+        e ≈ K_p⁻¹ M̄11⁻¹ B̄1 ω,   M̄11 = (Ĵ⁻ᵀ M̂ Ĵ⁻¹)11 (task-space inertia, S = [I; ∂Ω/∂x1]),
+
+    large where the arm is light about that coordinate (a wrist: a few mN·m² about its axis). It
+    is an estimate before the robust term (which stiffens the loop: K 400 -> about 2000 in the
+    shipped design) and the networks; the square wave reaches it when its half-period is longer
+    than the loop's settling time. Returns (name, unit, |e_i|) per motion coordinate."""
+    import jax.numpy as jnp
+
+    from ..model.reduced import reduced_model
+
+    setup = sc.build()
+    q = np.asarray(setup.q0 if q0 is None else q0, float)
+    arm, con = setup.nominal_arm, setup.constraint
+    rm = reduced_model(arm, con, jnp.asarray(q), jnp.zeros_like(jnp.asarray(q)), coriolis="matrix")
+    m = con.m
+    w = np.asarray(sc.plant.disturbance.amplitude, float)
+    accel = np.linalg.solve(np.asarray(rm.M11), np.asarray(rm.B1) @ w)
+    K_p = np.asarray(sc.controller.gains.build().K_p, float)
+    kp = np.broadcast_to(np.diag(np.atleast_2d(K_p)) if K_p.ndim else K_p, (m,))
+    names = setup.coordinate_names or [(f"x{i + 1}", "m") for i in range(m + 1)]
+    return [(names[i][0], names[i][1], float(abs(accel[i]) / kp[i])) for i in range(m)]

@@ -32,7 +32,7 @@ from ..errors import ConfigError
 from . import schema
 from .schema import param, section
 from .sections import (ControllerConfig, InitialConfig, NativeTaskConfig, NominalConfig, PlantConfig, ReferenceConfig,
-                       SimulationConfig, TaskConfig)
+                       SimulationConfig, TaskConfig, VerdictConfig)
 
 SHIPPED = "files"
 
@@ -52,6 +52,7 @@ class Scenario:
     reference: ReferenceConfig = param(doc="the desired motion and force")
     initial: InitialConfig = param(doc="the start")
     simulation: SimulationConfig = param(doc="the simulation")
+    verdict: VerdictConfig = param(VerdictConfig(), doc="when a run did its job")
     source: str = dataclasses.field(default="<dict>", compare=False)
     overrides: tuple = dataclasses.field(default=(), compare=False)
 
@@ -128,6 +129,16 @@ class Scenario:
         """The task map both arms are built with; None for the arm's native coordinates."""
         return self.build().task
 
+    @property
+    def n_extra(self) -> int:
+        """The number of extra task coordinates (``task.extra``)."""
+        return len(self.task.extra)
+
+    @property
+    def extra_start(self):
+        """The extra coordinates' values at the start pose (:attr:`Setup.extra_start`)."""
+        return self.build().extra_start
+
     def build_plant(self):
         """The true plant (``plant.engine`` chooses the class)."""
         return self.build().plant
@@ -145,6 +156,7 @@ class Scenario:
         return self.build().joint_names
 
     def build_reference(self):
+        """The reference (:attr:`Setup.reference`)."""
         return self.build().reference
 
     @property
@@ -158,8 +170,8 @@ class Scenario:
         return self.build().controller(kind)
 
     def initial_q(self, plant=None):
-        """The start pose (the truth: inverse kinematics of the true arm onto the true surface);
-        ``plant``: another plant than the scenario's own."""
+        """The start pose (the truth: inverse kinematics of the true arm onto the true surface,
+        within the true arm's joint limits); ``plant``: another plant than the scenario's own."""
         return self.build().q0 if plant is None else self.build().start_pose(plant)
 
     def sim_options(self) -> dict:
@@ -177,6 +189,13 @@ class Scenario:
         r = self.run(kind)
         opts = {**self.sim_options(), **options}
         return simulate(r.plant, r.controller, r.reference, q0=r.q0, info=r.info, **opts)
+
+    def disturbance_effect(self):
+        """The joint disturbance's steady effect on each motion coordinate through the nominal loop,
+        (name, unit, estimate): :func:`hinfnn.scenario.checks.disturbance_effect`."""
+        from .checks import disturbance_effect
+
+        return disturbance_effect(self)
 
     # --- the checks that need the models ---------------------------------------------------------------
     def check(self) -> None:
@@ -316,18 +335,26 @@ def resolve_base(raw: dict, source: str, _chain: tuple = ()) -> dict:
 
 
 def _resolve_paths(raw: dict, source: str) -> dict:
-    """URDF paths (``*.arm.file`` ending in .urdf) relative to the scenario file that names them,
-    made absolute (so a scenario.toml written elsewhere still finds them)."""
+    """URDF paths (``*.arm.file``) relative to the scenario file that names them, made absolute
+    (so a scenario.toml written elsewhere still finds them): a value is a path when a file or
+    folder of that name exists beside the scenario, or when it looks like one (a '/' or an
+    extension) and is not the name of a shipped robot (then the error names the path tried)."""
     if source == "<dict>" or not Path(source).is_file():
         return raw
+    from ..model.urdf import shipped_robots
+
     out = raw
     for who in ("plant", "nominal"):
         arm = raw.get(who, {}).get("arm") if isinstance(raw.get(who), dict) else None
         f = arm.get("file") if isinstance(arm, dict) else None
-        if isinstance(f, str) and f.endswith(".urdf") and not Path(f).is_absolute():
+        if not isinstance(f, str) or not f or Path(f).is_absolute():
+            continue
+        candidate = Path(source).parent / f
+        looks_like_path = "/" in f or Path(f).suffix != ""
+        if candidate.exists() or (looks_like_path and f not in shipped_robots()):
             if out is raw:
                 out = copy.deepcopy(raw)
-            out[who]["arm"]["file"] = str((Path(source).parent / f).resolve())
+            out[who]["arm"]["file"] = str(candidate.resolve())
     return out
 
 
@@ -346,7 +373,9 @@ def _unknown_override(err: ConfigError, items) -> ConfigError:
     if err.key is None or "unknown key" not in str(err):
         return err
     for key, _ in items:
-        if key == err.key or key.startswith(err.key + "."):
+        if key == err.key:
+            return err  # the schema's suggestion knows the kind chosen (plant.arm.mass2 -> m2 on a two_link arm)
+        if key.startswith(err.key + "."):
             return ConfigError(f"unknown key{suggest_key(key)}", key=key)
     return err
 

@@ -170,7 +170,7 @@ def allowed(tp, meta) -> str:
             elif a is str:
                 parts.append("a name")
             elif typing.get_origin(a) is tuple:
-                parts.append("a list of names")
+                parts.append("a list of names" if _args(a)[0] is str else "a list of numbers" + tail)
         return " or ".join(parts)
     return str(tp)
 
@@ -354,27 +354,51 @@ def to_dict(obj, exclude=()) -> dict:
 # --- description: ``hinfnn keys`` and docs/scenarios.md ------------------------------------------------
 
 
-def describe(cls, prefix: str = "", exclude=()) -> list[tuple[str, str, str, str]]:
+def _shared(reg, exclude) -> set:
+    """The fields every variant of a registry has unchanged (the same field, the same type): listed
+    once, without a variant tag."""
+    variants = [reg[n] for n in reg.names()]
+    if not variants:
+        return set()
+    first = {f.name: (f, tp) for f, tp in fields_of(variants[0], exclude)}
+    shared = set()
+    for name, (f, tp) in first.items():
+        if all(any(g is f and ut == tp for g, ut in fields_of(v, exclude) if g.name == name) for v in variants[1:]):
+            shared.add(name)
+    return shared
+
+
+def describe(cls, prefix: str = "", exclude=(), tag: str = "") -> list[tuple[str, str, str, str]]:
     """Rows (dotted key, meaning, allowed values, default) of every key of a section, with every
-    registered variant's keys (marked with the variant, e.g. ``plant.arm.m1  [model = "two_link"]``)."""
+    registered variant's keys (marked with the variant, e.g. ``plant.arm.m1  [model = "two_link"]``).
+    A key every variant has unchanged (``plant.arm`` of every engine) is listed once, untagged;
+    ``tag`` marks every row (the keys inside a variant's own section)."""
     rows = []
     reg = registry_of(cls)
     variants = [(None, cls)]
+    shared: set = set()
     if reg is not None and cls.__dict__.get("__registry__") is reg:
         variants = [(n, reg[n]) for n in reg.names()]
-        rows.append((f"{prefix}{reg.key}", f"which {reg.what}", "one of " + ", ".join(repr(n) for n in reg.names()),
+        shared = _shared(reg, exclude)
+        rows.append((f"{prefix}{reg.key}", f"which {reg.what}" + tag, "one of " + ", ".join(repr(n) for n in reg.names()),
                      repr(reg.default) if reg.default else "required"))
+    listed: set = set()
     for name, c in variants:
         for f, tp in fields_of(c, exclude):
             if reg is not None and f.name == reg.key:
                 continue
             if f.metadata.get("hidden"):
                 continue
+            own = name is not None and f.name not in shared
+            if not own and f.name in listed:
+                continue
+            listed.add(f.name)
+            row_tag = tag + (f" [{reg.key} = {name!r}]" if own else "")
             key = f"{prefix}{f.name}"
             if _is_section(tp):
-                rows += describe(tp, key + ".", exclude=f.metadata.get("exclude", ()))
+                rows += describe(tp, key + ".", exclude=f.metadata.get("exclude", ()), tag=row_tag)
                 continue
-            doc = f.metadata["doc"] + (f" [{reg.key} = {name!r}]" if name is not None else "")
+            doc = f.metadata["doc"] + row_tag
             if f.default is not _MISSING:
                 default = repr(f.default)
             elif f.default_factory is not _MISSING:  # type: ignore[misc]

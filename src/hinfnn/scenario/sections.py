@@ -31,6 +31,11 @@ def _length(path: str, name: str, value, sizes, what: str = "numbers") -> None:
         raise ConfigError(f"must be a list of {want} {what}, got {len(value)}: {list(value)}", key=f"{path}.{name}")
 
 
+def _shown(values) -> str:
+    """A list of numbers as the user wrote it ([0.1, 0.1, 0.0])."""
+    return "[" + ", ".join(f"{float(v):g}" for v in values) + "]"
+
+
 def per_item(value, n: int, key: str, what: str) -> np.ndarray:
     """A number broadcast to n items, or a list of exactly n (ConfigError at ``key``)."""
     a = np.atleast_1d(np.asarray(value, dtype=float))
@@ -42,6 +47,13 @@ def per_item(value, n: int, key: str, what: str) -> np.ndarray:
 
 
 # --- arms ------------------------------------------------------------------------------------------
+
+
+def _extra_joints(c) -> tuple:
+    """The chain indices an extra task coordinate uses."""
+    if hasattr(c, "index"):
+        return (c.index,)
+    return (c.shoulder, c.elbow, c.wrist)
 
 
 @section
@@ -64,6 +76,28 @@ class ArmConfig:
     def native_task(self, key: str = "task.map"):
         """The task map of ``task.map = "native"`` (None: h(q) is the arm's own)."""
         return None
+
+    def joint_chain(self, key: str = "arm"):
+        """The arm's :class:`~hinfnn.model.urdf.UrdfChain` (joint names, limits, frames), or None
+        for an arm that is not a chain (the two_link arm's closed form)."""
+        return None
+
+    def _chain_arm(self, chain, task, key):
+        """A chain arm with the task coordinates ``task`` (a task map, or an
+        :class:`~hinfnn.model.augmented.AugmentedTask` whose extra coordinates were resolved on the
+        nominal chain: the same joints must be there)."""
+        from ..model import UrdfArm
+        from ..model.augmented import AugmentedArm, AugmentedTask
+
+        if not isinstance(task, AugmentedTask):
+            return UrdfArm(chain, task)
+        for c in task.extra:
+            for i in _extra_joints(c):
+                if i >= chain.n or (getattr(c, "name", "") in chain.joint_names and chain.joint_names[i] != c.name):
+                    raise ConfigError(f"the extra coordinate {c.name!r} uses joint {i + 1} of the nominal chain, which "
+                                      f"this chain ({', '.join(chain.joint_names)}) does not have in that place",
+                                      key="task.extra")
+        return AugmentedArm(arm=UrdfArm(chain, task.base), task=task)
 
 
 @ARMS.register("two_link")
@@ -128,31 +162,34 @@ class PlanarArmConfig(ArmConfig):
                           "lock joints or use fewer links", key=key)
 
     def build(self, task=None, key: str = "arm"):
-        from ..model import UrdfArm
-        from ..model.urdf import planar_chain
-
         task = task if task is not None else self.native_task()
         if task.dim != self.n:
             raise ConfigError(f"the planar arm has n = {self.n} joints but the task coordinates have {task.dim}: the "
-                              "paper's reduced model needs a square Jacobian", key="task.map")
-        return UrdfArm(planar_chain(self.masses, self.lengths, self.g), task)
+                              "paper's reduced model needs a square Jacobian"
+                              + ("; add extra coordinates with task.extra (a joint's name, or 'arm_angle')"
+                                 if task.dim < self.n else ""), key="task.map")
+        return self._chain_arm(self.joint_chain(key), task, key)
+
+    def joint_chain(self, key: str = "arm"):
+        from ..model.urdf import planar_chain
+
+        return planar_chain(self.masses, self.lengths, self.g)
 
     def reach(self) -> tuple[float, float]:
         L = sorted(self.lengths)
         return max(0.0, L[-1] - sum(L[:-1])), float(sum(L))
 
 
-def urdf_path(value: str) -> str:
-    """A ``file`` value: a shipped robot (``"ur5"``, ``"planar/three_link"``: a name without
-    ``.urdf``) or a path to a ``.urdf`` file."""
-    if value.endswith(".urdf"):
-        return value
-    from ..model.urdf import asset_path
+def urdf_path(value: str, key: str = "arm.file") -> str:
+    """A ``file`` value: a file when one of that name exists (any extension), else a shipped
+    robot (``"ur5"``, ``"panda"``, ``"planar/three_link"``: :func:`hinfnn.model.urdf.shipped_robots`).
+    A folder, a xacro file or a name that is neither: ConfigError at ``key``."""
+    from ..model.urdf import UrdfError, robot_file
 
-    parts = value.split("/")
-    if len(parts) == 1:
-        parts = [parts[0], parts[0]]
-    return asset_path(*parts[:-1], parts[-1] + ".urdf")
+    try:
+        return robot_file(value)
+    except UrdfError as err:
+        raise ConfigError(f"{value}: {err.problem}", key=key) from None
 
 
 @functools.lru_cache(maxsize=32)
@@ -171,8 +208,9 @@ class UrdfArmConfig(ArmConfig):
     perturb the file's inertial parameters: ``mass_scale``, ``com_shift``, ``payload_*``; the
     nominal arm is usually the file as written."""
 
-    file: str = param(doc="URDF: a shipped robot ('ur5', 'planar/three_link', 'planar/sec6_two_link') or a path "
-                          "to a .urdf file (relative to the scenario file)")
+    file: str = param(doc="URDF: a path to a URDF file (any extension; relative to the scenario file), or a robot "
+                          "shipped with hinfnn when no such file exists ('ur5', 'panda', 'ur10', 'kinova', "
+                          "'planar/three_link', 'planar/sec6_two_link'); xacro files must be expanded first")
     base_link: str = param(doc="link the chain starts from (fixed)")
     ee_link: str = param(doc="end-effector link")
     tool_xyz: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="tool point in the end-effector link's frame, m",
@@ -210,7 +248,7 @@ class UrdfArmConfig(ArmConfig):
         """The (perturbed) chain; URDF problems as ConfigError at ``key.file`` (or the key named)."""
         from ..model.urdf import UrdfError
 
-        path = urdf_path(self.file)
+        path = urdf_path(self.file, f"{key}.file")
         try:
             mtime = Path(path).stat().st_mtime_ns
         except OSError:
@@ -240,20 +278,24 @@ class UrdfArmConfig(ArmConfig):
         raise ConfigError("a URDF arm has no native task coordinates: choose task.map = \"fitted\" (fitted to the "
                           "nominal surface), \"pose\" or \"planar\"", key=key)
 
-    def build(self, task=None, key: str = "arm"):
-        from ..model import UrdfArm
+    def joint_chain(self, key: str = "arm"):
+        return self.chain(key)
 
+    def build(self, task=None, key: str = "arm"):
         chain = self.chain(key)
         if task is None:
             self.native_task()
         if chain.n != task.dim:
             names = ", ".join(chain.joint_names)
-            hint = (f"lock {chain.n - task.dim} of them with {key}.locked_joints" if chain.n > task.dim
-                    else "use task coordinates with fewer entries or a longer chain")
+            e = chain.n - task.dim
+            hint = (f"add {e} extra task coordinate{'s' if e > 1 else ''} with task.extra (a joint's name, e.g. "
+                    f"{chain.joint_names[min(2, chain.n - 1)]!r}, or 'arm_angle': the redundancy stays) or lock {e} "
+                    f"joint{'s' if e > 1 else ''} with {key}.locked_joints" if e > 0
+                    else "use task coordinates with fewer entries, fewer task.extra, or a longer chain")
             raise ConfigError(f"the chain from {self.base_link!r} to {self.ee_link!r} has n = {chain.n} moving joints "
                               f"({names}) but the task coordinates have {task.dim}: the paper's reduced model needs a "
-                              f"square Jacobian; {hint}", key=f"{key}.locked_joints" if chain.n > task.dim else "task.map")
-        return UrdfArm(chain, task)
+                              f"square Jacobian; {hint}", key="task.extra" if e > 0 else "task.map")
+        return self._chain_arm(chain, task, key)
 
 
 # --- surfaces ------------------------------------------------------------------------------------
@@ -347,7 +389,7 @@ class SphereConfig(GeometryConfig):
 
     def validate(self, path):
         super().validate(path)
-        _not_parallel(path, "meridian", self.meridian, self.pole)
+        _not_parallel(path, "meridian", self.meridian, self.pole, other="pole")
 
     def build(self):
         from ..model.geometry import Sphere
@@ -355,12 +397,16 @@ class SphereConfig(GeometryConfig):
         return Sphere.build(self.centre, self.radius, self.pole, self.meridian)
 
 
-def _not_parallel(path, name, a, b):
+def _not_parallel(path, name, a, b, other="axis"):
+    """``name`` (vector a) must be nonzero and not parallel to the key ``other`` (vector b)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
-    if not (np.linalg.norm(b) > 0 and np.linalg.norm(a) > 0):
+    if not np.linalg.norm(b) > 0:
+        raise ConfigError("must not be zero", key=f"{path}.{other}")
+    if not np.linalg.norm(a) > 0:
         raise ConfigError("must not be zero", key=f"{path}.{name}")
     if np.linalg.norm(np.cross(a, b)) <= 1e-9 * np.linalg.norm(a) * np.linalg.norm(b):
-        raise ConfigError("must not be parallel to the axis", key=f"{path}.{name}")
+        raise ConfigError(f"{_shown(a)} must not be parallel to the {other} {_shown(b)} ({path}.{other})",
+                          key=f"{path}.{name}")
 
 
 @SURFACES.register("cylinder")
@@ -630,11 +676,79 @@ class TaskConfig:
 
     __registry__ = TASKS
     map: str = param(doc="task coordinates")
+    extra: tuple[str, ...] = param((), doc="extra motion coordinates for a redundant arm (more joints than task "
+                                   "coordinates), put before the constrained one: a joint's name (its angle, rad, or "
+                                   "position, m) or 'arm_angle' (the elbow's swivel angle psi about the shoulder-wrist "
+                                   "line); they hold their start values unless the reference lists them "
+                                   "(docs/arms-and-surfaces.md)")
+    arm_angle_joints: tuple[str, ...] = param((), doc="shoulder, elbow and wrist joints whose origins define "
+                                              "'arm_angle' (default: the 2nd, 4th and 6th joint of the chain)")
+    arm_angle_reference: tuple[float, ...] = param((0.0, 0.0, 1.0), doc="direction (base frame) of the half-plane "
+                                                   "where the arm angle is 0 (default: up)", ge=-1e6, le=1e6)
+    arm_angle_ref_deg: float = param(0.0, doc="arm angle at the middle of the working range, degrees (it jumps "
+                                     "180 degrees away)", ge=-360.0, le=360.0)
 
     fitted = False
 
     def build(self, arm, geometry):
         raise NotImplementedError
+
+    def validate(self, path):
+        _length(path, "arm_angle_reference", self.arm_angle_reference, (3,))
+        if not np.linalg.norm(self.arm_angle_reference) > 0:
+            raise ConfigError("must not be zero", key=f"{path}.arm_angle_reference")
+        if len(set(self.extra)) != len(self.extra):
+            raise ConfigError(f"lists a coordinate twice: {list(self.extra)}", key=f"{path}.extra")
+        if self.arm_angle_joints and len(self.arm_angle_joints) != 3:
+            raise ConfigError(f"must name 3 joints (shoulder, elbow, wrist), got {list(self.arm_angle_joints)}",
+                              key=f"{path}.arm_angle_joints")
+
+    def extra_coordinates(self, chain) -> tuple:
+        """The extra coordinates (:class:`~hinfnn.model.taskmap.JointCoordinate`,
+        :class:`~hinfnn.model.taskmap.ArmAngle`) resolved on ``chain`` (the nominal arm's)."""
+        import jax.numpy as jnp
+
+        from ..model.taskmap import ArmAngle, JointCoordinate
+
+        if not self.extra:
+            return ()
+        if chain is None:
+            raise ConfigError("the two_link arm has no extra coordinates (n = 2 = its task coordinates); remove "
+                              "task.extra", key="task.extra")
+        names = list(chain.joint_names)
+
+        def index(name, key):
+            if name not in names:
+                import difflib
+
+                close = difflib.get_close_matches(name, names, n=1)
+                hint = f"; did you mean {close[0]!r}?" if close else ""
+                raise ConfigError(f"{name!r} is not a moving joint of the chain (joints: {', '.join(names)}; or "
+                                  f"'arm_angle'){hint}", key=key)
+            return names.index(name)
+
+        out = []
+        for item in self.extra:
+            if item == "arm_angle":
+                if self.arm_angle_joints:
+                    idx = [index(n, "task.arm_angle_joints") for n in self.arm_angle_joints]
+                elif chain.n >= 6:
+                    idx = [1, 3, 5]
+                else:
+                    raise ConfigError(f"'arm_angle' needs shoulder, elbow and wrist joints: name them with "
+                                      f"task.arm_angle_joints (the chain has {chain.n} joints)", key="task.extra")
+                if not idx[0] < idx[1] < idx[2]:
+                    raise ConfigError(f"must be in chain order (shoulder, elbow, wrist), got "
+                                      f"{[names[i] for i in idx]}", key="task.arm_angle_joints")
+                out.append(ArmAngle(shoulder=idx[0], elbow=idx[1], wrist=idx[2],
+                                    reference=jnp.asarray(self.arm_angle_reference, float)
+                                    / float(np.linalg.norm(self.arm_angle_reference)),
+                                    psi_ref=jnp.asarray(math.radians(self.arm_angle_ref_deg))))
+            else:
+                i = index(item, "task.extra")
+                out.append(JointCoordinate(index=i, name=item, unit="m" if chain.joint_types[i] == "prismatic"
+                                           else "rad"))
+        return tuple(out)
 
     def _plane(self, arm, plane):
         if plane != "auto":
@@ -693,6 +807,7 @@ class PoseTaskConfig(TaskConfig):
                                         "constrains)")
 
     def validate(self, path):
+        super().validate(path)
         for name in ("frame_xyz", "frame_rpy_deg", "ref_rpy_deg"):
             _length(path, name, getattr(self, name), (3,))
 
@@ -725,6 +840,7 @@ class FittedTaskConfig(TaskConfig):
     fitted = True
 
     def validate(self, path):
+        super().validate(path)
         _length(path, "tool_rpy_deg", self.tool_rpy_deg, (3,))
 
     def build(self, arm, geometry):
@@ -995,23 +1111,24 @@ class CosinesConfig(ReferenceConfig):
     lam_phase: Numbers = param(0.0, doc="lam_d phases, rad", ge=-1e3, le=1e3)
     lam_ramp: float = param(0.0, doc="fade-in time of lam_d from 0, s", ge=0.0, le=1e6)
 
+    U1_KEYS = ("u1_offset", "u1_amplitude", "u1_period", "u1_phase")
+    LAM_KEYS = ("lam_offset", "lam_amplitude", "lam_period", "lam_phase")
+
     def sizes(self):
         def n(keys):
             lens = {len(getattr(self, k)) for k in keys if isinstance(getattr(self, k), tuple)}
             return lens.pop() if len(lens) == 1 else (None if not lens else -1)
 
-        return n(("u1_offset", "u1_amplitude", "u1_period", "u1_phase")), \
-            n(("lam_offset", "lam_amplitude", "lam_period", "lam_phase"))
+        return n(self.U1_KEYS), n(self.LAM_KEYS)
 
     def validate(self, path):
-        for group in (("u1_offset", "u1_amplitude", "u1_period", "u1_phase"),
-                      ("lam_offset", "lam_amplitude", "lam_period", "lam_phase")):
-            lens = {len(getattr(self, k)) for k in group if isinstance(getattr(self, k), tuple)}
-            if len(lens) > 1:
-                bad = next(k for k in group if isinstance(getattr(self, k), tuple)
-                           and len(getattr(self, k)) != len(getattr(self, group[0]) if isinstance(
-                               getattr(self, group[0]), tuple) else max(lens)))
-                raise ConfigError(f"the lists of {', '.join(group)} must have the same length", key=f"{path}.{bad}")
+        for group, what in ((self.U1_KEYS, "motion"), (self.LAM_KEYS, "force")):
+            lists = [(k, getattr(self, k)) for k in group if isinstance(getattr(self, k), tuple)]
+            for k, v in lists[1:]:
+                first, ref = lists[0]
+                if len(v) != len(ref):
+                    raise ConfigError(f"must be a number or a list of {len(ref)} numbers, as {path}.{first} (one per "
+                                      f"{what} coordinate), got {len(v)}: {_shown(v)}", key=f"{path}.{k}")
 
     def build(self, m: int | None = None, k: int | None = None):
         import jax.numpy as jnp
@@ -1040,6 +1157,28 @@ class InitialConfig:
     elbow: Literal["up", "down"] = param("up", doc="inverse-kinematics branch (two_link arm)")
     q_guess: tuple[float, ...] = param((), doc="joint angles near the start pose, rad (the start pose is solved by "
                                        "Newton's method from them; default all 0)", ge=-100.0, le=100.0)
+
+
+@section
+class VerdictConfig:
+    """When a run did its job (:func:`hinfnn.metrics.verdicts`): contact held, and tracking within
+    tolerance over the last 2 s, judged next to the status in the run summary and metrics.json."""
+
+    position_tolerance: float = param(0.005, doc="largest RMS error over the last 2 s of each motion coordinate in m", gt=0.0,
+                                      le=1e3)
+    angle_tolerance: float = param(0.02, doc="largest RMS error over the last 2 s of each motion coordinate in rad",
+                                   gt=0.0, le=10.0)
+    force_tolerance: float = param(0.1, doc="largest RMS force error e_lam over the last 2 s, as a fraction of the mean "
+                                   "magnitude of lam_d there", gt=0.0, le=100.0)
+    contact_after: float = param(0.5, doc="contact is judged from this time on (the force builds up before), s", ge=0.0,
+                                 le=1e5)
+    out_of_contact: float = param(0.0, doc="largest fraction of the steps after contact_after with the tool off the "
+                                  "true surface", ge=0.0, le=1.0)
+
+    def tolerances(self) -> dict:
+        return {"position_tolerance": self.position_tolerance, "angle_tolerance": self.angle_tolerance,
+                "force_tolerance": self.force_tolerance, "contact_after": self.contact_after,
+                "out_of_contact": self.out_of_contact}
 
 
 @section

@@ -38,7 +38,16 @@ class Setup:
             raise ConfigError(f"the {sc.nominal.arm.model!r} arm has only its native task coordinates (the tip "
                               "position); use arm model \"planar\" or \"urdf\" for other coordinates", key="task.map")
         geometry = sc.nominal.surface.build() if sc.task.fitted else None
-        return sc.task.build(sc.nominal.arm, geometry)
+        base = sc.task.build(sc.nominal.arm, geometry)
+        if not sc.task.extra:
+            return base
+        from ..model.augmented import AugmentedTask
+
+        if base is None:
+            base = sc.nominal.arm.native_task()
+        if base is None:
+            sc.task.extra_coordinates(None)  # the two_link arm: a ConfigError
+        return AugmentedTask(base=base, extra=sc.task.extra_coordinates(sc.nominal.arm.joint_chain("nominal.arm")))
 
     @functools.cached_property
     def plant(self):
@@ -79,9 +88,29 @@ class Setup:
 
     @functools.cached_property
     def reference(self):
-        """The reference for the constraint's m motion and k force coordinates."""
+        """The reference for the constraint's m motion and k force coordinates. With extra task
+        coordinates (``task.extra``) whose reference the lists do not give (numbers, or lists of
+        m − e), those hold their start values (:attr:`extra_start`)."""
         c = self.constraint
-        return self.scenario.reference.build(m=c.m, k=c.k)
+        ref = self.scenario.reference
+        e = len(self.scenario.task.extra)
+        if e and ref.sizes()[0] != c.m:
+            built = ref.build(m=c.m - e, k=c.k)
+            if not hasattr(built, "holding"):
+                raise ConfigError(f"a {ref.kind!r} reference cannot hold the {e} extra task coordinates (task.extra) "
+                                  f"at their start values: give all {c.m} motion coordinates", key="reference.kind")
+            return built.holding(self.extra_start)
+        return ref.build(m=c.m, k=c.k)
+
+    @functools.cached_property
+    def extra_start(self):
+        """The extra task coordinates' values at the start pose (the nominal arm's h at the true
+        start pose q0): what their default reference holds. None without extra coordinates."""
+        e = len(self.scenario.task.extra)
+        if not e:
+            return None
+        m = self.nominal_arm.n - 1
+        return np.asarray(self.nominal_arm.h(self.q0))[m - e:m]
 
     @functools.cached_property
     def q0(self) -> np.ndarray:

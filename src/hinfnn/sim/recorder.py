@@ -70,7 +70,7 @@ STEP_MAXES = {
 }
 
 #: Named selections for ``simulate(..., fields=...)``: ``"metrics"`` is what
-#: :func:`hinfnn.compute_metrics` needs (17 fields: 21 numbers per sample for the planar arm).
+#: :func:`hinfnn.compute_metrics` needs (18 fields: 22 numbers per sample for the planar arm).
 FIELD_SETS = {"metrics": METRICS_FIELDS}
 
 

@@ -86,7 +86,8 @@ def _evaluate(plant, ctrl, ref, t, y: SimState, w, held, sampled):
     record = {"t": jnp.asarray(t, dtype=float), **pr.signals, "penetration": pr.penetration, **out.signals,
               "tau": tau, "e_u1": out.e_u1, "e_lam": out.e_lam,
               "_cfault": jnp.asarray(out.fault), "_cfault_value": jnp.asarray(out.fault_value, dtype=float),
-              "_pfault": jnp.asarray(pr.fault), "_pfault_value": jnp.asarray(pr.fault_value, dtype=float)}
+              "_pfault": jnp.asarray(pr.fault), "_pfault_value": jnp.asarray(pr.fault_value, dtype=float),
+              "_pfault_index": jnp.asarray(pr.fault_index, dtype=jnp.int32)}
     return meas, cache, out, tau, record
 
 
@@ -120,6 +121,7 @@ class Carry:
     bad_pen: jax.Array
     bad_parts: jax.Array
     bad_fault: jax.Array  # the fault measure of the controller or the plant that stopped the run
+    bad_fault_index: jax.Array  # which item (a joint) the plant's fault measure is of, -1: none
     tau_peak: jax.Array
     tau_tv: jax.Array
     tau_prev: jax.Array
@@ -202,6 +204,8 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             bad_parts=jnp.where(first_fail, parts, c.bad_parts),
             bad_fault=jnp.where(first_fail, jnp.where(code == int(RunStatus.PLANT_FAULT), aux["_pfault_value"],
                                                       aux["_cfault_value"]), c.bad_fault),
+            bad_fault_index=jnp.where(first_fail & (code == int(RunStatus.PLANT_FAULT)), aux["_pfault_index"],
+                                      c.bad_fault_index),
             tau_peak=stat(rec["tau_abs_max"], c.tau_peak),
             tau_tv=stat(c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
             tau_prev=jnp.where(count | first, tau, c.tau_prev),
@@ -257,7 +261,7 @@ def _final(plant, ctrl, carry):
     final = dict(q=q, qd=qd, **ctrl.state_arrays(y_end.xc), J=y_end.acc.J, J_aug=y_end.acc.J_aug,
                  supply=y_end.acc.supply)
     details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts,
-                   fault_value=carry.bad_fault)
+                   fault_value=carry.bad_fault, fault_index=carry.bad_fault_index)
     return carry.status, carry.t_fail, details, final
 
 
@@ -271,6 +275,7 @@ def _init_carry(ctrl, y0, n):
     return Carry(y=y0, held=jnp.zeros(n, f64), status=jnp.zeros((), jnp.int32),
                  t_fail=jnp.array(jnp.nan, dtype=f64), bad_tau=zero, bad_pen=zero,
                  bad_parts=jnp.zeros((), jnp.int32), bad_fault=jnp.array(jnp.nan, dtype=f64),
+                 bad_fault_index=jnp.full((), -1, jnp.int32),
                  tau_peak=jnp.zeros(n, f64), tau_tv=jnp.zeros(n, f64),
                  tau_prev=jnp.full(n, jnp.nan, f64),
                  sums={k: jnp.zeros(sizes.get(k, ()), f64) for k in STEP_SUMS},
@@ -393,6 +398,9 @@ def _to_numpy(rec, status, t_fail, details, final, *, info, plan: StepPlan, plan
     arrays = {k: np.asarray(v) for k, v in rec.items()}
     details = {k: np.asarray(v) for k, v in details.items()}
     details.update(controller_fault=ctrl.fault_name, plant_fault=plant.fault_name)
+    index = details.pop("fault_index")
+    items = [plant.fault_item(int(i)) if i >= 0 else "" for i in np.ravel(index)]
+    details["fault_item"] = np.asarray(items).reshape(np.shape(index)) if np.ndim(index) else items[0]
     return Trajectory(arrays=arrays, status=np.asarray(status), t_fail=np.asarray(t_fail), fail_details=details,
                       dt=plan.dt, save_every=plan.save_every,
                       final={k: np.asarray(v) for k, v in final.items()}, info=info)
