@@ -1,25 +1,44 @@
 """The closed loop linearised: eigenvalues of the simulator's own right-hand side, and the force
-loop's polynomial (docs/beyond-the-paper.md).
+loop's polynomial (docs/beyond-the-paper.md), for any arm and surface with one constraint.
 
 The operating point is a true equilibrium of the closed loop: the EXACT-model plant (the true arm
-and surface are the controller's nominal ones, no disturbance) at rest on the surface with a
-constant reference (u1d, λd) and the penetration that makes λ = λd; every filter at its rest
-value and the networks' weights zero. The Jacobian of the simulator's right-hand side (JAX
-``jacfwd`` of :func:`hinfnn.sim.simulate._rhs`) there has the local exponents as eigenvalues. On
-the exact model the law cancels the reduced dynamics, so the force loop (u2, u̇2, z, the force-rate
-filter s) decouples from the position loop (u1, u̇1) and its eigenvalues are the roots of
+and surface are the controller's nominal ones, no disturbance, no friction) at rest on the
+surface with a constant reference (u1d, λd) and the penetration that makes λ = λd; every filter
+at its rest value and the networks' weights zero. The Jacobian of the simulator's right-hand side
+(JAX ``jacfwd`` of it, through :func:`_simulator_rhs`) there has the local exponents as
+eigenvalues.
+
+On the exact model the law cancels the reduced dynamics: row 2 of eq. (9) minus M̄21M̄11⁻¹ × row 1
+becomes m_s ü2 + Πᵀλ = Πᵀ(λd + z + Σ b_j) for every pose, so the force loop (u2, u̇2, z, the
+force-rate filter s, F_f's weights) does not depend on the position loop (u1, u̇1, F_p's
+weights), while the position loop is driven by ü2 (through M̄11⁻¹M̄12). In the coordinates
+(u, u̇, controller state) the Jacobian is block triangular (:func:`split_loops` checks it), and
+the force block's eigenvalues are the roots of
 
     [m_s s²(τ_f s + 1) + k_u K'(τ_f s + 1) + k_u κ s](s + μ_z) + α_z k_u (τ_f s + 1)
 
 (κ = 0, τ_f = 0: the cubic m_s s³ + m_s μ_z s² + k_u K' s + k_u(K' μ_z + α_z)), with
 m_s = Π²/(ÂĴM̂⁻¹ĴᵀÂᵀ), k_u = kΠ²/(ÂÂᵀ), K' = 1 + β_λ/2 (1 for FL-like). For the adaptive law at
 Θ̂ = 0 the network adds an integral action of gain g_f = γ2‖ξ_f(0)‖² on e_λ (the polynomial is
-then multiplied by s and gains g_f k_u(τ_f s + 1)(s + μ_z)).
+then multiplied by s and gains g_f k_u(τ_f s + 1)(s + μ_z)). The networks' weight directions
+that neither move nor act at Θ̂ = 0 (all but ξ_f(0) for F_f, all but ξ_p(0) ⊗ ℝᵐ for F_p)
+are an exact invariant subspace with eigenvalue 0 (1 for the sampled map); they are split off
+(:func:`_drop_neutral`) and counted.
+
+Sampled control (zero-order hold at period h, the simulator's sampled mode): the map over one
+period (the controller's sample update, then the plant integrated by RK4 steps with the torque
+held) linearised at the same point; the loop is stable when its spectral radius is below 1
+(:func:`sampled_modes`, :func:`sampled_kappa_scan`).
+
+:func:`design_report` gathers a scenario's whole design (gains, Riccati, force-rate design,
+singularity and start-pose checks along the path, contact modes before and after the force-rate
+term) for ``hinfnn design``; :func:`format_design_report` prints it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -29,77 +48,287 @@ import numpy as np
 from .controllers import terms as T
 from .plant import PenaltyContact, RigidBodyPlant, SquareWave
 from .reference import CosineReference
-from .sim.recorder import Accumulators
-from .sim.simulate import SimState, _rhs
 
 
-def constant_reference(u1d: float, lam_d: float) -> CosineReference:
-    """u1d and λd held constant."""
-    a = lambda v: jnp.array([float(v)])  # noqa: E731
-    return CosineReference(u1_offset=a(u1d), u1_amplitude=a(0.0), u1_omega=a(math.pi), u1_phase=a(0.0),
-                           lam_offset=a(lam_d), lam_amplitude=a(0.0), lam_omega=a(math.pi), lam_phase=a(0.0))
+# --- the simulator's right-hand side: the one place this module uses the simulator's internals ----
+
+
+def _simulator_rhs(plant, ctrl, ref, t, plant_state, xc, held=None, sampled=False):
+    """(d plant_state/dt, d xc/dt) of the simulator's own right-hand side
+    (``hinfnn.sim.simulate._rhs``) at (plant_state, xc) with no disturbance, the accumulators of
+    the bookkeeping left out. ``held``, ``sampled``: the torque held by the sampled mode (the
+    controller state then does not move between samples). The only use of the simulator's
+    internals in this module."""
+    from .sim.recorder import Accumulators
+    from .sim.simulate import SimState, _rhs
+
+    n = plant.n
+    held = jnp.zeros(n) if held is None else held
+    y = SimState(plant=plant_state, xc=xc, acc=Accumulators.zero())
+    dy, _ = _rhs(plant, ctrl, ref, t, y, jnp.zeros(n), held, sampled)
+    return dy.plant, dy.xc
+
+
+# --- operating point ------------------------------------------------------------------------------
+
+
+def constant_reference(u1d, lam_d) -> CosineReference:
+    """u1d and λd held constant (numbers or per-coordinate sequences)."""
+    a = lambda v: jnp.atleast_1d(jnp.asarray(v, dtype=float))  # noqa: E731
+    u, lam = a(u1d), a(lam_d)
+    return CosineReference(u1_offset=u, u1_amplitude=jnp.zeros_like(u), u1_omega=jnp.full_like(u, math.pi),
+                           u1_phase=jnp.zeros_like(u), lam_offset=lam, lam_amplitude=jnp.zeros_like(lam),
+                           lam_omega=jnp.full_like(lam, math.pi), lam_phase=jnp.zeros_like(lam))
 
 
 def exact_plant(arm, surface, stiffness: float, damping: float = 0.0) -> RigidBodyPlant:
-    """The controller's nominal arm and surface as the true plant, with a penalty contact and no
-    disturbance."""
+    """The controller's nominal arm and surface as the true plant (for a Cartesian surface: the
+    nominal geometry, contact at the tool point), with a penalty contact, no disturbance and no
+    friction."""
     return RigidBodyPlant(arm=arm, surface=surface, contact=PenaltyContact(stiffness=float(stiffness),
                                                                            damping=float(damping)),
                           disturbance=SquareWave.none(arm.n))
 
 
+@jax.jit
+def _A_J_M(arm, surface, q):
+    t = arm.law_terms(q, jnp.zeros_like(q))
+    return surface.A_hat(t.x), t.J, t.M
+
+
 def loop_constants(arm, surface, stiffness: float, q) -> dict:
-    """m_s, k_u (and m_n, ÂÂᵀ, Π) of the force loop at pose q (k = 1)."""
-    t = arm.terms(jnp.asarray(q, dtype=float), jnp.zeros(arm.n))
-    A = np.asarray(surface.A_hat(t.x))
-    J, M = np.asarray(t.J), np.asarray(t.M)
+    """m_s, k_u (and m_n, ÂÂᵀ, Π) of the force loop at pose q (k = 1), on the controller's
+    constraint ``surface`` in the arm's task coordinates."""
+    A, J, M = (np.asarray(a) for a in _A_J_M(arm, surface, jnp.asarray(q, dtype=float)))
     D = float((A @ J @ np.linalg.solve(M, J.T @ A.T))[0, 0])
     a2 = float((A @ A.T)[0, 0])
     pi = float(A[0, surface.m])
     return dict(m_s=pi * pi / D, k_u=stiffness * pi * pi / a2, m_n=a2 / D, a2=a2, Pi=pi)
 
 
-def equilibrium_q(plant: RigidBodyPlant, u1d: float, lam_d: float, elbow_up: bool = True):
-    """Joint angles with x1 = u1d and the penetration that makes λ = λd on the plant's surface
-    (λ = kθ/ÂÂᵀ for a penalty spring on a line)."""
-    surf, arm = plant.surface, plant.arm
-    x1 = jnp.array([float(u1d)])
-    x_on = jnp.concatenate([x1, surf.Omega(x1)])
-    A = np.asarray(surf.A_hat(x_on))
-    theta = lam_d * float((A @ A.T)[0, 0]) / float(plant.contact.stiffness)
-    u2 = theta / float(A[0, surf.m])
-    x = x_on.at[surf.m:].add(u2)
-    if hasattr(arm, "inverse_kinematics_closed"):
-        return arm.inverse_kinematics_closed(x, elbow_up=elbow_up)
-    return arm.inverse_kinematics(x, jnp.full(arm.n, 0.3) * (1.0 if elbow_up else -1.0))
+def equilibrium_q(plant, u1d, lam_d, elbow_up: bool = True, ctrl=None, q_guess=None):
+    """Joint angles at rest with the motion coordinates at u1d and the contact force making
+    λ = λd.
+
+    The Sec. VI arm on its line (no ``ctrl``): closed form (λ = kθ/ÂÂᵀ for a penalty spring on a
+    line). Any arm with the controller ``ctrl`` (its task coordinates and constraint): Newton
+    steps on (ĥ1(q) − u1d, λ(q) − λd), λ the controller's reading of the plant's force sensor,
+    from the pose with the linear estimate of the penetration (found from ``q_guess``)."""
+    if ctrl is None:
+        surf, arm = plant.surface, plant.arm
+        x1 = jnp.array([float(u1d)])
+        x_on = jnp.concatenate([x1, surf.Omega(x1)])
+        A = np.asarray(surf.A_hat(x_on))
+        theta = lam_d * float((A @ A.T)[0, 0]) / float(plant.contact.stiffness)
+        u2 = theta / float(A[0, surf.m])
+        x = x_on.at[surf.m:].add(u2)
+        if hasattr(arm, "inverse_kinematics_closed"):
+            return arm.inverse_kinematics_closed(x, elbow_up=elbow_up)
+        return arm.inverse_kinematics(x, jnp.full(arm.n, 0.3) * (1.0 if elbow_up else -1.0))
+    q_guess = jnp.zeros(plant.n) if q_guess is None else jnp.asarray(q_guess, dtype=float)
+    u1d = jnp.atleast_1d(jnp.asarray(u1d, dtype=float))
+    lam_d = jnp.atleast_1d(jnp.asarray(lam_d, dtype=float))
+    q, res = _equilibrium_guess(plant, ctrl, u1d, lam_d, q_guess)
+    if not float(res) < 1e-10:  # the linear estimate of the penetration is not exact here: Newton on λ too
+        q, res = _equilibrium_newton(plant, ctrl, u1d, lam_d, q)
+    return np.asarray(q) if float(res) < 1e-10 else np.full(plant.n, np.nan)
+
+
+def _lm(residual, q, iterations):
+    """Damped Newton (Levenberg–Marquardt) steps on residual(q) = 0, at most 0.5 rad a step."""
+    n = q.shape[0]
+
+    def body(_, q):
+        r = residual(q)
+        Jr = jax.jacfwd(residual)(q)
+        step = jnp.linalg.solve(Jr.T @ Jr + 1e-12 * jnp.eye(n), Jr.T @ r)
+        return q - jnp.minimum(1.0, 0.5 / jnp.maximum(jnp.max(jnp.abs(step)), 1e-300)) * step
+
+    return jax.lax.fori_loop(0, iterations, body, q)
+
+
+def _balance(plant, ctrl, u1d, lam_d, q):
+    """(ĥ1(q) − u1d, (λ(q) − λd)/max(|λd|, 1)) at rest: λ the controller's reading of the plant's sensor."""
+    from .controllers.law import force_multiplier
+
+    x = ctrl.arm.h(q)
+    lam = force_multiplier(ctrl.surface.A_hat(x), plant.measure(q, jnp.zeros_like(q)).F)
+    return jnp.concatenate([x[:ctrl.m] - u1d, (lam - lam_d) / jnp.maximum(jnp.abs(lam_d), 1.0)])
+
+
+@jax.jit
+def _equilibrium_guess(plant, ctrl, u1d, lam_d, q):
+    """The pose at x = (u1d, Ω(u1d) + u2), u2 from the linear estimate θ = λd ÂÂᵀ/k (exact for a
+    penalty spring on a plane or line and for fitted coordinates), by Newton steps on ĥ(q) = x
+    alone; and the largest residual of :func:`_balance` there."""
+    arm, surf, m = ctrl.arm, ctrl.surface, ctrl.m
+    x_on = jnp.concatenate([u1d, surf.Omega(u1d)])
+    A = surf.A_hat(x_on)
+    theta = lam_d * jnp.diag(A @ A.T) / plant.contact.stiffness
+    x = x_on.at[m:].add(theta / jnp.diag(A[:, m:]))
+    q = _lm(lambda q: arm.h(q) - x, q, 60)
+    return q, jnp.max(jnp.abs(_balance(plant, ctrl, u1d, lam_d, q)))
+
+
+@jax.jit
+def _equilibrium_newton(plant, ctrl, u1d, lam_d, q):
+    """Newton steps on :func:`_balance` from q (a pose in contact)."""
+    q = _lm(lambda q: _balance(plant, ctrl, u1d, lam_d, q), q, 30)
+    return q, jnp.max(jnp.abs(_balance(plant, ctrl, u1d, lam_d, q)))
+
+
+# --- the state's layout -----------------------------------------------------------------------------
+
+
+def state_names(ctrl) -> list[str]:
+    """For each entry of the flattened closed-loop state (q, q̇, then the controller's state in
+    the loop's layout): "q", "qd", or the controller state's name ("z", "s_lam", "theta_p" ...)."""
+    xc = ctrl.to_loop(ctrl.init())
+    n = ctrl.n
+    names = ["q"] * n + ["qd"] * n
+    for path, leaf in jax.tree_util.tree_flatten_with_path(xc)[0]:
+        keys = [p.key for p in path if isinstance(p, jax.tree_util.DictKey)]
+        attrs = [p.name for p in path if isinstance(p, jax.tree_util.GetAttrKey)]
+        names += [str(keys[0]) if keys else attrs[0]] * int(np.size(leaf))
+    return names
+
+
+def _unflatten(plant, ctrl, y):
+    """(plant state, controller state in the loop's layout) from the flat vector."""
+    n = plant.n
+    xc = ctrl.to_loop(ctrl.init())
+    leaves, treedef = jax.tree.flatten(xc)
+    parts, i = [], 2 * n
+    for leaf in leaves:
+        size = int(np.size(leaf))
+        parts.append(y[i:i + size].reshape(np.shape(leaf)))
+        i += size
+    return plant.initial_state(y[:n], y[n:2 * n]), jax.tree.unflatten(treedef, parts)
+
+
+def _flatten(plant, plant_state, xc):
+    q, qd = plant.joints(plant_state)
+    return jnp.concatenate([q, qd] + [jnp.ravel(leaf) for leaf in jax.tree.leaves(xc)])
+
+
+def rest_state(ctrl, q_eq) -> np.ndarray:
+    """The flat closed-loop state at rest at q_eq: q̇ = 0, z = 0, every term's state 0 (the
+    force-rate filter at e_λ = 0, the networks' weights 0)."""
+    xc = ctrl.to_loop(ctrl.init())
+    return np.concatenate([np.asarray(q_eq, dtype=float), np.zeros(ctrl.n)]
+                          + [np.ravel(np.asarray(leaf)) for leaf in jax.tree.leaves(xc)])
+
+
+@jax.jit
+def _loop_jacobian(plant, ctrl, ref, y0):
+    def f(y):
+        ps, xc = _unflatten(plant, ctrl, y)
+        dps, dxc = _simulator_rhs(plant, ctrl, ref, 0.0, ps, xc)
+        return _flatten(plant, dps, dxc)
+
+    return jax.jacfwd(f)(y0), f(y0)
 
 
 def closed_loop_jacobian(plant, ctrl, ref, q_eq):
-    """(A, y*, residual): the Jacobian of the closed loop's right-hand side over (q, q̇, controller
-    state) at the state y* = (q_eq, 0, rest state), and max|f(y*)| (≈ 0 at an equilibrium)."""
-    xc0 = ctrl.to_loop(ctrl.init())
-    meas, _ = plant.sense(0.0, plant.initial_state(q_eq))
-    xc0 = ctrl.start(0.0, xc0, meas, ref)  # filters at their rest value
-    leaves, treedef = jax.tree.flatten(xc0)
-    sizes = [int(np.size(leaf)) for leaf in leaves]
-    n = plant.n
+    """(A, y*, residual): the Jacobian of the closed loop's right-hand side over (q, q̇,
+    controller state) at the state y* = (q_eq, 0, rest state), and max|f(y*)| (≈ 0 at an
+    equilibrium). One compiled program per plant, controller and reference structure."""
+    y0 = jnp.asarray(rest_state(ctrl, q_eq))
+    A, f0 = _loop_jacobian(plant, ctrl, ref, y0)
+    return np.asarray(A), np.asarray(y0), float(np.max(np.abs(np.asarray(f0))))
 
-    def unflat(y):
-        parts, i = [], 2 * n
-        for leaf, size in zip(leaves, sizes):
-            parts.append(y[i:i + size].reshape(np.shape(leaf)))
-            i += size
-        return SimState(plant=plant.initial_state(y[:n], y[n:2 * n]), xc=jax.tree.unflatten(treedef, parts),
-                        acc=Accumulators.zero())
 
-    def f(y):
-        dy, _ = _rhs(plant, ctrl, ref, 0.0, unflat(y), jnp.zeros(n), None, False)
-        q_dot, qd_dot = plant.joints(dy.plant)
-        return jnp.concatenate([q_dot, qd_dot] + [jnp.ravel(leaf) for leaf in jax.tree.leaves(dy.xc)])
+@functools.partial(jax.jit, static_argnames="n_sub")
+def _sampled_map(plant, ctrl, ref, y0, period, n_sub):
+    """The closed loop over one control period under zero-order hold (as the simulator's sampled
+    mode: the controller's sample update at the start, then ``n_sub`` RK4 steps of the plant
+    with the torque held and the controller state still), and its Jacobian at y0."""
 
-    y0 = jnp.concatenate([jnp.asarray(q_eq, dtype=float), jnp.zeros(n)] + [jnp.ravel(leaf) for leaf in leaves])
-    A = np.asarray(jax.jit(jax.jacfwd(f))(y0))
-    return A, np.asarray(y0), float(np.max(np.abs(np.asarray(jax.jit(f)(y0)))))
+    def phi(y):
+        ps, xc = _unflatten(plant, ctrl, y)
+        meas, _ = plant.sense(0.0, ps)
+        tau, xc = ctrl.sample(0.0, period, xc, meas, ref)
+        dt = period / n_sub
+
+        def f(p):
+            return _simulator_rhs(plant, ctrl, ref, 0.0, p, xc, tau, True)[0]
+
+        def step(p, _):
+            k1 = f(p)
+            k2 = f(jax.tree.map(lambda a, b: a + 0.5 * dt * b, p, k1))
+            k3 = f(jax.tree.map(lambda a, b: a + 0.5 * dt * b, p, k2))
+            k4 = f(jax.tree.map(lambda a, b: a + dt * b, p, k3))
+            return jax.tree.map(lambda a, b1, b2, b3, b4: a + dt / 6.0 * (b1 + 2 * b2 + 2 * b3 + b4),
+                                p, k1, k2, k3, k4), None
+
+        ps, _ = jax.lax.scan(step, ps, None, length=n_sub)
+        return _flatten(plant, ps, xc)
+
+    return jax.jacfwd(phi)(y0), phi(y0)
+
+
+# --- splitting the spectrum ------------------------------------------------------------------------
+
+
+def _drop_neutral(A, candidates, shift: float = 0.0, tol: float = 1e-9):
+    """(W, count): an orthonormal basis W of the complement of the directions among the
+    ``candidates`` coordinates (the networks' weights) that neither act on the loop nor are driven
+    by it: (A − shift·I)Z = 0 and Zᵀ(A − shift·I) = 0 (eigenvalue ``shift``, exactly invariant).
+    The loop's other eigenvalues are those of WᵀAW."""
+    N = A.shape[0]
+    idx = np.flatnonzero(candidates)
+    if idx.size == 0:
+        return np.eye(N), 0
+    B = A - shift * np.eye(N)
+    scale = max(np.max(np.abs(B)), 1e-300)
+    # directions v of the candidates' space with B v = 0 and vᵀ B = 0
+    stacked = np.concatenate([B[:, idx], B[idx, :].T], axis=0)
+    _, sv, Vt = np.linalg.svd(stacked, full_matrices=True)
+    rank = int(np.sum(sv > tol * scale))
+    Zc = Vt[rank:].T  # (len(idx), count)
+    Z = np.zeros((N, Zc.shape[1]))
+    Z[idx] = Zc
+    if Z.shape[1] == 0:
+        return np.eye(N), 0
+    Q, _ = np.linalg.qr(np.concatenate([Z, np.eye(N)], axis=1))
+    W = Q[:, Z.shape[1]:N]
+    return W, Z.shape[1]
+
+
+def split_loops(A, ctrl, q_eq, names) -> dict:
+    """The Jacobian A in the coordinates (u, u̇, controller state), u = (u1, u2) of eq. (6) on the
+    controller's constraint, split into the force loop (u2, u̇2, z, the force-rate filter, F_f's
+    weights) and the position loop (u1, u̇1, F_p's weights). Returns both blocks' eigenvalues
+    (neutral network directions dropped, counted in ``neutral``) and ``coupling``: the largest
+    entry of the force rows in the position columns relative to the largest of A (0 on the exact
+    model: the force loop does not depend on the position loop)."""
+    n, m = ctrl.n, ctrl.m
+    Du = np.asarray(jax.jacfwd(lambda q: ctrl.surface.to_u(ctrl.arm.h(q)))(jnp.asarray(q_eq, dtype=float)))
+    N = A.shape[0]
+    Tm = np.eye(N)
+    Tm[:n, :n] = Du
+    Tm[n:2 * n, n:2 * n] = Du
+    Ap = Tm @ A @ np.linalg.inv(Tm)
+    pos = np.zeros(N, bool)
+    pos[:m] = True
+    pos[n:n + m] = True
+    for i, name in enumerate(names):
+        if name == "theta_p":
+            pos[i] = True
+    force = ~pos
+    scale = max(np.max(np.abs(Ap)), 1e-300)
+    coupling = float(np.max(np.abs(Ap[np.ix_(force, pos)]))) / scale if pos.any() and force.any() else 0.0
+    out = {"coupling": coupling, "neutral": 0}
+    for label, sel, net in (("force", force, "theta_f"), ("position", pos, "theta_p")):
+        block = Ap[np.ix_(sel, sel)]
+        cand = np.array([names[i] == net for i in np.flatnonzero(sel)])
+        W, dropped = _drop_neutral(block, cand)
+        out[label] = np.linalg.eigvals(W.T @ block @ W)
+        out["neutral"] += dropped
+    return out
+
+
+# --- the polynomial -------------------------------------------------------------------------------
 
 
 def force_loop_polynomial(m_s, k_u, K_prime, mu_z, alpha_z, kappa=0.0, tau_f=0.0, g_f=0.0) -> np.ndarray:
@@ -148,50 +377,132 @@ class Mode:
             return f"real {self.s.real:.4g}"
         return f"{self.omega:.4g} rad/s, ζ {self.zeta:+.3g}"
 
+    def as_dict(self) -> dict:
+        return dict(mode=str(self), s=[float(self.s.real), float(self.s.imag)], omega=self.omega, zeta=self.zeta)
 
-def contact_modes(scenario, kind: str, stiffness: float, u1d: float | None = None, lam_d: float | None = None) -> dict:
-    """The linearised force loop of the scenario's controller ``kind`` (its design, its gains) on
-    the exact model with contact stiffness ``stiffness`` (undamped), at rest at (u1d, λd)
-    (default: the reference's mean values). Returns the eigenvalues of the closed loop, those of
-    the force loop (all but the position loop's two), the least damped force mode, the
-    polynomial's roots (FL-like and H∞-only, and the adaptive law at Θ̂ = 0) and the largest
-    relative difference between the two."""
-    ref_cfg = scenario.reference
-    u1d = ref_cfg.u1_offset if u1d is None else u1d
-    lam_d = ref_cfg.lam_offset if lam_d is None else lam_d
-    arm, surface = scenario.nominal.arm.build(), scenario.nominal.surface.build()
-    ctrl = scenario.build_controller(kind)
+
+def least_damped(eigs) -> complex:
+    """The least damped oscillatory eigenvalue (largest Re s/|s|), or the rightmost real one."""
+    eigs = list(eigs)
+    oscillatory = [e for e in eigs if abs(e.imag) > 1e-9 * max(1.0, abs(e))]
+    return complex(max(oscillatory, key=lambda e: e.real / abs(e)) if oscillatory else max(eigs, key=lambda e: e.real))
+
+
+def with_kappa(ctrl, kappa: float):
+    """The same controller with the force-rate term's κ replaced (0: the paper's law, same compiled
+    structure; the term's filter then acts on nothing)."""
+    terms = tuple(dataclasses.replace(t, kappa=jnp.asarray(float(kappa))) if isinstance(t, T.ForceRate) else t
+                  for t in ctrl.terms)
+    return dataclasses.replace(ctrl, terms=terms)
+
+
+# --- the scenario's operating point ---------------------------------------------------------------
+
+
+def _reference_offsets(scenario):
+    """The reference's mean values (u1d, λd): its offsets, one per coordinate."""
+    ref = scenario.build_reference()
+    return np.asarray(ref.u1_offset, dtype=float), np.asarray(ref.lam_offset, dtype=float)
+
+
+def _scalar_or_list(a):
+    a = np.ravel(np.asarray(a, dtype=float))
+    return float(a[0]) if a.size == 1 else a.tolist()
+
+
+def operating_point(scenario, stiffness: float, u1d=None, lam_d=None, ctrl=None):
+    """(exact plant, constant reference, q_eq, u1d, λd) of the scenario's nominal model with an
+    undamped contact of ``stiffness``, at rest at (u1d, λd) (default: the reference's offsets).
+    ``ctrl``: a controller of the scenario (its task coordinates and constraint)."""
+    u0, l0 = _reference_offsets(scenario)
+    u1d = u0 if u1d is None else np.atleast_1d(np.asarray(u1d, dtype=float))
+    lam_d = l0 if lam_d is None else np.atleast_1d(np.asarray(lam_d, dtype=float))
+    arm = scenario.build_arm("nominal")
+    surface = scenario.nominal.surface.build()
     plant = exact_plant(arm, surface, stiffness)
-    q_eq = equilibrium_q(plant, u1d, lam_d, elbow_up=scenario.initial.elbow == "up")
-    A, _, residual = closed_loop_jacobian(plant, ctrl, constant_reference(u1d, lam_d), q_eq)
-    eigs = np.linalg.eigvals(A)
-    c = loop_constants(arm, surface, stiffness, q_eq)
-    g = ctrl.gains
+    ref = constant_reference(u1d, lam_d)
+    closed = hasattr(arm, "inverse_kinematics_closed") and not plant.cartesian and u1d.size == 1
+    if closed:
+        q_eq = equilibrium_q(plant, float(u1d[0]), float(lam_d[0]), elbow_up=scenario.initial.elbow == "up")
+    else:
+        ctrl = ctrl if ctrl is not None else scenario.build_controller(scenario.kinds[0])
+        q_eq = equilibrium_q(plant, u1d, lam_d, ctrl=ctrl, q_guess=scenario.initial_q())
+    return plant, ref, np.asarray(q_eq, dtype=float), u1d, lam_d
+
+
+def _linearise(plant, ctrl, ref, q_eq, stiffness) -> dict:
+    """The continuous loop's spectrum at q_eq, split, against the polynomial."""
+    names = state_names(ctrl)
+    A, _, residual = closed_loop_jacobian(plant, ctrl, ref, q_eq)
     fr = ctrl.term(T.ForceRate)
     kappa, tau = (float(fr.kappa), float(fr.tau_f)) if fr is not None else (0.0, 0.0)
+    if fr is not None and kappa == 0.0:  # the paper's law: the filter state acts on nothing; leave it out
+        keep = np.array([nm != "s_lam" for nm in names])
+        A = A[np.ix_(keep, keep)]
+        names = [nm for nm in names if nm != "s_lam"]
+        tau = 0.0
+    parts = split_loops(A, ctrl, q_eq, names)
+    net_idx = np.array([nm in ("theta_p", "theta_f") for nm in names])
+    W, neutral = _drop_neutral(A, net_idx)
+    eigs = np.linalg.eigvals(W.T @ A @ W)
+    c = loop_constants(ctrl.arm, ctrl.surface, stiffness, q_eq)
+    g = ctrl.gains
     g_f = network_gain(ctrl)
     poly = force_loop_polynomial(c["m_s"], c["k_u"], k_prime(ctrl), float(g.mu_z), float(g.alpha_z), kappa, tau, g_f)
     roots = np.roots(poly)
-    # the position loop: s² + (K_v + g_v)s + (K_p + g_p), g = R_p⁻¹B_pᵀP_p x_p when v_p is present
-    gp = np.zeros(2)
-    if ctrl.term(T.RobustPosition) is not None:
-        gp = np.linalg.solve(np.atleast_2d(np.asarray(g.R_p)), np.asarray(ctrl.P_p)[1:]).ravel()
-    pos = np.roots([1.0, float(np.asarray(g.K_v).reshape(-1)[0]) + gp[1], float(np.asarray(g.K_p).reshape(-1)[0]) + gp[0]])
-    pool = list(eigs)
-    for r in pos:
-        pool.pop(int(np.argmin([abs(e - r) for e in pool])))
-    force = sorted(pool, key=lambda e: -e.real)
-    diffs = []
-    rest = list(force)
-    for r in roots:
-        j = int(np.argmin([abs(e - r) for e in rest]))
-        diffs.append(abs(rest.pop(j) - r) / abs(r))
-    # the network's weights are states of the full loop (n_units of them, with eigenvalues near 0):
-    # compare with the polynomial only where every force-loop eigenvalue is accounted for
-    matched = max(diffs) if len(force) == len(roots) else None
-    oscillatory = [e for e in force if abs(e.imag) > 1e-9 * max(1.0, abs(e))]
-    least = max(oscillatory, key=lambda e: e.real / abs(e)) if oscillatory else max(force, key=lambda e: e.real)
-    return dict(kind=kind, stiffness=stiffness, u1d=u1d, lam_d=lam_d, q=np.asarray(q_eq).tolist(),
-                residual=residual, eigenvalues=eigs, force_eigenvalues=np.array(force), roots=roots,
-                polynomial_match=matched, least_damped=Mode(complex(least)), constants=c, kappa=kappa, tau_f=tau,
-                g_f=g_f, stable=bool(all(e.real < 0 for e in eigs if abs(e) > 1e-8 * np.max(np.abs(eigs)))))
+    force = sorted(parts["force"], key=lambda e: -e.real)
+    matched = None
+    if len(force) == len(roots):
+        rest, diffs = list(force), []
+        for r in roots:
+            j = int(np.argmin([abs(e - r) for e in rest]))
+            diffs.append(abs(rest.pop(j) - r) / abs(r))
+        matched = max(diffs)
+    return dict(residual=residual, eigenvalues=eigs, force_eigenvalues=np.array(force),
+                position_eigenvalues=np.array(sorted(parts["position"], key=lambda e: -e.real)),
+                coupling=parts["coupling"], neutral=neutral, roots=roots, polynomial_match=matched,
+                least_damped=Mode(least_damped(force)), constants=c, kappa=kappa, tau_f=tau, g_f=g_f,
+                stable=bool(np.all(eigs.real < 0)))
+
+
+def contact_modes(scenario, kind: str, stiffness: float, u1d=None, lam_d=None, ctrl=None) -> dict:
+    """The linearised closed loop of the scenario's controller ``kind`` (its design, its gains, or
+    ``ctrl``) on the exact model with contact stiffness ``stiffness`` (undamped), at rest at
+    (u1d, λd) (default: the reference's offsets). Returns the eigenvalues of the closed loop
+    (neutral network directions dropped), those of the force and position loops, the least
+    damped force mode, the polynomial's roots (FL-like, H∞-only, and the adaptive law at Θ̂ = 0)
+    and the largest relative difference between the two, and whether the loop is stable."""
+    ctrl = ctrl if ctrl is not None else scenario.build_controller(kind)
+    plant, ref, q_eq, u1d, lam_d = operating_point(scenario, stiffness, u1d, lam_d, ctrl=ctrl)
+    if not np.all(np.isfinite(q_eq)):
+        from .errors import DesignError
+
+        raise DesignError(f"no rest pose with u1 = {_scalar_or_list(u1d)} and λ = {_scalar_or_list(lam_d)} on the "
+                          f"nominal model at {stiffness:g} N/m (out of reach?)", key="reference.u1_offset")
+    out = _linearise(plant, ctrl, ref, q_eq, stiffness)
+    return dict(kind=kind, stiffness=stiffness, u1d=_scalar_or_list(u1d), lam_d=_scalar_or_list(lam_d),
+                q=q_eq.tolist(), **out)
+
+
+def sampled_modes(plant, ctrl, ref, q_eq, period: float, dt: float) -> dict:
+    """The sampled loop (zero-order hold at ``period``, plant integrated by RK4 steps of ``dt``)
+    linearised at q_eq: the eigenvalues of its one-period map (neutral network directions, at 1,
+    dropped), the spectral radius, and the least damped mode as its continuous equivalent
+    s = ln(z)/period."""
+    n_sub = int(round(period / dt))
+    y0 = jnp.asarray(rest_state(ctrl, q_eq))
+    Phi, y1 = _sampled_map(plant, ctrl, ref, y0, float(period), n_sub)
+    Phi = np.asarray(Phi)
+    names = state_names(ctrl)
+    W, neutral = _drop_neutral(Phi, np.array([nm in ("theta_p", "theta_f") for nm in names]), shift=1.0)
+    z = np.linalg.eigvals(W.T @ Phi @ W)
+    s = np.log(z.astype(complex)) / period
+    return dict(eigenvalues=z, radius=float(np.max(np.abs(z))), stable=bool(np.max(np.abs(z)) < 1.0),
+                least_damped=Mode(least_damped(s)), neutral=neutral,
+                residual=float(np.max(np.abs(np.asarray(y1) - np.asarray(y0)))))
+
+
+def sampled_kappa_scan(plant, ctrl, ref, q_eq, period: float, dt: float, kappas) -> np.ndarray:
+    """The sampled loop's spectral radius for each κ of ``kappas`` (the controller's force-rate
+    term's κ replaced; one compiled program for all): the brute-force check of the Jury window."""
+    return np.array([sampled_modes(plant, with_kappa(ctrl, k), ref, q_eq, period, dt)["radius"] for k in kappas])

@@ -193,16 +193,13 @@ class Scenario:
         model. Raises :class:`DesignError` with the dotted key of the failing gain."""
         kind = kind or _only(self.kinds)
         arm = self.build_arm("nominal")
-        u1_range = q_start = None
+        u1_path = q_start = None
         if self.controller.force_rate.kappa != 0.0:
-            if self.nominal.arm.model != "two_link" or self.nominal.surface.kind != "inclined_line":
-                raise ConfigError("the force-rate term is designed for the two_link arm on an inclined_line (its κ "
-                                  "rule uses the normal mass along the line's path; docs/beyond-the-paper.md), got "
-                                  f"a {self.nominal.arm.model!r} arm on a {self.nominal.surface.kind!r}; set it to 0",
-                                  key="controller.force_rate.kappa")
-            u1_range = self.reference.u1_range()
+            from .checks import design_path
+
+            u1_path = design_path(self)  # the reference's path: the force-rate design's poses
             q_start = self.initial_q()
-        return self.controller.build(kind, arm, self.build_constraint(arm), u1_range=u1_range, q_start=q_start,
+        return self.controller.build(kind, arm, self.build_constraint(arm), u1_path=u1_path, q_start=q_start,
                                      period=self.control_period)
 
     def initial_q(self, plant=None):
