@@ -506,3 +506,196 @@ def sampled_kappa_scan(plant, ctrl, ref, q_eq, period: float, dt: float, kappas)
     """The sampled loop's spectral radius for each κ of ``kappas`` (the controller's force-rate
     term's κ replaced; one compiled program for all): the brute-force check of the Jury window."""
     return np.array([sampled_modes(plant, with_kappa(ctrl, k), ref, q_eq, period, dt)["radius"] for k in kappas])
+
+
+# --- the design report (`hinfnn design`) -------------------------------------------------------------
+
+
+def _c(z) -> list:
+    z = complex(z)
+    return [float(z.real), float(z.imag)]
+
+
+def _modes_entry(r: dict) -> dict:
+    """The JSON-ready part of :func:`contact_modes`' result the report keeps."""
+    return dict(**r["least_damped"].as_dict(), stable=r["stable"], kappa=r["kappa"], tau_f=r["tau_f"],
+                force=[_c(e) for e in r["force_eigenvalues"]], position=[_c(e) for e in r["position_eigenvalues"]],
+                polynomial_match=r["polynomial_match"], coupling=r["coupling"], residual=r["residual"],
+                m_s=r["constants"]["m_s"], m_n=r["constants"]["m_n"])
+
+
+def _with_force_rate(scenario, kappa):
+    """The scenario with controller.force_rate.kappa replaced (no checks run again)."""
+    c = scenario.controller
+    return dataclasses.replace(scenario, controller=dataclasses.replace(
+        c, force_rate=dataclasses.replace(c.force_rate, kappa=kappa)))
+
+
+def path_report(scenario, ctrl, q0) -> dict:
+    """The nominal model along the reference's path (:func:`hinfnn.scenario.checks.design_path`):
+    σ_min(Ĵ) (the singularity guard's measure) and the normal mass m_n (its extreme eigenvalues
+    for k > 1), their extremes and where; and the start pose's checks (σ_min(Ĵ(q0)), |det Ĵ(q0)|)."""
+    from .controllers.force_rate import path_poses, pose_measures
+    from .scenario.checks import design_path
+
+    poses = path_poses(ctrl.arm, ctrl.surface, design_path(scenario), q0)
+    rows = [(u1, *(float(v) for v in pose_measures(ctrl.arm, ctrl.surface, jnp.asarray(q)))) for u1, q in poses]
+    found = [r for r in rows if all(math.isfinite(v) for v in r[1:])]
+    out = dict(points=len(rows), found=len(found), singularity_stop=float(ctrl.sigma_stop))
+    if found:
+        worst = min(found, key=lambda r: r[3])
+        heavy = max(found, key=lambda r: r[2])
+        light = min(found, key=lambda r: r[1])
+        out.update(sigma_min=worst[3], u1_sigma_min=_scalar_or_list(worst[0]), m_n_max=heavy[2],
+                   u1_m_n_max=_scalar_or_list(heavy[0]), m_n_min=light[1], u1_m_n_min=_scalar_or_list(light[0]))
+    q0 = jnp.asarray(q0, dtype=float)
+    _, _, s0 = (float(v) for v in pose_measures(ctrl.arm, ctrl.surface, q0))
+    out["start"] = dict(q0=np.asarray(q0).tolist(), sigma_min=s0,
+                        abs_det=abs(float(_jacobian_det(ctrl.arm, q0))))
+    return out
+
+
+@jax.jit
+def _jacobian_det(arm, q):
+    return jnp.linalg.det(arm.J(q))
+
+
+def design_report(scenario) -> dict:
+    """Everything ``hinfnn design`` prints, JSON-ready: per controller kind the resolved design
+    (:func:`~hinfnn.controllers.design_summary`: gains, bounds, P_p and the Riccati solution, the
+    networks, the force-rate design) and its contact modes on the exact nominal model at rest at
+    the reference's offsets, before and after the force-rate term (κ = 0 and κ as designed, or by
+    the rule when the scenario has none), at the plant's contact stiffness and at the design's
+    softest and stiffest contacts; under sampled control the sampled loop's spectral radius too;
+    and the nominal model along the reference's path (σ_min(Ĵ), normal masses, the start pose).
+    A variant the design refuses is reported with the refusal."""
+    from .controllers import design_summary
+    from .errors import ConfigError, DesignError
+
+    k_plant = float(scenario.plant.contact.stiffness)
+    fr_cfg = scenario.controller.force_rate
+    period = scenario.control_period
+    q0 = scenario.initial_q()
+    out = dict(scenario=scenario.name, arm=scenario.nominal.arm.model, surface=scenario.nominal.surface.kind,
+               stiffness=k_plant, control_period=period, kinds={})
+    path = None
+    for kind in scenario.kinds:
+        one = scenario.single(kind)
+        ctrl = one.build_controller(kind)
+        d = design_summary(ctrl)
+        if path is None:
+            path = path_report(one, ctrl, q0)
+        term = ctrl.term(T.ForceRate)
+        rule_error = None
+        if term is not None and float(term.kappa) != 0.0:
+            after = ctrl
+            labels = ("as designed", "without the force-rate term (the paper's law, kappa = 0)")
+        else:
+            labels = ("as designed (the paper's law)", "with the force-rate term (kappa by the rule)")
+            try:
+                after = _with_force_rate(one, "rule").build_controller(kind)
+            except (DesignError, ConfigError) as err:
+                after, rule_error = None, str(err)
+        before = with_kappa(after, 0.0) if after is not None else ctrl
+        fr = after.term(T.ForceRate) if after is not None else None
+        design = dict(fr.design) if fr is not None else {}
+        stiffnesses = sorted({k_plant, float(design.get("stiffness_min", fr_cfg.stiffness_min)),
+                              float(design.get("stiffness_max", fr_cfg.stiffness_max))})
+        modes = dict(pose=None, stiffnesses=stiffnesses, variants={})
+        variants = (after, before) if labels[0] == "as designed" else (before, after)
+        for label, c in zip(labels, variants):
+            if c is None:
+                modes["variants"][label] = dict(error=rule_error)
+                continue
+            entries = {}
+            for k in stiffnesses:
+                try:
+                    r = contact_modes(one, kind, k, ctrl=c)
+                    modes["pose"] = dict(u1=r["u1d"], lam=r["lam_d"], q=r["q"])
+                    entries[f"{k:g}"] = _modes_entry(r)
+                except (DesignError, ConfigError) as err:
+                    entries[f"{k:g}"] = dict(error=str(err))
+            if period is not None and "q" in (modes["pose"] or {}):
+                plant, ref, q_eq, _, _ = operating_point(one, k_plant, ctrl=c)
+                s = sampled_modes(plant, c, ref, q_eq, period, scenario.simulation.dt)
+                entries["sampled"] = dict(stiffness=k_plant, period=period, radius=s["radius"], stable=s["stable"],
+                                          **s["least_damped"].as_dict())
+            modes["variants"][label] = entries
+        d["contact_modes"] = modes
+        out["kinds"][kind] = d
+    out["path"] = path
+    return out
+
+
+def _fmt_list(v, spec=".4g"):
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(format(float(x), spec) for x in v) + "]"
+    return format(float(v), spec)
+
+
+def format_design_report(rep: dict) -> str:
+    """The text of ``hinfnn design`` from :func:`design_report`'s dict."""
+    import json
+
+    lines = []
+    for kind, d in rep["kinds"].items():
+        g = d["gains"]
+        lines.append(f"{kind}: terms {', '.join(d['terms']) or '(none: the CT law)'}{', augmented' if d['augmented'] else ''}")
+        lines.append(f"  gains: K_p {g['K_p']}, K_v {g['K_v']}, rho {g['rho']:g}, mu_z {g['mu_z']:g}, alpha_z {g['alpha_z']:g}, "
+                     f"alpha_lam {g['alpha_lam']:g}, beta_lam {g['beta_lam']:.6g}, gamma_1 {g['gamma_1']:g}, "
+                     f"gamma_2 {g['gamma_2']:g}, Q_p {g['Q_p']}, R_p {g['R_p']}")
+        for name, b in d["bounds"].items():
+            lines.append(f"  bound {name}: {b['value']:.6g} vs {b['bound']:.6g} (margin {b['margin']:+.4g}): {b['rule']}")
+        lines.append(f"  P_p {json.dumps(d['P_p'])}")
+        ric = d.get("riccati", {})
+        if "residual" in ric:
+            eig = ", ".join(f"{re:.4g}{im:+.4g}j" for re, im in ric["closed_loop_eigs"])
+            lines.append(f"  Riccati eq. ({ric['equation']}): residual {ric['residual']:.2e}, min eig P "
+                         f"{ric['min_eig_P']:.4g}, closed loop {eig}, Remark 4's condition "
+                         f"{'holds' if ric['remark4_holds'] else 'fails'}")
+        else:
+            lines.append(f"  Riccati: {ric.get('error')}")
+        if "v_p_gains" in d:
+            lines.append(f"  v_p = -[{', '.join(f'{v:.4g}' for v in d['v_p_gains'][0])}] x_p"
+                         + (" (first row)" if len(d["v_p_gains"]) > 1 else ""))
+        for key, n in d.get("networks", {}).items():
+            lines.append(f"  network {key}: {n['units']} units, centres {_fmt_list(n['first_centre'], 'g')} .. "
+                         f"{_fmt_list(n['last_centre'], 'g')}, slope {_fmt_list(n['slope'], 'g')}"
+                         + (f", radius {n['radius']:g}" if n["radius"] else ""))
+        fr = d.get("force_rate")
+        if fr:
+            lines.append(f"  force rate: kappa {fr['kappa']:.4g} s ({'rule' if fr['rule'] else 'given'}: zeta {fr['zeta']:g}, "
+                         f"K' {fr['K_prime']:.4g}, m_n {fr['m_n_min']:.4g}..{fr['m_n_max']:.4g} kg on "
+                         f"{fr.get('path_points', 0)} poses of the path, k {fr['stiffness_min']:g}..{fr['stiffness_max']:g} "
+                         f"N/m), tau_f {fr['tau_f']:g} s, zeta at the softest contact {fr.get('zeta_softest', math.nan):.3g}"
+                         + (f", sampled window {fr['window'][0]:.3g}..{fr['window'][1]:.3g} s (at {fr['period']:g} s the "
+                            f"loop holds up to {fr['stiffness_limit']:.3g} N/m)" if fr.get("window") else ""))
+        if d["singularity_stop"] > 0:
+            lines.append(f"  singularity guard: stop when sigma_min(J) < {d['singularity_stop']:g}")
+        cm = d["contact_modes"]
+        pose = cm.get("pose") or {}
+        where = f" at rest at u1 = {_fmt_list(pose['u1'])}, lambda = {_fmt_list(pose['lam'])}" if pose else ""
+        lines.append(f"  contact modes (linearised closed loop on the exact nominal model{where}):")
+        for label, entries in cm["variants"].items():
+            if "error" in entries:
+                lines.append(f"    {label}: {entries['error']}")
+                continue
+            for key, m in entries.items():
+                if "error" in m:
+                    lines.append(f"    {label}, {key} N/m: {m['error']}")
+                elif key == "sampled":
+                    lines.append(f"    {label}, sampled at {m['period']:g} s, {m['stiffness']:g} N/m: spectral radius "
+                                 f"{m['radius']:.5g} ({'stable' if m['stable'] else 'UNSTABLE'}), least damped {m['mode']}")
+                else:
+                    lines.append(f"    contact mode at {float(key):g} N/m, {label}: {m['mode']} "
+                                 f"({'stable' if m['stable'] else 'UNSTABLE'}; kappa {m['kappa']:.4g} s, m_s {m['m_s']:.4g})")
+    p = rep.get("path") or {}
+    if p:
+        lines.append(f"path: {p['found']} of {p['points']} poses of the reference on the nominal model"
+                     + (f"; sigma_min(J) >= {p['sigma_min']:.4g} (at u1 = {_fmt_list(p['u1_sigma_min'])}), normal mass "
+                        f"{p['m_n_min']:.4g}..{p['m_n_max']:.4g} kg (heaviest at u1 = {_fmt_list(p['u1_m_n_max'])})"
+                        if "sigma_min" in p else ""))
+        s = p["start"]
+        lines.append(f"start pose q0 = {_fmt_list(s['q0'])}: sigma_min(J) {s['sigma_min']:.4g}, |det J| {s['abs_det']:.4g}"
+                     + (f"; singularity guard at {p['singularity_stop']:g}" if p["singularity_stop"] > 0 else ""))
+    return "\n".join(lines)

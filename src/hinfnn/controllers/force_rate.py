@@ -1,24 +1,37 @@
 """Design of the force-rate term (not in the paper; docs/beyond-the-paper.md): κ from the contact's
-stiffness range and the arm's effective mass along the constraint normal, at design time.
+stiffness range and the arm's effective mass along the constraint normal, at design time, for any
+arm and any constraint (sections 3 and 7).
 
 On a compliant contact the force loop of the paper's laws is, linearised about the path,
 
     m_s s³ + m_s μ_z s² + k_u K' s + k_u (K' μ_z + α_z) = 0,    K' = 1 + β_λ/2 (1 for FL-like),
 
-with m_s = Π²/(Â Ĵ M̂⁻¹ Ĵᵀ Âᵀ) the arm's effective mass in the constraint coordinate u2 and
-k_u = kΠ²/(ÂÂᵀ) the contact stiffness in the same coordinate (k_u/m_s = k/m_n, m_n = ÂÂᵀ/(ÂĴM̂⁻¹ĴᵀÂᵀ)
-the physical effective mass along the unit normal); Routh's test fails by −α_z m_s k_u for
-every gain. The term −κṡ adds κ k_u s to it: the contact mode m_s s² + k_u κ s + k_u K' has the
-damping ratio ζ = (κ/2)√(k/(m_n K')), which grows with the stiffness and falls with the mass,
-so the rule places ζ* at the softest contact and the heaviest pose of the path:
+with m_s = Π²/(Â Ĵ M̂⁻¹ Ĵᵀ Âᵀ) the arm's effective mass in the constraint coordinate u2 (the Schur
+complement M̄22 − M̄21M̄11⁻¹M̄12 of eq. (9)'s M̄, for any arm with a square Ĵ) and k_u = kΠ²/(ÂÂᵀ)
+the contact stiffness in the same coordinate (k_u/m_s = k/m_n, m_n = ÂÂᵀ/(ÂĴM̂⁻¹ĴᵀÂᵀ) the
+physical effective mass along the unit normal; in coordinates fitted to a Cartesian surface Â = [0 … 0 1]
+and m_n = 1/(nᵀJ_pM̂⁻¹J_pᵀn)); Routh's test fails by −α_z m_s k_u for every gain. The term −κṡ adds
+κ k_u s to it: the contact mode m_s s² + k_u κ s + k_u K' has the damping ratio
+ζ = (κ/2)√(k/(m_n K')), which grows with the stiffness and falls with the mass, so the rule places
+ζ* at the softest contact and the heaviest pose of the reference's path:
 
     κ = 2 ζ* √(K' m_n,max / k_min)     (the same number in either constraint scaling).
+
+For k > 1 constraints with one stiffness on every normal, the loop in the normal displacements is
+M_N p̈ + κk ṗ + K'k p = 0, M_N = (NĴM̂⁻¹ĴᵀNᵀ)⁻¹ (N the unit normals): its damping is proportional to
+its stiffness, so its modes decouple along the eigenvectors of M_N with ζ_i = (κ/2)√(k/(μ_i K')),
+and the rule holds with m_n,max, m_n,min the largest and smallest eigenvalue μ of M_N on the path.
 
 Under zero-order hold at period h (filter time constant τ_f = h: ṡ the backward difference of
 e_λ), the undamped contact mode ω0 = √(k/m_n) with the feedback g_P + κ(1 − z⁻¹)/h
 (g_P = K' − 1) is stable if and only if K = κ/h satisfies K(2c − 2aK − g_P a) > g_P and aK < 1,
 c = cos ω0h, a = 1 − c (Jury's test). κ must then also stay below 0.8 of that window's upper
-end at the stiffest contact and the lightest pose; an empty window is a DesignError.
+end at the stiffest contact and the lightest pose; an empty window is a DesignError that names the
+stiffest contact the period holds, m_n,min (ω0h_max/h)², and the longest period that holds k_max.
+
+The poses are the NOMINAL model's (the controller's knowledge; nothing here imports
+:mod:`hinfnn.plant`): inverse kinematics onto the nominal constraint at the reference's path, by
+damped Newton steps continued from the start pose (the closed form for the Sec. VI arm).
 """
 
 from __future__ import annotations
