@@ -26,8 +26,10 @@ Under zero-order hold at period h (filter time constant τ_f = h: ṡ the backwa
 e_λ), the undamped contact mode ω0 = √(k/m_n) with the feedback g_P + κ(1 − z⁻¹)/h
 (g_P = K' − 1) is stable if and only if K = κ/h satisfies K(2c − 2aK − g_P a) > g_P and aK < 1,
 c = cos ω0h, a = 1 − c (Jury's test). κ must then also stay below 0.8 of that window's upper
-end at the stiffest contact and the lightest pose; an empty window is a DesignError that names the
-stiffest contact the period holds, m_n,min (ω0h_max/h)², and the longest period that holds k_max.
+end at the stiffest contact and the lightest pose, and the sampled loop (with z) must keep a
+damping ratio of at least SAMPLED_ZETA_MIN there; an empty window or a thinner margin is a
+DesignError that names the stiffest contact the period holds and the longest period that holds
+k_max.
 
 The poses are the NOMINAL model's (the controller's knowledge; nothing here imports
 :mod:`hinfnn.plant`): inverse kinematics onto the nominal constraint at the reference's path, by
@@ -69,6 +71,7 @@ class ForceRateDesign:
     zeta_softest: float | None = None  # ζ of the contact mode at stiffness_min and m_n_max with this κ
     stiffness_limit: float | None = None  # sampled: the stiffest contact the window holds at this period, N/m
     period_limit: float | None = None  # sampled: the longest control period that holds stiffness_max, s
+    zeta_sampled: float | None = None  # sampled: the least damping of the sampled force loop at stiffness_max
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -224,6 +227,57 @@ def jury_limit(g_P: float) -> float:
     return lo
 
 
+#: The least damping ratio the design accepts for the sampled force loop at the stiffest contact
+#: and the lightest pose (:func:`sampled_damping`). Measured (docs/beyond-the-paper.md, section 7):
+#: on the UR5 table at 1e6 N/m and 1 kHz the Jury window is not empty, but the best κ leaves that
+#: loop ζ ≈ 0.03 and the adaptive law's run stops at the torque limit; the accepted designs of the
+#: shipped scenarios at 1 kHz have ζ ≥ 0.07.
+SAMPLED_ZETA_MIN = 0.05
+
+
+def sampled_force_loop(omega0_h: float, g_P: float, kappa: float, h: float, mu_z: float = 0.0,
+                       alpha_z: float = 0.0) -> np.ndarray:
+    """The force loop over one period of the zero-order hold, linearised on the contact mode
+    ω0 = √(k/m_n) (docs/beyond-the-paper.md, section 7): state (e_λ, ė_λ/ω0, s, z) at the samples,
+    e_λ between samples the undamped mode driven by the held w = z − g_P e_λ − κ(e_λ − s)/h
+    (the filter with τ_f = h: s_{j+1} = e_λ,j, the backward difference), z by forward Euler of (27).
+    With μ_z = α_z = 0 (z left out: the first three states) its stable κ are exactly Jury's window."""
+    c, sn = math.cos(omega0_h), math.sin(omega0_h)
+    w = np.array([-g_P - kappa / h, 0.0, kappa / h, 1.0])
+    A = np.zeros((4, 4))
+    A[0] = np.array([c, sn, 0.0, 0.0]) + (1.0 - c) * w
+    A[1] = np.array([-sn, c, 0.0, 0.0]) + sn * w
+    A[2, 0] = 1.0
+    A[3, 0], A[3, 3] = -h * alpha_z, 1.0 - h * mu_z
+    return A
+
+
+def sampled_damping(omega0_h: float, g_P: float, kappa: float, h: float, mu_z: float, alpha_z: float):
+    """(spectral radius, least damping ratio) of :func:`sampled_force_loop`, each eigenvalue z read
+    as s = ln(z)/h, ζ = −Re s/|s|."""
+    z = np.linalg.eigvals(sampled_force_loop(omega0_h, g_P, kappa, h, mu_z, alpha_z))
+    s = np.log(z.astype(complex)) / h
+    zeta = min(-x.real / abs(x) for x in s)
+    return float(np.max(np.abs(z))), float(zeta)
+
+
+def _sampled_kappa(kappa_cont, omega0_h, g_P, h, margin):
+    """The rule's κ under sampled control: min(κ_rule, margin × the Jury window's upper end), or
+    None when the window is empty."""
+    window = jury_window(omega0_h, g_P, h)
+    return None if window is None else min(kappa_cont, margin * window[1])
+
+
+def _largest(ok, lo, hi, steps=60):
+    """The largest x in [lo, hi] with ok(x) (bisection on a log scale; ok(lo) holds), or hi."""
+    if ok(hi):
+        return hi
+    for _ in range(steps):
+        mid = math.sqrt(lo * hi)
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return lo
+
+
 def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_start, kappa="rule", tau_f="auto",
                       zeta: float = 0.7, stiffness_min: float = 1e4, stiffness_max: float = 1e6,
                       period: float | None = None, margin: float = 0.8, u1_range=None) -> ForceRateDesign:
@@ -272,20 +326,32 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
     rule = kappa == "rule"
     k_value = kappa_cont if rule else float(kappa)
     tf = (period if period is not None else 1e-3) if tau_f == "auto" else float(tau_f)
-    window = stiffness_limit = period_limit = None
+    window = stiffness_limit = period_limit = zeta_sampled = None
     if period is not None:
         g_P = K_prime - 1.0
+        mu_z, alpha_z = float(gains.mu_z), float(gains.alpha_z)
         omega0_h = math.sqrt(stiffness_max / mn_min) * period
+
+        def accepted(k_max, h):  # the rule's κ (or the given one) keeps the margin at k_max, period h
+            x = math.sqrt(k_max / mn_min) * h
+            kap = _sampled_kappa(kappa_cont, x, g_P, h, margin) if rule else float(kappa)
+            w = jury_window(x, g_P, h)
+            if kap is None or w is None or not w[0] < kap < w[1]:
+                return False
+            return sampled_damping(x, g_P, kap, h, mu_z, alpha_z)[1] >= SAMPLED_ZETA_MIN
+
         x_max = jury_limit(g_P)
-        stiffness_limit = mn_min * (x_max / period) ** 2
-        period_limit = x_max / math.sqrt(stiffness_max / mn_min)
+        k_top = mn_min * (x_max / period) ** 2  # the window closes here
+        stiffness_limit = (_largest(lambda k: accepted(k, period), stiffness_min, k_top)
+                           if k_top > stiffness_min and accepted(stiffness_min, period) else 0.0)
+        period_limit = _largest(lambda h: accepted(stiffness_max, h), 1e-9, x_max / math.sqrt(stiffness_max / mn_min))
         window = jury_window(omega0_h, g_P, period)
         if window is None:
             raise DesignError(
                 f"no force-rate gain stabilises the sampled force loop at the stiffest contact {stiffness_max:g} N/m "
                 f"with control period {period:g} s (ω0 h = {omega0_h:.3f} rad per sample at the lightest pose of the "
                 f"path, m_n,min = {mn_min:.4g} kg; proportional gain β_λ/2 = {g_P:.3f}; the window closes at ω0 h = "
-                f"{x_max:.3f}): at this period the loop holds contacts up to {stiffness_limit:.3g} N/m (set "
+                f"{x_max:.3f}): at this period the design holds contacts up to {stiffness_limit:.3g} N/m (set "
                 f"controller.force_rate.stiffness_max <= {stiffness_limit:.3g}), or a {stiffness_max:g} N/m contact "
                 f"needs simulation.control_period <= {period_limit:.3g} s", key="force_rate.stiffness_max",
                 value=stiffness_max, bound=stiffness_limit)
@@ -295,10 +361,20 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
             raise DesignError(f"κ = {k_value:g} s is outside the sampled loop's stable window "
                               f"({window[0]:.3g}, {window[1]:.3g}) s at {stiffness_max:g} N/m", key="force_rate.kappa",
                               value=k_value)
+        zeta_sampled = sampled_damping(omega0_h, g_P, k_value, period, mu_z, alpha_z)[1]
+        if zeta_sampled < SAMPLED_ZETA_MIN:
+            raise DesignError(
+                f"the sampled force loop at the stiffest contact {stiffness_max:g} N/m and control period {period:g} s "
+                f"is stable with κ = {k_value:.3g} s but its contact mode keeps only ζ = {zeta_sampled:.3f} (at the "
+                f"lightest pose of the path, m_n,min = {mn_min:.4g} kg; the design asks ζ >= {SAMPLED_ZETA_MIN:g}, "
+                f"below which the adaptive law's weights drift): at this period the design holds contacts up to "
+                f"{stiffness_limit:.3g} N/m (set controller.force_rate.stiffness_max <= {stiffness_limit:.3g}), or a "
+                f"{stiffness_max:g} N/m contact needs simulation.control_period <= {period_limit:.3g} s",
+                key="force_rate.stiffness_max", value=stiffness_max, bound=stiffness_limit)
     # the damping ratio the chosen κ gives the contact mode at the softest contact and the heaviest pose
     zeta_soft = 0.5 * k_value * math.sqrt(stiffness_min / (mn_max * K_prime))
     return ForceRateDesign(kappa=k_value, tau_f=tf, rule=rule, zeta=zeta, stiffness_min=stiffness_min,
                            stiffness_max=stiffness_max, m_n_max=mn_max, m_n_min=mn_min, K_prime=K_prime,
                            kappa_continuous=kappa_cont, period=period, window=window, constraints=int(surface.k),
                            path_points=len(poses), u1_m_n_max=u1_heavy, zeta_softest=zeta_soft,
-                           stiffness_limit=stiffness_limit, period_limit=period_limit)
+                           stiffness_limit=stiffness_limit, period_limit=period_limit, zeta_sampled=zeta_sampled)
