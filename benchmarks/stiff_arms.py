@@ -52,15 +52,15 @@ def case_name(arm, kind, variant, mode, k):
     return f"{arm}/{kind}/{variant}/{mode}/k{k:.0e}".replace("+0", "")
 
 
-def build_runs(arm, kind, mode, stiffnesses, t_final):
-    """([(name, Run)], {name: refusal}) of one arm, law and mode."""
+def build_runs(arm, kind, mode, stiffnesses, t_final, extra=None):
+    """([(name, Run)], {name: refusal}) of one arm, law and mode (``extra``: more overrides)."""
     import hinfnn as H
     from hinfnn.analysis import with_kappa
 
     runs, refused = [], {}
     for k in stiffnesses:
         base = {"controller.kind": kind, "plant.contact.stiffness": k, "plant.contact.damping": 0.0,
-                "simulation.t_final": t_final, **MODES[mode]}
+                "simulation.t_final": t_final, **MODES[mode], **(extra or {})}
         paper_design = {**base, "controller.force_rate.stiffness_max": 1e6 if mode == "cont" else 1e5}
         sc_paper = H.load_scenario(f"{arm}-stable", paper_design)
         r = sc_paper.run(kind)
@@ -102,19 +102,24 @@ def main(argv=None) -> int:
     p.add_argument("--stiffness", nargs="+", type=float, default=list(STIFFNESS))
     p.add_argument("--t-final", type=float, default=10.0)
     p.add_argument("--json", help="write the rows here")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a scenario override for every case (e.g. controller.gains.beta_lam=12)")
     args = p.parse_args(argv)
 
     import hinfnn as H
     from hinfnn.fields import METRICS_FIELDS
 
+    from hinfnn.scenario import parse_override
+
     H.configure()
+    extra = dict(parse_override(item) for item in args.set)
     rows, refusals = [], {}
     print(f"{'case':<44} {'st':>2} {'out>0.2s':>8} {'eλ%':>7} {'eu1 m':>8} {'peak τ':>9} {'diss':>5} {'s/run':>6}",
           flush=True)
     for arm in args.arms:
         for kind in args.kinds:
             for mode in args.modes:
-                runs, refused = build_runs(arm, kind, mode, args.stiffness, args.t_final)
+                runs, refused = build_runs(arm, kind, mode, args.stiffness, args.t_final, extra)
                 refusals.update(refused)
                 t0 = time.perf_counter()
                 trajs = H.simulate_many(runs, fields=tuple(METRICS_FIELDS) + FIELDS)
@@ -129,7 +134,7 @@ def main(argv=None) -> int:
                     print(f"{name:<44} refused by the design: {why}", flush=True)
     if args.json:
         with open(args.json, "w") as f:
-            json.dump(dict(rows=rows, refusals=refusals, t_final=args.t_final), f, indent=1)
+            json.dump(dict(rows=rows, refusals=refusals, t_final=args.t_final, overrides=args.set), f, indent=1)
     return 0
 
 
