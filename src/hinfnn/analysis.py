@@ -229,20 +229,28 @@ def _loop_jacobian(plant, ctrl, ref, y0):
     return jax.jacfwd(f)(y0), f(y0)
 
 
+def _bare(ctrl):
+    """The controller without the force-rate term's design record (a static field: the same
+    dynamics, so a continuous and a sampled design of one scenario share the compiled programs)."""
+    terms = tuple(dataclasses.replace(t, design=()) if isinstance(t, T.ForceRate) else t for t in ctrl.terms)
+    return dataclasses.replace(ctrl, terms=terms)
+
+
 def closed_loop_jacobian(plant, ctrl, ref, q_eq):
     """(A, y*, residual): the Jacobian of the closed loop's right-hand side over (q, q̇,
     controller state) at the state y* = (q_eq, 0, rest state), and max|f(y*)| (≈ 0 at an
     equilibrium). One compiled program per plant, controller and reference structure."""
     y0 = jnp.asarray(rest_state(ctrl, q_eq))
-    A, f0 = _loop_jacobian(plant, ctrl, ref, y0)
+    A, f0 = _loop_jacobian(plant, _bare(ctrl), ref, y0)
     return np.asarray(A), np.asarray(y0), float(np.max(np.abs(np.asarray(f0))))
 
 
 @functools.partial(jax.jit, static_argnames="n_sub")
-def _sampled_map(plant, ctrl, ref, y0, period, n_sub):
-    """The closed loop over one control period under zero-order hold (as the simulator's sampled
-    mode: the controller's sample update at the start, then ``n_sub`` RK4 steps of the plant
-    with the torque held and the controller state still), and its Jacobian at y0."""
+def sampled_map_direct(plant, ctrl, ref, y0, period, n_sub):
+    """(Jacobian at y0, value at y0) of the closed loop over one control period under zero-order
+    hold, differentiated whole (as the simulator's sampled mode: the controller's sample update at
+    the start, then ``n_sub`` RK4 steps of the plant with the torque held and the controller state
+    still): the oracle of :func:`sampled_map_jacobian` (one large program per structure)."""
 
     def phi(y):
         ps, xc = _unflatten(plant, ctrl, y)
@@ -253,13 +261,18 @@ def _sampled_map(plant, ctrl, ref, y0, period, n_sub):
         def f(p):
             return _simulator_rhs(plant, ctrl, ref, 0.0, p, xc, tau, True)[0]
 
-        def step(p, _):
-            k1 = f(p)
-            k2 = f(jax.tree.map(lambda a, b: a + 0.5 * dt * b, p, k1))
-            k3 = f(jax.tree.map(lambda a, b: a + 0.5 * dt * b, p, k2))
-            k4 = f(jax.tree.map(lambda a, b: a + dt * b, p, k3))
-            return jax.tree.map(lambda a, b1, b2, b3, b4: a + dt / 6.0 * (b1 + 2 * b2 + 2 * b3 + b4),
-                                p, k1, k2, k3, k4), None
+        a = jnp.array([0.0, 0.5, 0.5, 1.0])
+        b = jnp.array([1.0, 2.0, 2.0, 1.0]) / 6.0
+
+        def step(p, _):  # classical RK4, its four stages as a loop (one right-hand side in the program)
+            def stage(i, carry):
+                k, acc = carry
+                k = f(jax.tree.map(lambda x, d: x + a[i] * dt * d, p, k))
+                return k, jax.tree.map(lambda s_, d: s_ + b[i] * dt * d, acc, k)
+
+            zero = jax.tree.map(jnp.zeros_like, p)
+            _, acc = jax.lax.fori_loop(0, 4, stage, (zero, zero))
+            return jax.tree.map(lambda x, d: x + d, p, acc), None
 
         ps, _ = jax.lax.scan(step, ps, None, length=n_sub)
         return _flatten(plant, ps, xc)
@@ -295,6 +308,12 @@ def _drop_neutral(A, candidates, shift: float = 0.0, tol: float = 1e-9):
     return W, Z.shape[1]
 
 
+@jax.jit
+def _u_jacobian(arm, surface, q):
+    """∂u/∂q, u = (u1, u2) of eq. (6) at ĥ(q)."""
+    return jax.jacfwd(lambda q: surface.to_u(arm.h(q)))(q)
+
+
 def split_loops(A, ctrl, q_eq, names) -> dict:
     """The Jacobian A in the coordinates (u, u̇, controller state), u = (u1, u2) of eq. (6) on the
     controller's constraint, split into the force loop (u2, u̇2, z, the force-rate filter, F_f's
@@ -303,7 +322,7 @@ def split_loops(A, ctrl, q_eq, names) -> dict:
     entry of the force rows in the position columns relative to the largest of A (0 on the exact
     model: the force loop does not depend on the position loop)."""
     n, m = ctrl.n, ctrl.m
-    Du = np.asarray(jax.jacfwd(lambda q: ctrl.surface.to_u(ctrl.arm.h(q)))(jnp.asarray(q_eq, dtype=float)))
+    Du = np.asarray(_u_jacobian(ctrl.arm, ctrl.surface, jnp.asarray(q_eq, dtype=float)))
     N = A.shape[0]
     Tm = np.eye(N)
     Tm[:n, :n] = Du
@@ -484,22 +503,74 @@ def contact_modes(scenario, kind: str, stiffness: float, u1d=None, lam_d=None, c
                 q=q_eq.tolist(), **out)
 
 
+@jax.jit
+def _held_plant_jacobian(plant, ctrl, ref, y_p, tau):
+    """(∂(q̇, q̈)/∂(q, q̇), ∂(q̇, q̈)/∂τ, (q̇, q̈)) of the simulator's right-hand side in its sampled
+    mode (the torque held at ``tau``, the controller's output not applied) at the plant state y_p."""
+    n = plant.n
+    xc = ctrl.to_loop(ctrl.init())
+
+    def g(yp, tau):
+        d, _ = _simulator_rhs(plant, ctrl, ref, 0.0, plant.initial_state(yp[:n], yp[n:]), xc, tau, True)
+        q_dot, qd_dot = plant.joints(d)
+        return jnp.concatenate([q_dot, qd_dot])
+
+    Jy, Jt = jax.jacfwd(g, argnums=(0, 1))(y_p, tau)
+    return Jy, Jt, g(y_p, tau)
+
+
+def sampled_map_jacobian(plant, ctrl, ref, q_eq, period: float, dt: float):
+    """The Jacobian Φ of the simulator's sampled loop over one control period (zero-order hold:
+    the controller's sample update, then period/dt RK4 steps of the plant with the torque held and
+    the controller state still) at the rest state y* = (q_eq, 0, rest state), composed from the
+    continuous loop's Jacobian A (:func:`closed_loop_jacobian`) and the held plant's:
+
+    with P = ∂f_plant/∂y_p at the held τ*, B = ∂f_plant/∂τ, the law's gains K = B⁺(A_plant rows − [P 0])
+    and D = A's controller rows, RK4 on the linear plant gives per step R = Σ_{j≤4}(dtP)^j/j! and
+    dt·Σ_{j≤3}(dtP)^j/(j+1)!·B, so Φ = [[R^N + W K_y, W K_x], [h D_y, I + h D_x]], W the input
+    matrix over the N steps. At an equilibrium the RK4 stages all start at y*, so this is the
+    linearisation of the simulator's sampled map itself (tested against ``jacfwd`` of it)."""
+    n = plant.n
+    ctrl = _bare(ctrl)
+    A, y0, _ = closed_loop_jacobian(plant, ctrl, ref, q_eq)
+    y_p = jnp.asarray(y0[:2 * n])
+    _, Jt, f0 = _held_plant_jacobian(plant, ctrl, ref, y_p, jnp.zeros(n))
+    B = np.asarray(Jt)[n:]
+    tau_star = -np.linalg.solve(B, np.asarray(f0)[n:])  # q̈ is affine in τ: at rest q̈(τ*) = 0
+    P, Jt, _ = (np.asarray(a) for a in _held_plant_jacobian(plant, ctrl, ref, y_p, jnp.asarray(tau_star)))
+    Bfull = Jt
+    Kmat = np.linalg.lstsq(Bfull, A[:2 * n] - np.concatenate([P, np.zeros((2 * n, A.shape[1] - 2 * n))], axis=1),
+                           rcond=None)[0]  # τ's gains on (y_p, xc)
+    N = int(round(period / dt))
+    X = dt * P
+    I = np.eye(2 * n)
+    X2 = X @ X
+    X3 = X2 @ X
+    R = I + X + X2 / 2 + X3 / 6 + X3 @ X / 24
+    S = I + X / 2 + X2 / 6 + X3 / 24
+    Rn, sumR = I.copy(), np.zeros_like(I)
+    for _ in range(N):
+        sumR += Rn
+        Rn = Rn @ R
+    W = sumR @ (dt * S @ Bfull)
+    m = A.shape[0] - 2 * n
+    top = np.concatenate([Rn, np.zeros((2 * n, m))], axis=1) + W @ Kmat
+    bottom = np.concatenate([period * A[2 * n:, :2 * n], np.eye(m) + period * A[2 * n:, 2 * n:]], axis=1)
+    return np.concatenate([top, bottom], axis=0)
+
+
 def sampled_modes(plant, ctrl, ref, q_eq, period: float, dt: float) -> dict:
     """The sampled loop (zero-order hold at ``period``, plant integrated by RK4 steps of ``dt``)
-    linearised at q_eq: the eigenvalues of its one-period map (neutral network directions, at 1,
-    dropped), the spectral radius, and the least damped mode as its continuous equivalent
-    s = ln(z)/period."""
-    n_sub = int(round(period / dt))
-    y0 = jnp.asarray(rest_state(ctrl, q_eq))
-    Phi, y1 = _sampled_map(plant, ctrl, ref, y0, float(period), n_sub)
-    Phi = np.asarray(Phi)
+    linearised at q_eq (:func:`sampled_map_jacobian`): the eigenvalues of its one-period map
+    (neutral network directions, at 1, dropped), the spectral radius, and the least damped mode as
+    its continuous equivalent s = ln(z)/period."""
+    Phi = sampled_map_jacobian(plant, ctrl, ref, q_eq, period, dt)
     names = state_names(ctrl)
     W, neutral = _drop_neutral(Phi, np.array([nm in ("theta_p", "theta_f") for nm in names]), shift=1.0)
     z = np.linalg.eigvals(W.T @ Phi @ W)
     s = np.log(z.astype(complex)) / period
     return dict(eigenvalues=z, radius=float(np.max(np.abs(z))), stable=bool(np.max(np.abs(z)) < 1.0),
-                least_damped=Mode(least_damped(s)), neutral=neutral,
-                residual=float(np.max(np.abs(np.asarray(y1) - np.asarray(y0)))))
+                least_damped=Mode(least_damped(s)), neutral=neutral)
 
 
 def sampled_kappa_scan(plant, ctrl, ref, q_eq, period: float, dt: float, kappas) -> np.ndarray:
