@@ -1,25 +1,44 @@
 """The closed loop linearised: eigenvalues of the simulator's own right-hand side, and the force
-loop's polynomial (docs/beyond-the-paper.md).
+loop's polynomial (docs/beyond-the-paper.md), for any arm and surface with one constraint.
 
 The operating point is a true equilibrium of the closed loop: the EXACT-model plant (the true arm
-and surface are the controller's nominal ones, no disturbance) at rest on the surface with a
-constant reference (u1d, λd) and the penetration that makes λ = λd; every filter at its rest
-value and the networks' weights zero. The Jacobian of the simulator's right-hand side (JAX
-``jacfwd`` of :func:`hinfnn.sim.rhs`) there has the local exponents as eigenvalues. On
-the exact model the law cancels the reduced dynamics, so the force loop (u2, u̇2, z, the force-rate
-filter s) decouples from the position loop (u1, u̇1) and its eigenvalues are the roots of
+and surface are the controller's nominal ones, no disturbance, no friction) at rest on the
+surface with a constant reference (u1d, λd) and the penetration that makes λ = λd; every filter
+at its rest value and the networks' weights zero. The Jacobian of the simulator's right-hand side
+(JAX ``jacfwd`` of it, through :func:`_simulator_rhs`) there has the local exponents as
+eigenvalues.
+
+On the exact model the law cancels the reduced dynamics: row 2 of eq. (9) minus M̄21M̄11⁻¹ × row 1
+becomes m_s ü2 + Πᵀλ = Πᵀ(λd + z + Σ b_j) for every pose, so the force loop (u2, u̇2, z, the
+force-rate filter s, F_f's weights) does not depend on the position loop (u1, u̇1, F_p's
+weights), while the position loop is driven by ü2 (through M̄11⁻¹M̄12). In the coordinates
+(u, u̇, controller state) the Jacobian is block triangular (:func:`split_loops` checks it), and
+the force block's eigenvalues are the roots of
 
     [m_s s²(τ_f s + 1) + k_u K'(τ_f s + 1) + k_u κ s](s + μ_z) + α_z k_u (τ_f s + 1)
 
 (κ = 0, τ_f = 0: the cubic m_s s³ + m_s μ_z s² + k_u K' s + k_u(K' μ_z + α_z)), with
 m_s = Π²/(ÂĴM̂⁻¹ĴᵀÂᵀ), k_u = kΠ²/(ÂÂᵀ), K' = 1 + β_λ/2 (1 for FL-like). For the adaptive law at
 Θ̂ = 0 the network adds an integral action of gain g_f = γ2‖ξ_f(0)‖² on e_λ (the polynomial is
-then multiplied by s and gains g_f k_u(τ_f s + 1)(s + μ_z)).
+then multiplied by s and gains g_f k_u(τ_f s + 1)(s + μ_z)). The networks' weight directions
+that neither move nor act at Θ̂ = 0 (all but ξ_f(0) for F_f, all but ξ_p(0) ⊗ ℝᵐ for F_p)
+are an exact invariant subspace with eigenvalue 0 (1 for the sampled map); they are split off
+(:func:`_drop_neutral`) and counted.
+
+Sampled control (zero-order hold at period h, the simulator's sampled mode): the map over one
+period (the controller's sample update, then the plant integrated by RK4 steps with the torque
+held) linearised at the same point; the loop is stable when its spectral radius is below 1
+(:func:`sampled_modes`, :func:`sampled_kappa_scan`).
+
+:func:`design_report` gathers a scenario's whole design (gains, Riccati, force-rate design,
+singularity and start-pose checks along the path, contact modes before and after the force-rate
+term) for ``hinfnn design``; :func:`format_design_report` prints it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -29,78 +48,305 @@ import numpy as np
 from .controllers import terms as T
 from .plant import PenaltyContact, RigidBodyPlant, SquareWave
 from .reference import CosineReference
-from .sim.recorder import Accumulators
-from .errors import HinfnnError
-from .sim.simulate import SimState, rhs
 
 
-def constant_reference(u1d: float, lam_d: float) -> CosineReference:
-    """u1d and λd held constant."""
-    a = lambda v: jnp.array([float(v)])  # noqa: E731
-    return CosineReference(u1_offset=a(u1d), u1_amplitude=a(0.0), u1_omega=a(math.pi), u1_phase=a(0.0),
-                           lam_offset=a(lam_d), lam_amplitude=a(0.0), lam_omega=a(math.pi), lam_phase=a(0.0))
+# --- the simulator's right-hand side: the one place this module uses the simulator's internals ----
+
+
+def _simulator_rhs(plant, ctrl, ref, t, plant_state, xc, held=None, sampled=False):
+    """(d plant_state/dt, d xc/dt) of the simulator's own right-hand side (:func:`hinfnn.sim.rhs`)
+    at (plant_state, xc) with no disturbance, the accumulators of the bookkeeping left out.
+    ``held``, ``sampled``: the torque held by the sampled mode (the controller state then does
+    not move between samples). The only use of the simulator in this module."""
+    from .sim.recorder import Accumulators
+    from .sim.simulate import SimState, rhs
+
+    n = plant.n
+    held = jnp.zeros(n) if held is None else held
+    y = SimState(plant=plant_state, xc=xc, acc=Accumulators.zero())
+    dy, _ = rhs(plant, ctrl, ref, t, y, jnp.zeros(n), held, sampled)
+    return dy.plant, dy.xc
+
+
+# --- operating point ------------------------------------------------------------------------------
+
+
+def constant_reference(u1d, lam_d) -> CosineReference:
+    """u1d and λd held constant (numbers or per-coordinate sequences)."""
+    a = lambda v: jnp.atleast_1d(jnp.asarray(v, dtype=float))  # noqa: E731
+    u, lam = a(u1d), a(lam_d)
+    return CosineReference(u1_offset=u, u1_amplitude=jnp.zeros_like(u), u1_omega=jnp.full_like(u, math.pi),
+                           u1_phase=jnp.zeros_like(u), lam_offset=lam, lam_amplitude=jnp.zeros_like(lam),
+                           lam_omega=jnp.full_like(lam, math.pi), lam_phase=jnp.zeros_like(lam))
 
 
 def exact_plant(arm, surface, stiffness: float, damping: float = 0.0) -> RigidBodyPlant:
-    """The controller's nominal arm and surface as the true plant, with a penalty contact and no
-    disturbance."""
+    """The controller's nominal arm and surface as the true plant (for a Cartesian surface: the
+    nominal geometry, contact at the tool point), with a penalty contact, no disturbance and no
+    friction."""
     return RigidBodyPlant(arm=arm, surface=surface, contact=PenaltyContact(stiffness=float(stiffness),
                                                                            damping=float(damping)),
                           disturbance=SquareWave.none(arm.n))
 
 
+@jax.jit
+def _A_J_M(arm, surface, q):
+    t = arm.law_terms(q, jnp.zeros_like(q))
+    return surface.A_hat(t.x), t.J, t.M
+
+
 def loop_constants(arm, surface, stiffness: float, q) -> dict:
-    """m_s, k_u (and m_n, ÂÂᵀ, Π) of the force loop at pose q (k = 1)."""
-    t = arm.terms(jnp.asarray(q, dtype=float), jnp.zeros(arm.n))
-    A = np.asarray(surface.A_hat(t.x))
-    J, M = np.asarray(t.J), np.asarray(t.M)
+    """m_s, k_u (and m_n, ÂÂᵀ, Π) of the force loop at pose q (k = 1), on the controller's
+    constraint ``surface`` in the arm's task coordinates."""
+    A, J, M = (np.asarray(a) for a in _A_J_M(arm, surface, jnp.asarray(q, dtype=float)))
     D = float((A @ J @ np.linalg.solve(M, J.T @ A.T))[0, 0])
     a2 = float((A @ A.T)[0, 0])
     pi = float(A[0, surface.m])
     return dict(m_s=pi * pi / D, k_u=stiffness * pi * pi / a2, m_n=a2 / D, a2=a2, Pi=pi)
 
 
-def equilibrium_q(plant: RigidBodyPlant, u1d: float, lam_d: float, elbow_up: bool = True):
-    """Joint angles with x1 = u1d and the penetration that makes λ = λd on the plant's surface
-    (λ = kθ/ÂÂᵀ for a penalty spring on a line)."""
-    surf, arm = plant.surface, plant.arm
-    x1 = jnp.array([float(u1d)])
-    x_on = jnp.concatenate([x1, surf.Omega(x1)])
-    A = np.asarray(surf.A_hat(x_on))
-    theta = lam_d * float((A @ A.T)[0, 0]) / float(plant.contact.stiffness)
-    u2 = theta / float(A[0, surf.m])
-    x = x_on.at[surf.m:].add(u2)
-    if hasattr(arm, "inverse_kinematics_closed"):
-        return arm.inverse_kinematics_closed(x, elbow_up=elbow_up)
-    return arm.inverse_kinematics(x, jnp.full(arm.n, 0.3) * (1.0 if elbow_up else -1.0))
+def equilibrium_q(plant, u1d, lam_d, elbow_up: bool = True, ctrl=None, q_guess=None):
+    """Joint angles at rest with the motion coordinates at u1d and the contact force making
+    λ = λd.
+
+    The Sec. VI arm on its line (no ``ctrl``): closed form (λ = kθ/ÂÂᵀ for a penalty spring on a
+    line). Any arm with the controller ``ctrl`` (its task coordinates and constraint): Newton
+    steps on (ĥ1(q) − u1d, λ(q) − λd), λ the controller's reading of the plant's force sensor,
+    from the pose with the linear estimate of the penetration (found from ``q_guess``)."""
+    if ctrl is None:
+        surf, arm = plant.surface, plant.arm
+        x1 = jnp.array([float(u1d)])
+        x_on = jnp.concatenate([x1, surf.Omega(x1)])
+        A = np.asarray(surf.A_hat(x_on))
+        theta = lam_d * float((A @ A.T)[0, 0]) / float(plant.contact.stiffness)
+        u2 = theta / float(A[0, surf.m])
+        x = x_on.at[surf.m:].add(u2)
+        if hasattr(arm, "inverse_kinematics_closed"):
+            return arm.inverse_kinematics_closed(x, elbow_up=elbow_up)
+        return arm.inverse_kinematics(x, jnp.full(arm.n, 0.3) * (1.0 if elbow_up else -1.0))
+    q_guess = jnp.zeros(plant.n) if q_guess is None else jnp.asarray(q_guess, dtype=float)
+    u1d = jnp.atleast_1d(jnp.asarray(u1d, dtype=float))
+    lam_d = jnp.atleast_1d(jnp.asarray(lam_d, dtype=float))
+    q, res = _equilibrium_guess(plant, ctrl, u1d, lam_d, q_guess)
+    if not float(res) < 1e-10:  # the linear estimate of the penetration is not exact here: Newton on λ too
+        q, res = _equilibrium_newton(plant, ctrl, u1d, lam_d, q)
+    return np.asarray(q) if float(res) < 1e-10 else np.full(plant.n, np.nan)
+
+
+def _lm(residual, q, iterations):
+    """Damped Newton (Levenberg–Marquardt) steps on residual(q) = 0, at most 0.5 rad a step."""
+    n = q.shape[0]
+
+    def body(_, q):
+        r = residual(q)
+        Jr = jax.jacfwd(residual)(q)
+        step = jnp.linalg.solve(Jr.T @ Jr + 1e-12 * jnp.eye(n), Jr.T @ r)
+        return q - jnp.minimum(1.0, 0.5 / jnp.maximum(jnp.max(jnp.abs(step)), 1e-300)) * step
+
+    return jax.lax.fori_loop(0, iterations, body, q)
+
+
+def _balance(plant, ctrl, u1d, lam_d, q):
+    """(ĥ1(q) − u1d, (λ(q) − λd)/max(|λd|, 1)) at rest: λ the controller's reading of the plant's sensor."""
+    from .controllers.law import force_multiplier
+
+    x = ctrl.arm.h(q)
+    lam = force_multiplier(ctrl.surface.A_hat(x), plant.measure(q, jnp.zeros_like(q)).F)
+    return jnp.concatenate([x[:ctrl.m] - u1d, (lam - lam_d) / jnp.maximum(jnp.abs(lam_d), 1.0)])
+
+
+@jax.jit
+def _equilibrium_guess(plant, ctrl, u1d, lam_d, q):
+    """The pose at x = (u1d, Ω(u1d) + u2), u2 from the linear estimate θ = λd ÂÂᵀ/k (exact for a
+    penalty spring on a plane or line and for fitted coordinates), by Newton steps on ĥ(q) = x
+    alone; and the largest residual of :func:`_balance` there."""
+    arm, surf, m = ctrl.arm, ctrl.surface, ctrl.m
+    x_on = jnp.concatenate([u1d, surf.Omega(u1d)])
+    A = surf.A_hat(x_on)
+    theta = lam_d * jnp.diag(A @ A.T) / plant.contact.stiffness
+    x = x_on.at[m:].add(theta / jnp.diag(A[:, m:]))
+    q = _lm(lambda q: arm.h(q) - x, q, 60)
+    return q, jnp.max(jnp.abs(_balance(plant, ctrl, u1d, lam_d, q)))
+
+
+@jax.jit
+def _equilibrium_newton(plant, ctrl, u1d, lam_d, q):
+    """Newton steps on :func:`_balance` from q (a pose in contact)."""
+    q = _lm(lambda q: _balance(plant, ctrl, u1d, lam_d, q), q, 30)
+    return q, jnp.max(jnp.abs(_balance(plant, ctrl, u1d, lam_d, q)))
+
+
+# --- the state's layout -----------------------------------------------------------------------------
+
+
+def state_names(ctrl) -> list[str]:
+    """For each entry of the flattened closed-loop state (q, q̇, then the controller's state in
+    the loop's layout): "q", "qd", or the controller state's name ("z", "s_lam", "theta_p" ...)."""
+    xc = ctrl.init()
+    n = ctrl.n
+    names = ["q"] * n + ["qd"] * n
+    for path, leaf in jax.tree_util.tree_flatten_with_path(xc)[0]:
+        keys = [p.key for p in path if isinstance(p, jax.tree_util.DictKey)]
+        attrs = [p.name for p in path if isinstance(p, jax.tree_util.GetAttrKey)]
+        names += [str(keys[0]) if keys else attrs[0]] * int(np.size(leaf))
+    return names
+
+
+def _unflatten(plant, ctrl, y):
+    """(plant state, controller state in the loop's layout) from the flat vector."""
+    n = plant.n
+    xc = ctrl.init()
+    leaves, treedef = jax.tree.flatten(xc)
+    parts, i = [], 2 * n
+    for leaf in leaves:
+        size = int(np.size(leaf))
+        parts.append(y[i:i + size].reshape(np.shape(leaf)))
+        i += size
+    return plant.initial_state(y[:n], y[n:2 * n]), jax.tree.unflatten(treedef, parts)
+
+
+def _flatten(plant, plant_state, xc):
+    q, qd = plant.joints(plant_state)
+    return jnp.concatenate([q, qd] + [jnp.ravel(leaf) for leaf in jax.tree.leaves(xc)])
+
+
+def rest_state(ctrl, q_eq) -> np.ndarray:
+    """The flat closed-loop state at rest at q_eq: q̇ = 0, z = 0, every term's state 0 (the
+    force-rate filter at e_λ = 0, the networks' weights 0)."""
+    xc = ctrl.init()
+    return np.concatenate([np.asarray(q_eq, dtype=float), np.zeros(ctrl.n)]
+                          + [np.ravel(np.asarray(leaf)) for leaf in jax.tree.leaves(xc)])
+
+
+@jax.jit
+def _loop_jacobian(plant, ctrl, ref, y0):
+    def f(y):
+        ps, xc = _unflatten(plant, ctrl, y)
+        dps, dxc = _simulator_rhs(plant, ctrl, ref, 0.0, ps, xc)
+        return _flatten(plant, dps, dxc)
+
+    return jax.jacfwd(f)(y0), f(y0)
+
+
+def _bare(ctrl):
+    """The controller without the force-rate term's design record (a static field: the same
+    dynamics, so a continuous and a sampled design of one scenario share the compiled programs)."""
+    terms = tuple(dataclasses.replace(t, design=()) if isinstance(t, T.ForceRate) else t for t in ctrl.terms)
+    return dataclasses.replace(ctrl, terms=terms)
 
 
 def closed_loop_jacobian(plant, ctrl, ref, q_eq):
-    """(A, y*, residual): the Jacobian of the closed loop's right-hand side over (q, q̇, controller
-    state) at the state y* = (q_eq, 0, rest state), and max|f(y*)| (≈ 0 at an equilibrium)."""
-    xc0 = ctrl.init()
-    meas, _ = plant.sense(0.0, plant.initial_state(q_eq))
-    xc0 = ctrl.start(0.0, xc0, meas, ref)  # filters at their rest value
-    leaves, treedef = jax.tree.flatten(xc0)
-    sizes = [int(np.size(leaf)) for leaf in leaves]
-    n = plant.n
+    """(A, y*, residual): the Jacobian of the closed loop's right-hand side over (q, q̇,
+    controller state) at the state y* = (q_eq, 0, rest state), and max|f(y*)| (≈ 0 at an
+    equilibrium). One compiled program per plant, controller and reference structure."""
+    y0 = jnp.asarray(rest_state(ctrl, q_eq))
+    A, f0 = _loop_jacobian(plant, _bare(ctrl), ref, y0)
+    return np.asarray(A), np.asarray(y0), float(np.max(np.abs(np.asarray(f0))))
 
-    def unflat(y):
-        parts, i = [], 2 * n
-        for leaf, size in zip(leaves, sizes):
-            parts.append(y[i:i + size].reshape(np.shape(leaf)))
-            i += size
-        return SimState(plant=plant.initial_state(y[:n], y[n:2 * n]), xc=jax.tree.unflatten(treedef, parts),
-                        acc=Accumulators.zero())
 
-    def f(y):
-        dy, _ = rhs(plant, ctrl, ref, 0.0, unflat(y), jnp.zeros(n))
-        q_dot, qd_dot = plant.joints(dy.plant)
-        return jnp.concatenate([q_dot, qd_dot] + [jnp.ravel(leaf) for leaf in jax.tree.leaves(dy.xc)])
+@functools.partial(jax.jit, static_argnames="n_sub")
+def sampled_map_direct(plant, ctrl, ref, y0, period, n_sub):
+    """(Jacobian at y0, value at y0) of the closed loop over one control period under zero-order
+    hold, differentiated whole (as the simulator's sampled mode: the controller's sample update at
+    the start, then ``n_sub`` RK4 steps of the plant with the torque held and the controller state
+    still): the oracle of :func:`sampled_map_jacobian` (one large program per structure)."""
 
-    y0 = jnp.concatenate([jnp.asarray(q_eq, dtype=float), jnp.zeros(n)] + [jnp.ravel(leaf) for leaf in leaves])
-    A = np.asarray(jax.jit(jax.jacfwd(f))(y0))
-    return A, np.asarray(y0), float(np.max(np.abs(np.asarray(jax.jit(f)(y0)))))
+    def phi(y):
+        ps, xc = _unflatten(plant, ctrl, y)
+        meas, _ = plant.sense(0.0, ps)
+        tau, xc = ctrl.sample(0.0, period, xc, meas, ref)
+        dt = period / n_sub
+
+        def f(p):
+            return _simulator_rhs(plant, ctrl, ref, 0.0, p, xc, tau, True)[0]
+
+        a = jnp.array([0.0, 0.5, 0.5, 1.0])
+        b = jnp.array([1.0, 2.0, 2.0, 1.0]) / 6.0
+
+        def step(p, _):  # classical RK4, its four stages as a loop (one right-hand side in the program)
+            def stage(i, carry):
+                k, acc = carry
+                k = f(jax.tree.map(lambda x, d: x + a[i] * dt * d, p, k))
+                return k, jax.tree.map(lambda s_, d: s_ + b[i] * dt * d, acc, k)
+
+            zero = jax.tree.map(jnp.zeros_like, p)
+            _, acc = jax.lax.fori_loop(0, 4, stage, (zero, zero))
+            return jax.tree.map(lambda x, d: x + d, p, acc), None
+
+        ps, _ = jax.lax.scan(step, ps, None, length=n_sub)
+        return _flatten(plant, ps, xc)
+
+    return jax.jacfwd(phi)(y0), phi(y0)
+
+
+# --- splitting the spectrum ------------------------------------------------------------------------
+
+
+def _drop_neutral(A, candidates, shift: float = 0.0, tol: float = 1e-9):
+    """(W, count): an orthonormal basis W of the complement of the directions among the
+    ``candidates`` coordinates (the networks' weights) that neither act on the loop nor are driven
+    by it: (A − shift·I)Z = 0 and Zᵀ(A − shift·I) = 0 (eigenvalue ``shift``, exactly invariant).
+    The loop's other eigenvalues are those of WᵀAW."""
+    N = A.shape[0]
+    idx = np.flatnonzero(candidates)
+    if idx.size == 0:
+        return np.eye(N), 0
+    B = A - shift * np.eye(N)
+    scale = max(np.max(np.abs(B)), 1e-300)
+    # directions v of the candidates' space with B v = 0 and vᵀ B = 0
+    stacked = np.concatenate([B[:, idx], B[idx, :].T], axis=0)
+    _, sv, Vt = np.linalg.svd(stacked, full_matrices=True)
+    rank = int(np.sum(sv > tol * scale))
+    Zc = Vt[rank:].T  # (len(idx), count)
+    Z = np.zeros((N, Zc.shape[1]))
+    Z[idx] = Zc
+    if Z.shape[1] == 0:
+        return np.eye(N), 0
+    Q, _ = np.linalg.qr(np.concatenate([Z, np.eye(N)], axis=1))
+    W = Q[:, Z.shape[1]:N]
+    return W, Z.shape[1]
+
+
+@jax.jit
+def _u_jacobian(arm, surface, q):
+    """∂u/∂q, u = (u1, u2) of eq. (6) at ĥ(q)."""
+    return jax.jacfwd(lambda q: surface.to_u(arm.h(q)))(q)
+
+
+def split_loops(A, ctrl, q_eq, names) -> dict:
+    """The Jacobian A in the coordinates (u, u̇, controller state), u = (u1, u2) of eq. (6) on the
+    controller's constraint, split into the force loop (u2, u̇2, z, the force-rate filter, F_f's
+    weights) and the position loop (u1, u̇1, F_p's weights). Returns both blocks' eigenvalues
+    (neutral network directions dropped, counted in ``neutral``) and ``coupling``: the largest
+    entry of the force rows in the position columns relative to the largest of A (0 on the exact
+    model: the force loop does not depend on the position loop)."""
+    n, m = ctrl.n, ctrl.m
+    Du = np.asarray(_u_jacobian(ctrl.arm, ctrl.surface, jnp.asarray(q_eq, dtype=float)))
+    N = A.shape[0]
+    Tm = np.eye(N)
+    Tm[:n, :n] = Du
+    Tm[n:2 * n, n:2 * n] = Du
+    Ap = Tm @ A @ np.linalg.inv(Tm)
+    pos = np.zeros(N, bool)
+    pos[:m] = True
+    pos[n:n + m] = True
+    for i, name in enumerate(names):
+        if name == "theta_p":
+            pos[i] = True
+    force = ~pos
+    scale = max(np.max(np.abs(Ap)), 1e-300)
+    coupling = float(np.max(np.abs(Ap[np.ix_(force, pos)]))) / scale if pos.any() and force.any() else 0.0
+    out = {"coupling": coupling, "neutral": 0}
+    for label, sel, net in (("force", force, "theta_f"), ("position", pos, "theta_p")):
+        block = Ap[np.ix_(sel, sel)]
+        cand = np.array([names[i] == net for i in np.flatnonzero(sel)])
+        W, dropped = _drop_neutral(block, cand)
+        out[label] = np.linalg.eigvals(W.T @ block @ W)
+        out["neutral"] += dropped
+    return out
+
+
+# --- the polynomial -------------------------------------------------------------------------------
 
 
 def force_loop_polynomial(m_s, k_u, K_prime, mu_z, alpha_z, kappa=0.0, tau_f=0.0, g_f=0.0) -> np.ndarray:
@@ -149,78 +395,375 @@ class Mode:
             return f"real {self.s.real:.4g}"
         return f"{self.omega:.4g} rad/s, ζ {self.zeta:+.3g}"
 
+    def as_dict(self) -> dict:
+        return dict(mode=str(self), s=[float(self.s.real), float(self.s.imag)], omega=self.omega, zeta=self.zeta)
 
-def contact_modes(scenario, kind: str, stiffness: float, u1d: float | None = None, lam_d: float | None = None) -> dict:
-    """The linearised force loop of the scenario's controller ``kind`` (its design, its gains) on
-    the exact model with contact stiffness ``stiffness`` (undamped), at rest at (u1d, λd)
-    (default: the reference's mean values). Returns the eigenvalues of the closed loop, those of
-    the force loop (all but the position loop's two), the least damped force mode, the
-    polynomial's roots (FL-like and H∞-only, and the adaptive law at Θ̂ = 0) and the largest
-    relative difference between the two."""
-    ref_cfg = scenario.reference
-    u1d = ref_cfg.u1_offset if u1d is None else u1d
-    lam_d = ref_cfg.lam_offset if lam_d is None else lam_d
-    arm, surface = scenario.nominal.arm.build(), scenario.nominal.surface.build()
-    ctrl = scenario.build_controller(kind)
+
+def least_damped(eigs) -> complex:
+    """The least damped oscillatory eigenvalue (largest Re s/|s|), or the rightmost real one."""
+    eigs = list(eigs)
+    oscillatory = [e for e in eigs if abs(e.imag) > 1e-9 * max(1.0, abs(e))]
+    return complex(max(oscillatory, key=lambda e: e.real / abs(e)) if oscillatory else max(eigs, key=lambda e: e.real))
+
+
+def with_kappa(ctrl, kappa: float):
+    """The same controller with the force-rate term's κ replaced (0: the paper's law, same compiled
+    structure; the term's filter then acts on nothing)."""
+    terms = tuple(dataclasses.replace(t, kappa=jnp.asarray(float(kappa))) if isinstance(t, T.ForceRate) else t
+                  for t in ctrl.terms)
+    return dataclasses.replace(ctrl, terms=terms)
+
+
+# --- the scenario's operating point ---------------------------------------------------------------
+
+
+def _reference_offsets(scenario):
+    """The reference's mean values (u1d, λd): its offsets, one per coordinate."""
+    ref = scenario.build_reference()
+    return np.asarray(ref.u1_offset, dtype=float), np.asarray(ref.lam_offset, dtype=float)
+
+
+def _scalar_or_list(a):
+    a = np.ravel(np.asarray(a, dtype=float))
+    return float(a[0]) if a.size == 1 else a.tolist()
+
+
+def operating_point(scenario, stiffness: float, u1d=None, lam_d=None, ctrl=None):
+    """(exact plant, constant reference, q_eq, u1d, λd) of the scenario's nominal model with an
+    undamped contact of ``stiffness``, at rest at (u1d, λd) (default: the reference's offsets).
+    ``ctrl``: a controller of the scenario (its task coordinates and constraint)."""
+    u0, l0 = _reference_offsets(scenario)
+    u1d = u0 if u1d is None else np.atleast_1d(np.asarray(u1d, dtype=float))
+    lam_d = l0 if lam_d is None else np.atleast_1d(np.asarray(lam_d, dtype=float))
+    arm, surface = scenario.build().nominal_arm, scenario.build().nominal_surface
     plant = exact_plant(arm, surface, stiffness)
-    q_eq = equilibrium_q(plant, u1d, lam_d, elbow_up=scenario.initial.elbow == "up")
-    A, _, residual = closed_loop_jacobian(plant, ctrl, constant_reference(u1d, lam_d), q_eq)
-    eigs = np.linalg.eigvals(A)
-    c = loop_constants(arm, surface, stiffness, q_eq)
-    g = ctrl.gains
+    ref = constant_reference(u1d, lam_d)
+    closed = hasattr(arm, "inverse_kinematics_closed") and not plant.cartesian and u1d.size == 1
+    if closed:
+        q_eq = equilibrium_q(plant, float(u1d[0]), float(lam_d[0]), elbow_up=scenario.initial.elbow == "up")
+    else:
+        ctrl = ctrl if ctrl is not None else scenario.build_controller(scenario.kinds[0])
+        q_eq = equilibrium_q(plant, u1d, lam_d, ctrl=ctrl, q_guess=scenario.initial_q())
+    return plant, ref, np.asarray(q_eq, dtype=float), u1d, lam_d
+
+
+def _linearise(plant, ctrl, ref, q_eq, stiffness) -> dict:
+    """The continuous loop's spectrum at q_eq, split, against the polynomial."""
+    names = state_names(ctrl)
+    A, _, residual = closed_loop_jacobian(plant, ctrl, ref, q_eq)
     fr = ctrl.term(T.ForceRate)
     kappa, tau = (float(fr.kappa), float(fr.tau_f)) if fr is not None else (0.0, 0.0)
+    if fr is not None and kappa == 0.0:  # the paper's law: the filter state acts on nothing; leave it out
+        keep = np.array([nm != "s_lam" for nm in names])
+        A = A[np.ix_(keep, keep)]
+        names = [nm for nm in names if nm != "s_lam"]
+        tau = 0.0
+    parts = split_loops(A, ctrl, q_eq, names)
+    net_idx = np.array([nm in ("theta_p", "theta_f") for nm in names])
+    W, neutral = _drop_neutral(A, net_idx)
+    eigs = np.linalg.eigvals(W.T @ A @ W)
+    c = loop_constants(ctrl.arm, ctrl.surface, stiffness, q_eq)
+    g = ctrl.gains
     g_f = network_gain(ctrl)
     poly = force_loop_polynomial(c["m_s"], c["k_u"], k_prime(ctrl), float(g.mu_z), float(g.alpha_z), kappa, tau, g_f)
     roots = np.roots(poly)
-    # the position loop: s² + (K_v + g_v)s + (K_p + g_p), g = R_p⁻¹B_pᵀP_p x_p when v_p is present
-    gp = np.zeros(2)
-    if ctrl.term(T.RobustPosition) is not None:
-        gp = np.linalg.solve(np.atleast_2d(np.asarray(g.R_p)), np.asarray(ctrl.P_p)[1:]).ravel()
-    pos = np.roots([1.0, float(np.asarray(g.K_v).reshape(-1)[0]) + gp[1], float(np.asarray(g.K_p).reshape(-1)[0]) + gp[0]])
-    pool = list(eigs)
-    for r in pos:
-        pool.pop(int(np.argmin([abs(e - r) for e in pool])))
-    force = sorted(pool, key=lambda e: -e.real)
-    diffs = []
-    rest = list(force)
-    for r in roots:
-        j = int(np.argmin([abs(e - r) for e in rest]))
-        diffs.append(abs(rest.pop(j) - r) / abs(r))
-    # the network's weights are states of the full loop (n_units of them, with eigenvalues near 0):
-    # compare with the polynomial only where every force-loop eigenvalue is accounted for
-    matched = max(diffs) if len(force) == len(roots) else None
-    oscillatory = [e for e in force if abs(e.imag) > 1e-9 * max(1.0, abs(e))]
-    least = max(oscillatory, key=lambda e: e.real / abs(e)) if oscillatory else max(force, key=lambda e: e.real)
-    return dict(kind=kind, stiffness=stiffness, u1d=u1d, lam_d=lam_d, q=np.asarray(q_eq).tolist(),
-                residual=residual, eigenvalues=eigs, force_eigenvalues=np.array(force), roots=roots,
-                polynomial_match=matched, least_damped=Mode(complex(least)), constants=c, kappa=kappa, tau_f=tau,
-                g_f=g_f, stable=bool(all(e.real < 0 for e in eigs if abs(e) > 1e-8 * np.max(np.abs(eigs)))))
+    force = sorted(parts["force"], key=lambda e: -e.real)
+    matched = None
+    if len(force) == len(roots):
+        rest, diffs = list(force), []
+        for r in roots:
+            j = int(np.argmin([abs(e - r) for e in rest]))
+            diffs.append(abs(rest.pop(j) - r) / abs(r))
+        matched = max(diffs)
+    return dict(residual=residual, eigenvalues=eigs, force_eigenvalues=np.array(force),
+                position_eigenvalues=np.array(sorted(parts["position"], key=lambda e: -e.real)),
+                coupling=parts["coupling"], neutral=neutral, roots=roots, polynomial_match=matched,
+                least_damped=Mode(least_damped(force)), constants=c, kappa=kappa, tau_f=tau, g_f=g_f,
+                stable=bool(np.all(eigs.real < 0)))
+
+
+def contact_modes(scenario, kind: str, stiffness: float, u1d=None, lam_d=None, ctrl=None) -> dict:
+    """The linearised closed loop of the scenario's controller ``kind`` (its design, its gains, or
+    ``ctrl``) on the exact model with contact stiffness ``stiffness`` (undamped), at rest at
+    (u1d, λd) (default: the reference's offsets). Returns the eigenvalues of the closed loop
+    (neutral network directions dropped), those of the force and position loops, the least
+    damped force mode, the polynomial's roots (FL-like, H∞-only, and the adaptive law at Θ̂ = 0)
+    and the largest relative difference between the two, and whether the loop is stable."""
+    ctrl = ctrl if ctrl is not None else scenario.build_controller(kind)
+    plant, ref, q_eq, u1d, lam_d = operating_point(scenario, stiffness, u1d, lam_d, ctrl=ctrl)
+    if not np.all(np.isfinite(q_eq)):
+        from .errors import DesignError
+
+        raise DesignError(f"no rest pose with u1 = {_scalar_or_list(u1d)} and λ = {_scalar_or_list(lam_d)} on the "
+                          f"nominal model at {stiffness:g} N/m (out of reach?)", key="reference.u1_offset")
+    out = _linearise(plant, ctrl, ref, q_eq, stiffness)
+    return dict(kind=kind, stiffness=stiffness, u1d=_scalar_or_list(u1d), lam_d=_scalar_or_list(lam_d),
+                q=q_eq.tolist(), **out)
+
+
+@jax.jit
+def _held_plant_jacobian(plant, ctrl, ref, y_p, tau):
+    """(∂(q̇, q̈)/∂(q, q̇), ∂(q̇, q̈)/∂τ, (q̇, q̈)) of the simulator's right-hand side in its sampled
+    mode (the torque held at ``tau``, the controller's output not applied) at the plant state y_p."""
+    n = plant.n
+    xc = ctrl.init()
+
+    def g(yp, tau):
+        d, _ = _simulator_rhs(plant, ctrl, ref, 0.0, plant.initial_state(yp[:n], yp[n:]), xc, tau, True)
+        q_dot, qd_dot = plant.joints(d)
+        return jnp.concatenate([q_dot, qd_dot])
+
+    Jy, Jt = jax.jacfwd(g, argnums=(0, 1))(y_p, tau)
+    return Jy, Jt, g(y_p, tau)
+
+
+def sampled_map_jacobian(plant, ctrl, ref, q_eq, period: float, dt: float):
+    """The Jacobian Φ of the simulator's sampled loop over one control period (zero-order hold:
+    the controller's sample update, then period/dt RK4 steps of the plant with the torque held and
+    the controller state still) at the rest state y* = (q_eq, 0, rest state), composed from the
+    continuous loop's Jacobian A (:func:`closed_loop_jacobian`) and the held plant's:
+
+    with P = ∂f_plant/∂y_p at the held τ*, B = ∂f_plant/∂τ, the law's gains K = B⁺(A_plant rows − [P 0])
+    and D = A's controller rows, RK4 on the linear plant gives per step R = Σ_{j≤4}(dtP)^j/j! and
+    dt·Σ_{j≤3}(dtP)^j/(j+1)!·B, so Φ = [[R^N + W K_y, W K_x], [h D_y, I + h D_x]], W the input
+    matrix over the N steps. At an equilibrium the RK4 stages all start at y*, so this is the
+    linearisation of the simulator's sampled map itself (tested against ``jacfwd`` of it)."""
+    n = plant.n
+    ctrl = _bare(ctrl)
+    A, y0, _ = closed_loop_jacobian(plant, ctrl, ref, q_eq)
+    y_p = jnp.asarray(y0[:2 * n])
+    _, Jt, f0 = _held_plant_jacobian(plant, ctrl, ref, y_p, jnp.zeros(n))
+    B = np.asarray(Jt)[n:]
+    tau_star = -np.linalg.solve(B, np.asarray(f0)[n:])  # q̈ is affine in τ: at rest q̈(τ*) = 0
+    P, Jt, _ = (np.asarray(a) for a in _held_plant_jacobian(plant, ctrl, ref, y_p, jnp.asarray(tau_star)))
+    Bfull = Jt
+    Kmat = np.linalg.lstsq(Bfull, A[:2 * n] - np.concatenate([P, np.zeros((2 * n, A.shape[1] - 2 * n))], axis=1),
+                           rcond=None)[0]  # τ's gains on (y_p, xc)
+    N = int(round(period / dt))
+    X = dt * P
+    I = np.eye(2 * n)
+    X2 = X @ X
+    X3 = X2 @ X
+    R = I + X + X2 / 2 + X3 / 6 + X3 @ X / 24
+    S = I + X / 2 + X2 / 6 + X3 / 24
+    Rn, sumR = I.copy(), np.zeros_like(I)
+    for _ in range(N):
+        sumR += Rn
+        Rn = Rn @ R
+    W = sumR @ (dt * S @ Bfull)
+    m = A.shape[0] - 2 * n
+    top = np.concatenate([Rn, np.zeros((2 * n, m))], axis=1) + W @ Kmat
+    bottom = np.concatenate([period * A[2 * n:, :2 * n], np.eye(m) + period * A[2 * n:, 2 * n:]], axis=1)
+    return np.concatenate([top, bottom], axis=0)
+
+
+def sampled_modes(plant, ctrl, ref, q_eq, period: float, dt: float) -> dict:
+    """The sampled loop (zero-order hold at ``period``, plant integrated by RK4 steps of ``dt``)
+    linearised at q_eq (:func:`sampled_map_jacobian`): the eigenvalues of its one-period map
+    (neutral network directions, at 1, dropped), the spectral radius, and the least damped mode as
+    its continuous equivalent s = ln(z)/period."""
+    Phi = sampled_map_jacobian(plant, ctrl, ref, q_eq, period, dt)
+    names = state_names(ctrl)
+    W, neutral = _drop_neutral(Phi, np.array([nm in ("theta_p", "theta_f") for nm in names]), shift=1.0)
+    z = np.linalg.eigvals(W.T @ Phi @ W)
+    s = np.log(z.astype(complex)) / period
+    return dict(eigenvalues=z, radius=float(np.max(np.abs(z))), stable=bool(np.max(np.abs(z)) < 1.0),
+                least_damped=Mode(least_damped(s)), neutral=neutral)
+
+
+def sampled_kappa_scan(plant, ctrl, ref, q_eq, period: float, dt: float, kappas) -> np.ndarray:
+    """The sampled loop's spectral radius for each κ of ``kappas`` (the controller's force-rate
+    term's κ replaced; one compiled program for all): the brute-force check of the Jury window."""
+    return np.array([sampled_modes(plant, with_kappa(ctrl, k), ref, q_eq, period, dt)["radius"] for k in kappas])
+
+
+# --- the design report (`hinfnn design`) -------------------------------------------------------------
+
+
+def _c(z) -> list:
+    z = complex(z)
+    return [float(z.real), float(z.imag)]
+
+
+def _modes_entry(r: dict) -> dict:
+    """The JSON-ready part of :func:`contact_modes`' result the report keeps."""
+    return dict(**r["least_damped"].as_dict(), stable=r["stable"], kappa=r["kappa"], tau_f=r["tau_f"],
+                force=[_c(e) for e in r["force_eigenvalues"]], position=[_c(e) for e in r["position_eigenvalues"]],
+                polynomial_match=r["polynomial_match"], coupling=r["coupling"], residual=r["residual"],
+                m_s=r["constants"]["m_s"], m_n=r["constants"]["m_n"])
+
+
+def _with_force_rate(scenario, kappa):
+    """The scenario with controller.force_rate.kappa replaced (no checks run again)."""
+    c = scenario.controller
+    return dataclasses.replace(scenario, controller=dataclasses.replace(
+        c, force_rate=dataclasses.replace(c.force_rate, kappa=kappa)))
+
+
+def path_report(scenario, ctrl, q0) -> dict:
+    """The nominal model along the reference's path (:func:`hinfnn.scenario.checks.design_path`):
+    σ_min(Ĵ) (the singularity guard's measure) and the normal mass m_n (its extreme eigenvalues
+    for k > 1), their extremes and where; and the start pose's checks (σ_min(Ĵ(q0)), |det Ĵ(q0)|)."""
+    from .controllers.force_rate import path_poses, pose_measures
+    from .scenario.checks import design_path
+
+    poses = path_poses(ctrl.arm, ctrl.surface, design_path(scenario), q0)
+    rows = [(u1, *(float(v) for v in pose_measures(ctrl.arm, ctrl.surface, jnp.asarray(q)))) for u1, q in poses]
+    found = [r for r in rows if all(math.isfinite(v) for v in r[1:])]
+    out = dict(points=len(rows), found=len(found), singularity_stop=float(ctrl.sigma_stop))
+    if found:
+        worst = min(found, key=lambda r: r[3])
+        heavy = max(found, key=lambda r: r[2])
+        light = min(found, key=lambda r: r[1])
+        out.update(sigma_min=worst[3], u1_sigma_min=_scalar_or_list(worst[0]), m_n_max=heavy[2],
+                   u1_m_n_max=_scalar_or_list(heavy[0]), m_n_min=light[1], u1_m_n_min=_scalar_or_list(light[0]))
+    q0 = jnp.asarray(q0, dtype=float)
+    _, _, s0 = (float(v) for v in pose_measures(ctrl.arm, ctrl.surface, q0))
+    out["start"] = dict(q0=np.asarray(q0).tolist(), sigma_min=s0,
+                        abs_det=abs(float(_jacobian_det(ctrl.arm, q0))))
+    return out
+
+
+@jax.jit
+def _jacobian_det(arm, q):
+    return jnp.linalg.det(arm.J(q))
 
 
 def design_report(scenario) -> dict:
-    """What ``hinfnn design`` prints, by controller kind: the designed controller
-    (:func:`~hinfnn.controllers.design_summary`) and the least damped linearised contact mode at the
-    scenario's contact stiffness, as designed and with the force-rate term toggled (κ by the rule
-    when it is off, 0 when it is on; a design the toggled variant refuses is reported as its
-    error)."""
-    k = scenario.plant.contact.stiffness
-    out = {}
+    """Everything ``hinfnn design`` prints, JSON-ready: per controller kind the resolved design
+    (:meth:`~hinfnn.controllers.law.ReducedOrderController.summary`: gains, bounds, P_p and the Riccati solution, the
+    networks, the force-rate design) and its contact modes on the exact nominal model at rest at
+    the reference's offsets, before and after the force-rate term (κ = 0 and κ as designed, or by
+    the rule when the scenario has none), at the plant's contact stiffness and at the design's
+    softest and stiffest contacts; under sampled control the sampled loop's spectral radius too;
+    and the nominal model along the reference's path (σ_min(Ĵ), normal masses, the start pose).
+    A variant the design refuses is reported with the refusal."""
+    from .errors import ConfigError, DesignError
+
+    k_plant = float(scenario.plant.contact.stiffness)
+    fr_cfg = scenario.controller.force_rate
+    period = scenario.control_period
+    q0 = scenario.initial_q()
+    out = dict(scenario=scenario.name, arm=scenario.nominal.arm.model, surface=scenario.nominal.surface.kind,
+               stiffness=k_plant, control_period=period, kinds={})
+    path = None
     for kind in scenario.kinds:
         one = scenario.single(kind)
-        d = one.build_controller(kind).summary()
-        with_term = one.controller.force_rate.kappa != 0.0
-        toggled = ("without the force-rate term" if with_term else "with the force-rate term (kappa by the rule)",
-                   {"controller.force_rate.kappa": 0.0 if with_term else "rule"})
-        modes = {}
-        for label, overrides in (("as designed", None), toggled):
+        ctrl = one.build_controller(kind)
+        d = ctrl.summary()
+        if path is None:
+            path = path_report(one, ctrl, q0)
+        term = ctrl.term(T.ForceRate)
+        rule_error = None
+        if term is not None and float(term.kappa) != 0.0:
+            after = ctrl
+            labels = ("as designed", "without the force-rate term (the paper's law, kappa = 0)")
+        else:
+            labels = ("as designed (the paper's law)", "with the force-rate term (kappa by the rule)")
             try:
-                variant = one if overrides is None else one.with_overrides(overrides)
-                r = contact_modes(variant, kind, k)
-                modes[label] = dict(mode=str(r["least_damped"]), omega=r["least_damped"].omega,
-                                    zeta=r["least_damped"].zeta, stable=r["stable"], kappa=r["kappa"])
-            except HinfnnError as err:  # a design the other variant refuses is information
-                modes[label] = dict(error=str(err))
-        d["contact_mode"] = dict(stiffness=k, **modes)
-        out[kind] = d
+                after = _with_force_rate(one, "rule").build_controller(kind)
+            except (DesignError, ConfigError) as err:
+                after, rule_error = None, str(err)
+        before = with_kappa(after, 0.0) if after is not None else ctrl
+        fr = after.term(T.ForceRate) if after is not None else None
+        design = dict(fr.design) if fr is not None else {}
+        stiffnesses = sorted({k_plant, float(design.get("stiffness_min", fr_cfg.stiffness_min)),
+                              float(design.get("stiffness_max", fr_cfg.stiffness_max))})
+        modes = dict(pose=None, stiffnesses=stiffnesses, variants={})
+        variants = (after, before) if labels[0] == "as designed" else (before, after)
+        for label, c in zip(labels, variants):
+            if c is None:
+                modes["variants"][label] = dict(error=rule_error)
+                continue
+            entries = {}
+            for k in stiffnesses:
+                try:
+                    r = contact_modes(one, kind, k, ctrl=c)
+                    modes["pose"] = dict(u1=r["u1d"], lam=r["lam_d"], q=r["q"])
+                    entries[f"{k:g}"] = _modes_entry(r)
+                except (DesignError, ConfigError) as err:
+                    entries[f"{k:g}"] = dict(error=str(err))
+            if period is not None and "q" in (modes["pose"] or {}):
+                plant, ref, q_eq, _, _ = operating_point(one, k_plant, ctrl=c)
+                s = sampled_modes(plant, c, ref, q_eq, period, scenario.simulation.dt)
+                entries["sampled"] = dict(stiffness=k_plant, period=period, radius=s["radius"], stable=s["stable"],
+                                          **s["least_damped"].as_dict())
+            modes["variants"][label] = entries
+        d["contact_modes"] = modes
+        out["kinds"][kind] = d
+    out["path"] = path
     return out
+
+
+def _fmt_list(v, spec=".4g"):
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(format(float(x), spec) for x in v) + "]"
+    return format(float(v), spec)
+
+
+def format_design_report(rep: dict) -> str:
+    """The text of ``hinfnn design`` from :func:`design_report`'s dict."""
+    import json
+
+    lines = []
+    for kind, d in rep["kinds"].items():
+        g = d["gains"]
+        lines.append(f"{kind}: terms {', '.join(d['terms']) or '(none: the CT law)'}{', augmented' if d['augmented'] else ''}")
+        lines.append(f"  gains: K_p {g['K_p']}, K_v {g['K_v']}, rho {g['rho']:g}, mu_z {g['mu_z']:g}, alpha_z {g['alpha_z']:g}, "
+                     f"alpha_lam {g['alpha_lam']:g}, beta_lam {g['beta_lam']:.6g}, gamma_1 {g['gamma_1']:g}, "
+                     f"gamma_2 {g['gamma_2']:g}, Q_p {g['Q_p']}, R_p {g['R_p']}")
+        for name, b in d["bounds"].items():
+            lines.append(f"  bound {name}: {b['value']:.6g} vs {b['bound']:.6g} (margin {b['margin']:+.4g}): {b['rule']}")
+        lines.append(f"  P_p {json.dumps(d['P_p'])}")
+        ric = d.get("riccati", {})
+        if "residual" in ric:
+            eig = ", ".join(f"{re:.4g}{im:+.4g}j" for re, im in ric["closed_loop_eigs"])
+            lines.append(f"  Riccati eq. ({ric['equation']}): residual {ric['residual']:.2e}, min eig P "
+                         f"{ric['min_eig_P']:.4g}, closed loop {eig}, Remark 4's condition "
+                         f"{'holds' if ric['remark4_holds'] else 'fails'}")
+        else:
+            lines.append(f"  Riccati: {ric.get('error')}")
+        if "v_p_gains" in d:
+            lines.append(f"  v_p = -[{', '.join(f'{v:.4g}' for v in d['v_p_gains'][0])}] x_p"
+                         + (" (first row)" if len(d["v_p_gains"]) > 1 else ""))
+        for key, n in d.get("networks", {}).items():
+            lines.append(f"  network {key}: {n['units']} units, centres {_fmt_list(n['first_centre'], 'g')} .. "
+                         f"{_fmt_list(n['last_centre'], 'g')}, slope {_fmt_list(n['slope'], 'g')}"
+                         + (f", radius {n['radius']:g}" if n["radius"] else ""))
+        fr = d.get("force_rate")
+        if fr:
+            lines.append(f"  force rate: kappa {fr['kappa']:.4g} s ({'rule' if fr['rule'] else 'given'}: zeta {fr['zeta']:g}, "
+                         f"K' {fr['K_prime']:.4g}, m_n {fr['m_n_min']:.4g}..{fr['m_n_max']:.4g} kg on "
+                         f"{fr.get('path_points', 0)} poses of the path, k {fr['stiffness_min']:g}..{fr['stiffness_max']:g} "
+                         f"N/m), tau_f {fr['tau_f']:g} s, zeta at the softest contact {fr.get('zeta_softest', math.nan):.3g}"
+                         + (f", sampled window {fr['window'][0]:.3g}..{fr['window'][1]:.3g} s (at {fr['period']:g} s the "
+                            f"loop holds up to {fr['stiffness_limit']:.3g} N/m)" if fr.get("window") else ""))
+        if d["singularity_stop"] > 0:
+            lines.append(f"  singularity guard: stop when sigma_min(J) < {d['singularity_stop']:g}")
+        cm = d["contact_modes"]
+        pose = cm.get("pose") or {}
+        where = f" at rest at u1 = {_fmt_list(pose['u1'])}, lambda = {_fmt_list(pose['lam'])}" if pose else ""
+        lines.append(f"  contact modes (linearised closed loop on the exact nominal model{where}):")
+        for label, entries in cm["variants"].items():
+            if "error" in entries:
+                lines.append(f"    {label}: {entries['error']}")
+                continue
+            for key, m in entries.items():
+                if "error" in m:
+                    lines.append(f"    {label}, {key} N/m: {m['error']}")
+                elif key == "sampled":
+                    lines.append(f"    {label}, sampled at {m['period']:g} s, {m['stiffness']:g} N/m: spectral radius "
+                                 f"{m['radius']:.5g} ({'stable' if m['stable'] else 'UNSTABLE'}), least damped {m['mode']}")
+                else:
+                    lines.append(f"    contact mode at {float(key):g} N/m, {label}: {m['mode']} "
+                                 f"({'stable' if m['stable'] else 'UNSTABLE'}; kappa {m['kappa']:.4g} s, m_s {m['m_s']:.4g})")
+    p = rep.get("path") or {}
+    if p:
+        lines.append(f"path: {p['found']} of {p['points']} poses of the reference on the nominal model"
+                     + (f"; sigma_min(J) >= {p['sigma_min']:.4g} (at u1 = {_fmt_list(p['u1_sigma_min'])}), normal mass "
+                        f"{p['m_n_min']:.4g}..{p['m_n_max']:.4g} kg (heaviest at u1 = {_fmt_list(p['u1_m_n_max'])})"
+                        if "sigma_min" in p else ""))
+        s = p["start"]
+        lines.append(f"start pose q0 = {_fmt_list(s['q0'])}: sigma_min(J) {s['sigma_min']:.4g}, |det J| {s['abs_det']:.4g}"
+                     + (f"; singularity guard at {p['singularity_stop']:g}" if p["singularity_stop"] > 0 else ""))
+    return "\n".join(lines)

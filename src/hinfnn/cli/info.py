@@ -19,7 +19,7 @@ def scenarios(args) -> int:
 
     for name in scenario_names():
         sc = Scenario.load(name, check=False)
-        print(f"{name:<16} {sc.description}")
+        print(f"{name:<20} {sc.description}")
     return 0
 
 

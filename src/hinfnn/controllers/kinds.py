@@ -85,7 +85,7 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
 
     ``force_rate`` (not in the paper): the keyword arguments of
     :func:`~hinfnn.controllers.force_rate.design_force_rate` (``kappa`` "rule" or seconds,
-    ``tau_f``, ``zeta``, ``stiffness_min``, ``stiffness_max``, ``u1_range``, ``q_start``,
+    ``tau_f``, ``zeta``, ``stiffness_min``, ``stiffness_max``, ``u1_path``, ``q_start``,
     ``period``); a κ of 0 leaves the law as the paper's. ``singularity_stop``: the law reports a
     fault (the simulator stops, the sampled controller returns NaN) when σ_min(Ĵ) falls below it.
     ``block``: the largest array the controller keeps in the compiled loop

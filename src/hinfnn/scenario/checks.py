@@ -89,8 +89,8 @@ def check(sc) -> None:
     if cartesian:
         _check_path(sc, controllers[0], q0)
         _check_path_joint_limits(sc, controllers[0], plant, q0)
-    elif sc.controller.singularity_stop > 0:
-        _check_path_against_singularity(sc, q0)
+    if sc.controller.singularity_stop > 0:
+        _check_path_against_singularity(sc, controllers[0], q0)
     _check_step_against_contact(sc, plant, q0)
 
 
@@ -206,22 +206,56 @@ def _path_joints(arm, surf, ref, t, q0):
     return run(arm, surf, ref, jnp.asarray(t), jnp.asarray(q0))
 
 
-def _check_path_against_singularity(sc, q0) -> None:
-    """With the singularity guard on, the reference's path must keep σ_min(Ĵ) above the stop on
-    the NOMINAL model (else the run would stop by design): a DesignError naming the reference."""
+#: u1d(t) is sampled at least this often per period of its fastest cosine for the design's path ...
+PATH_PER_PERIOD = 40
+#: ... with at least and at most this many points over the run.
+PATH_SAMPLES = (201, 4001)
+
+
+def design_path(sc):
+    """The reference's path in the motion coordinates, where the design evaluates the NOMINAL
+    model (the force-rate rule's normal masses, the singularity guard's σ_min(Ĵ)): the span
+    (lo, hi) of a single cosine (m = 1, as the Sec. VI reference), else u1d(t) at evenly spaced
+    instants over [0, t_final] (an N × m array; N from :data:`PATH_PER_PERIOD` and
+    :data:`PATH_SAMPLES`)."""
+    span = getattr(sc.reference, "u1_range", None)
+    if span is not None:
+        lo, hi = span()
+        return (float(lo), float(hi))
+    import jax.numpy as jnp
+
+    from ..controllers.force_rate import reference_points
+
+    periods = [p for p in np.atleast_1d(np.asarray(getattr(sc.reference, "u1_period", 1.0), dtype=float)) if p > 0]
+    t_final = sc.simulation.t_final
+    n = int(math.ceil(t_final / (min(periods) / PATH_PER_PERIOD))) + 1 if periods else PATH_SAMPLES[0]
+    n = min(max(n, PATH_SAMPLES[0]), PATH_SAMPLES[1])
+    return np.asarray(reference_points(sc.build().reference, jnp.linspace(0.0, t_final, n)))
+
+
+def path_sigma_min(sc, ctrl, q0):
+    """[(u1, σ_min(Ĵ))] on the NOMINAL model along the reference's path (:func:`design_path`),
+    the poses solved from the start pose q0."""
     from ..controllers.force_rate import path_poses
     from ..controllers.law import nominal_sigma_min
+
+    return [(u1, float(nominal_sigma_min(ctrl.arm, q))) for u1, q in path_poses(ctrl.arm, ctrl.surface, design_path(sc), q0)]
+
+
+def _check_path_against_singularity(sc, ctrl, q0) -> None:
+    """With the singularity guard on, the reference's path must keep σ_min(Ĵ) above the stop on
+    the NOMINAL model (else the run would stop by design): a DesignError naming the reference."""
     from ..errors import DesignError
 
-    arm, surface = sc.build().nominal_arm, sc.build().nominal_surface
-    lo, hi = sc.reference.u1_range()
-    worst = min(((float(nominal_sigma_min(arm, q)), u1) for u1, q in path_poses(arm, surface, (lo, hi), q0)), key=lambda p: p[0])
+    worst = min(((s, u1) for u1, s in path_sigma_min(sc, ctrl, q0)), key=lambda p: p[0] if math.isfinite(p[0]) else -1.0)
     stop = sc.controller.singularity_stop
     if not worst[0] > stop:
-        raise DesignError(f"the reference reaches u1 = {worst[1]:.4g} m, where the nominal Jacobian's smallest singular "
-                          f"value is {worst[0]:.3g}, not above controller.singularity_stop = {stop:g}: the run would "
-                          "stop there; move the reference away from the singularity or lower the stop",
-                          key="reference.u1_amplitude", value=worst[0], bound=stop)
+        u1 = worst[1]
+        where = f"{u1:.4g}" if isinstance(u1, float) else "[" + ", ".join(f"{float(v):.4g}" for v in u1) + "]"
+        raise DesignError(f"the reference reaches u1 = {where} m, where the nominal Jacobian's smallest singular "
+                          f"value is {worst[0]:.3g}, not above controller.singularity_stop = {stop:g} (or the nominal "
+                          "model has no pose there): the run would stop there; move the reference away from the "
+                          "singularity or lower the stop", key="reference.u1_amplitude", value=worst[0], bound=stop)
 
 
 def _fmt(v):

@@ -999,9 +999,9 @@ class ControllerConfig:
         if len(set(self.kinds)) != len(self.kinds):
             raise ConfigError(f"lists a controller twice: {list(self.kinds)}", key=key)
 
-    def build(self, kind: str, arm, surface, *, u1_range=None, q_start=None, period=None):
-        """Design the controller ``kind`` from the NOMINAL arm and surface (``u1_range``,
-        ``q_start``: the reference's span of u1 and a start pose, for the force-rate rule;
+    def build(self, kind: str, arm, surface, *, u1_path=None, q_start=None, period=None):
+        """Design the controller ``kind`` from the NOMINAL arm and surface (``u1_path``,
+        ``q_start``: the reference's path in u1 and a start pose, for the force-rate rule;
         ``period``: the control period under sampled control). Raises :class:`DesignError` with
         the dotted key of the failing gain."""
         from ..controllers import design
@@ -1010,7 +1010,7 @@ class ControllerConfig:
         force_rate = None
         if fr.kappa != 0.0:
             force_rate = dict(kappa=fr.kappa, tau_f=fr.tau_f, zeta=fr.zeta, stiffness_min=fr.stiffness_min,
-                              stiffness_max=fr.stiffness_max, u1_range=u1_range, q_start=q_start, period=period)
+                              stiffness_max=fr.stiffness_max, u1_path=u1_path, q_start=q_start, period=period)
         try:
             return design(kind, arm, surface, self.gains.build(), augmented=self.augmented,
                           network_p=self.network_p.build("controller.network_p", surface.m),

@@ -136,29 +136,30 @@ class Setup:
         return self._controllers[kind]
 
     def _design_inputs(self):
-        sc = self.scenario
-        if sc.controller.force_rate.kappa == 0.0:
+        """(u1_path, q_start): the reference's path and the start pose the force-rate rule reads
+        (:func:`~hinfnn.scenario.checks.design_path`), or (None, None) without the term."""
+        if self.scenario.controller.force_rate.kappa == 0.0:
             return None, None
-        if sc.nominal.arm.model != "two_link" or sc.nominal.surface.kind != "inclined_line":
-            raise ConfigError("the force-rate term is designed for the two_link arm on an inclined_line (its κ "
-                              "rule uses the normal mass along the line's path; docs/beyond-the-paper.md), got "
-                              f"a {sc.nominal.arm.model!r} arm on a {sc.nominal.surface.kind!r}; set it to 0",
-                              key="controller.force_rate.kappa")
-        return sc.reference.u1_range(), self.q0
+        if "_path" not in self.__dict__:
+            from .checks import design_path
+
+            self._path = design_path(self.scenario)
+        return self._path, self.q0
 
     def _design_key(self, kind: str):
         """Everything the design reads: the nominal arm and constraint (by value), the controller
-        section, the control period, and for the force-rate rule the reference's span and start pose."""
+        section, the control period, and for the force-rate rule the reference's path and start pose."""
         from .._pytree import value_key
 
-        u1_range, q_start = self._design_inputs()
+        u1_path, q_start = self._design_inputs()
+        path = None if u1_path is None else np.asarray(u1_path, float).tobytes()
         start = None if q_start is None else np.asarray(q_start, float).tobytes()
         models = value_key((self.nominal_arm, self.constraint))
-        return kind, models, repr(self.scenario.controller), self.control_period, u1_range, start
+        return kind, models, repr(self.scenario.controller), self.control_period, path, start
 
     def _design(self, kind: str):
-        u1_range, q_start = self._design_inputs()
-        return self.scenario.controller.build(kind, self.nominal_arm, self.constraint, u1_range=u1_range,
+        u1_path, q_start = self._design_inputs()
+        return self.scenario.controller.build(kind, self.nominal_arm, self.constraint, u1_path=u1_path,
                                               q_start=q_start, period=self.control_period)
 
     # --- the simulation -------------------------------------------------------------------------
