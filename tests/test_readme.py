@@ -173,7 +173,7 @@ print(json.dumps(done))
 #: What each command of the README prints on its standard output (a regular expression, or several,
 #: that must match, multi-line), by its verb (and ``--list`` for ``sweep``).
 PRINTS = {
-    "run": r"^run +status +RMS e_u1 .*\n-+\n(.*\n)+^results: (?P<folder>\S+)/ \(metrics\.json, trajectory\.npz, "
+    "run": r"^run +status +did its job +RMS e_u1 .*\n-+\n(.*\n)+^results: (?P<folder>\S+)/ \(metrics\.json, trajectory\.npz, "
            r"scenario\.toml",
     "reproduce": r"^report: (?P<folder>\S+)/report\.md",
     "gallery": r"^report: (?P<folder>\S+)/report\.md",
@@ -184,7 +184,7 @@ PRINTS = {
     "sweep --list": (r"^paper-uncertainty +\S", r"^paper-map +\S"),
     "keys": r"^plant\.contact\.stiffness +\S",
     "scenarios": r"^paper +\S.*\n(.*\n)*^ur5-table +\S",
-    "show": r"^run +status +RMS e_u1 .*\n-+\n\S+ +(ok|stopped)(.*\n)+^design of ",
+    "show": r"^run +status +did its job +RMS e_u1 .*\n-+\n\S+ +(ok|stopped)(.*\n)+^design of ",
     "plot": r"^(?P<file>\S+\.png)$",
     "export": r"^(?P<file>\S+\.(csv|parquet))$",
     "cache": r"^compilation cache: ",

@@ -364,10 +364,14 @@ def test_a_single_run_s_memory_plan_is_the_trace_its_run_uses(paper_plant, nomin
     """record_shapes(single=True) traces the single-run chunk program itself (four RK4 stages
     written out), and the run that follows traces nothing: jax.jit keeps the trace. The shapes are
     the stored arrays', and another choice of fields is read off the same trace. (Fresh jit
-    objects for this test, so that no earlier test's trace is reused.)"""
+    objects for this test, and no program kept on disk by an earlier test or process: the
+    exported-program cache is off here, so that the trace this test counts happens.)"""
     import functools
 
+    from hinfnn.sim import programs
+
     S = sim_module
+    monkeypatch.setattr(programs.ExportedProgram, "_path", lambda self, key: None)
     monkeypatch.setattr(S, "_RECORD_SHAPES", {})
     monkeypatch.setattr(S, "_compiled", functools.lru_cache(maxsize=8)(S._compiled.__wrapped__))
     ctrl = H.HinfController.design(nominal_arm, nominal_surface, H.Gains())
