@@ -29,7 +29,7 @@ pytestmark = pytest.mark.xdist_group("stiff_arms")
 
 def _design(name, **over):
     sc = H.load_scenario(name, over)
-    return H.controllers.design_summary(sc.build_controller())["force_rate"]
+    return sc.build_controller().summary()["force_rate"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -69,7 +69,7 @@ def test_general_route_reduces_to_the_two_link_closed_form():
     m_n = np.array([float(fr.normal_mass(arm, surface, jnp.asarray(q))) for q in general])
     m_N = np.array([float(fr.normal_mass_matrix(arm, surface, jnp.asarray(q))[0, 0]) for q in general])
     np.testing.assert_allclose(m_N, m_n, rtol=1e-13)
-    d = H.controllers.design_summary(ctrl)["force_rate"]
+    d = ctrl.summary()["force_rate"]
     kappa = 2 * 0.7 * math.sqrt(d["K_prime"] * m_N.max() / 1e4)
     assert kappa == pytest.approx(d["kappa"], rel=1e-12)
 
@@ -129,7 +129,7 @@ def test_normal_mass_of_the_ur5_against_pinocchio(name):
     from hinfnn.model.urdf import asset_path
 
     sc = H.load_scenario(name, check=False)
-    arm, surface = sc.build_arm("nominal"), sc.build_constraint()
+    arm, surface = sc.build().nominal_arm, sc.build().constraint
     geometry = sc.nominal.surface.build()
     model = pin.buildModelFromUrdf(asset_path("ur5", "ur5.urdf"))
     parent = model.frames[model.getFrameId("tool0")]
