@@ -699,30 +699,49 @@ def _fmt_list(v, spec=".4g"):
     return format(float(v), spec)
 
 
+def _fmt_matrix(a) -> str:
+    """A matrix for a line of text: ``diag[...]`` when every off-diagonal entry is below 1e-12 of
+    the largest entry (rounding of the solvers), ``diag[...] + off-diagonal up to x`` when the
+    off-diagonal is small against the diagonal but real, else its rows; a scalar as a number."""
+    a = np.atleast_2d(np.asarray(a, dtype=float))
+    if a.size == 1:
+        return format(float(a[0, 0]), ".4g")
+    if a.shape[0] == a.shape[1] and a.shape[0] > 2:
+        d = np.diag(a)
+        off = np.abs(a - np.diag(d)).max()
+        scale = max(np.abs(a).max(), 1e-300)
+        if off <= 1e-12 * scale:
+            return "diag" + _fmt_list(d.tolist())
+        return "diag" + _fmt_list(d.tolist()) + f" + off-diagonal up to {off:.4g}"
+    return "[" + ", ".join(_fmt_list(row.tolist()) for row in a) + "]"
+
+
 def format_design_report(rep: dict) -> str:
     """The text of ``hinfnn design`` from :func:`design_report`'s dict."""
-    import json
 
     lines = []
     for kind, d in rep["kinds"].items():
         g = d["gains"]
         lines.append(f"{kind}: terms {', '.join(d['terms']) or '(none: the CT law)'}{', augmented' if d['augmented'] else ''}")
-        lines.append(f"  gains: K_p {g['K_p']}, K_v {g['K_v']}, rho {g['rho']:g}, mu_z {g['mu_z']:g}, alpha_z {g['alpha_z']:g}, "
+        lines.append(f"  gains: K_p {_fmt_matrix(g['K_p'])}, K_v {_fmt_matrix(g['K_v'])}, rho {g['rho']:g}, mu_z {g['mu_z']:g}, alpha_z {g['alpha_z']:g}, "
                      f"alpha_lam {g['alpha_lam']:g}, beta_lam {g['beta_lam']:.6g}, gamma_1 {g['gamma_1']:g}, "
-                     f"gamma_2 {g['gamma_2']:g}, Q_p {g['Q_p']}, R_p {g['R_p']}")
+                     f"gamma_2 {g['gamma_2']:g}, Q_p {_fmt_matrix(g['Q_p'])}, R_p {_fmt_matrix(g['R_p'])}")
         for name, b in d["bounds"].items():
             lines.append(f"  bound {name}: {b['value']:.6g} vs {b['bound']:.6g} (margin {b['margin']:+.4g}): {b['rule']}")
-        lines.append(f"  P_p {json.dumps(d['P_p'])}")
+        lines.append(f"  P_p {_fmt_matrix(d['P_p'])}  (--json: every entry)")
         ric = d.get("riccati", {})
         if "residual" in ric:
-            eig = ", ".join(f"{re:.4g}{im:+.4g}j" for re, im in ric["closed_loop_eigs"])
+            eig = ", ".join(f"{re:.4g}" if abs(im) <= 1e-9 * max(1.0, abs(re)) else f"{re:.4g}{im:+.4g}j"
+                            for re, im in ric["closed_loop_eigs"])
             lines.append(f"  Riccati eq. ({ric['equation']}): residual {ric['residual']:.2e}, min eig P "
                          f"{ric['min_eig_P']:.4g}, closed loop {eig}, Remark 4's condition "
                          f"{'holds' if ric['remark4_holds'] else 'fails'}")
         else:
             lines.append(f"  Riccati: {ric.get('error')}")
         if "v_p_gains" in d:
-            lines.append(f"  v_p = -[{', '.join(f'{v:.4g}' for v in d['v_p_gains'][0])}] x_p"
+            row = np.asarray(d["v_p_gains"][0], dtype=float)
+            row = np.where(np.abs(row) <= 1e-12 * max(np.abs(row).max(), 1e-300), 0.0, row)
+            lines.append(f"  v_p = -[{', '.join(f'{v:.4g}' for v in row)}] x_p"
                          + (" (first row)" if len(d["v_p_gains"]) > 1 else ""))
         for key, n in d.get("networks", {}).items():
             lines.append(f"  network {key}: {n['units']} units, centres {_fmt_list(n['first_centre'], 'g')} .. "

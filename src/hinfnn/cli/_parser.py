@@ -26,6 +26,7 @@ EXAMPLES_GALLERY = """examples:
   hinfnn gallery                         # results/gallery/report.md: planar3-drum, ur5-table, ur5-sphere
   hinfnn gallery --only ur5-table --out /tmp/table
   hinfnn gallery --set simulation.t_final=2   # a quick look (the checks are judged on what ran)
+  hinfnn gallery --beyond --only ur5-table    # + the paper law and the stabilised one on a bare stiff table
 """
 EXAMPLES_CACHE = """examples:
   hinfnn cache                     where the compilation cache is, its number of files and size
@@ -175,6 +176,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="output folder (default: results/gallery; if it holds a result, results/gallery-2 ...)")
     ga.add_argument("--only", action="append", default=[], metavar="NAME",
                     help="run only this gallery scenario (repeatable)")
+    ga.add_argument("--beyond", action="store_true",
+                    help="also each arm's stiff-contact comparison: the paper's law and the stabilised one on a bare "
+                         "undamped contact, k = 1e4, 1e5, 1e6 N/m, continuous and 1 kHz, with the contact modes "
+                         "(24 runs of 10 s per arm: tens of minutes)")
     common(ga)
 
     k = sub.add_parser("keys", formatter_class=fmt, help="list every scenario key with its meaning and range",

@@ -12,11 +12,12 @@ def main(args) -> int:
     from ..report.markdown import metrics_table
     from ..workflows.gallery import gallery_scenarios, run_gallery
 
-    gallery_scenarios(args.overrides, args.only)  # every check before anything runs
+    gallery_scenarios(args.overrides, args.only)  # every check before anything runs (run_gallery: the
+    # stiff-contact designs too, before its folder is reserved)
     progress = Progress(args.quiet, "gallery")
     t0 = time.perf_counter()
     target = run_gallery(args.out, overrides=args.overrides, only=args.only, force=args.force, progress=progress,
-                         log=(lambda m: None) if args.quiet else log_stderr, command=command_line(args))
+                         beyond=args.beyond, log=(lambda m: None) if args.quiet else log_stderr, command=command_line(args))
     progress.done()
     if not args.quiet:
         for sub in sorted(p for p in target.iterdir() if p.is_dir()):

@@ -42,14 +42,21 @@ def gallery_scenarios(overrides=(), only=None) -> list[Scenario]:
 
 
 def run_gallery(out: Path | None = None, *, overrides=(), only=None, force: bool = False, progress=None, log=print,
-                command: str = "hinfnn gallery") -> Path:
+                command: str = "hinfnn gallery", beyond: bool = False) -> Path:
     """Run the gallery and write ``out`` atomically (default ``results/gallery``; reserved as for
-    every command: :func:`hinfnn.io.reserve_output`); returns the folder written."""
+    every command: :func:`hinfnn.io.reserve_output`); returns the folder written. ``beyond``: also
+    the stiff-contact comparison of each arm (:mod:`hinfnn.workflows.stiff`), into
+    ``OUT/beyond/<arm>/`` and the report's last part."""
     from ..io import atomic_write_text
     from ..report import run_figures
 
     scenarios = gallery_scenarios(overrides, only)
-    sections = []
+    if beyond:  # every design of the comparison checked before anything runs
+        from .stiff import stiff_cases
+
+        for sc in scenarios:
+            stiff_cases(sc.name, overrides)
+    sections, stiff = [], []
     with result_folder(out, command="gallery", name="gallery", kind="gallery", force=force, log=log,
                        command_line=command) as written:
         for sc in scenarios:
@@ -64,7 +71,9 @@ def run_gallery(out: Path | None = None, *, overrides=(), only=None, force: bool
             figures = [Path(p).name for p in run_figures(outcome.trajectories, sub)]
             sections.append({"scenario": sc, "doc": doc, "figures": figures, "seconds": outcome.seconds})
             log(f"{sc.name}: {len(todo)} runs in {outcome.seconds:.0f} s")
-        atomic_write_text(written.path / "report.md", gallery_report(sections, command=command))
+        if beyond:
+            stiff = _run_stiff_part(written.path, scenarios, overrides, progress, log, command)
+        atomic_write_text(written.path / "report.md", gallery_report(sections, command=command, stiff=stiff))
     return written.path
 
 
@@ -222,8 +231,34 @@ _CAPTIONS = {
 }
 
 
-def gallery_report(sections: list[dict], *, command: str) -> str:
-    """The gallery's report.md from its sections: {"scenario", "doc", "figures", "seconds"}."""
+def _run_stiff_part(root: Path, scenarios, overrides, progress, log, command: str) -> list[dict]:
+    """Simulate and write each arm's stiff-contact comparison into ``root/beyond/<arm>/``
+    (metrics.json with a "stiff" part, trajectory.npz, scenario.toml of ``<arm>-stable``, the
+    figures). Returns [{"doc", "figures", "seconds"}]."""
+    from ..report.figures import beyond_figures
+    from .stiff import STIFF_FIELDS, run_stiff, stiff_document
+
+    out = []
+    for sc in scenarios:
+        label = (lambda d, t, what, n=sc.name: progress(d, t, f"{n}, stiff contact: {what}")) if progress else None
+        result = run_stiff(sc.name, overrides, progress=label)
+        doc = stiff_document(result)
+        sub = root / "beyond" / sc.name
+        sub.mkdir(parents=True)
+        base = Scenario.load(f"{sc.name}-stable", overrides)
+        write_result(sub, base, result["outcome"], command=command, save_interval=base.simulation.output_interval,
+                     fields=STIFF_FIELDS, extra={"stiff": doc})
+        statuses = {r["name"]: {**r["metrics"], "status": r["status"]} for r in doc["runs"]}
+        figures = [Path(p).name for p in beyond_figures(result["outcome"].trajectories, statuses, doc["cases"], sub)]
+        out.append({"doc": doc, "figures": figures, "seconds": result["seconds"]})
+        log(f"{sc.name}: stiff contact, {len(doc['runs'])} runs and {len(doc['contact_modes'])} linearisations in "
+            f"{result['seconds']:.0f} s")
+    return out
+
+
+def gallery_report(sections: list[dict], *, command: str, stiff: list[dict] | None = None) -> str:
+    """The gallery's report.md from its sections: {"scenario", "doc", "figures", "seconds"}, and
+    the stiff-contact part: {"doc", "figures", "seconds"} per arm."""
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     lines = ["# hinfnn gallery: any serial arm, any smooth surface", "",
              f"`{command}`, {stamp}. Each scenario below is a shipped file (`hinfnn run NAME` runs it alone); "
@@ -245,6 +280,78 @@ def gallery_report(sections: list[dict], *, command: str) -> str:
         for name in ("u1.png", "errors.png", "lambda.png", "contact.png", "tau.png", "J.png", "weights.png"):
             if name in s["figures"]:
                 body += [f"![{sc.name}: {_CAPTIONS[name]}]({sc.name}/{name})", ""]
+    if stiff:
+        body += ["## Beyond the paper: stiff contact on every arm", "",
+                 "Each arm's `-stable` scenario on a bare, undamped contact: the paper's law (the same controller "
+                 "with the force-rate gain κ = 0) beside the stabilised law (κ by the design rule), both robust "
+                 "laws, k = 1e4, 1e5, 1e6 N/m, continuous control and a 1 kHz zero-order hold (the 1 kHz design "
+                 "is for 1e4 … 1e5 N/m; at 1e6 N/m it is asked for 1e6 and refuses where a 1 kHz loop cannot hold "
+                 "it). Targets (the stabilised runs): continuous: status ok, no step out of contact after 0.2 s, RMS "
+                 "e_λ over the last 2 s ≤ 2 % (adaptive) / 10 % (H∞-only) of the mean |λd|, dissipation at every "
+                 "sample; 1 kHz up to 1e5 N/m: status ok, no step out of contact after 0.2 s, RMS e_λ ≤ 5 % "
+                 "(adaptive). docs/beyond-the-paper.md derives the design.", ""]
+        for part in stiff:
+            body += _stiff_section(part["doc"], part["figures"], part["seconds"])
     return "\n".join(lines + summary + [""] + body)
+
+
+
+# --- beyond the paper: stiff contact on every arm -------------------------------------------------------
+
+
+def _stiff_section(doc: dict, figures: list[str], seconds: float) -> list[str]:
+    """The report's section of one arm's stiff-contact comparison (:mod:`hinfnn.workflows.stiff`)."""
+    from .stiff import AFTER
+
+    arm = doc["arm"]
+    runs = {r["name"]: r for r in doc["runs"]}
+    out = [f"### {arm}", "",
+           f"`{arm}-stable` on an undamped contact, {len(runs)} runs in {seconds:.0f} s. Each row: one law, control "
+           "mode and stiffness; the paper's law (κ = 0) beside the stabilised one (κ by the design rule). "
+           f"Out of contact and peak |τ| after {AFTER:g} s; e_λ over the last 2 s as a share of the mean |λd| there.",
+           "", "| law | mode | k (N/m) | paper law: status | out of contact | e_λ | stabilised: κ | status | "
+           "out of contact | e_λ | peak \\|τ\\| (N·m) | dissipation | targets |", "|" + "---|" * 13]
+    keys = list(dict.fromkeys((c["kind"], c["mode"], c["k"]) for c in doc["cases"]))
+    for kind, mode, k in keys:
+        cells = {}
+        for variant in ("paper", "stable"):
+            c = next((c for c in doc["cases"] if (c["kind"], c["mode"], c["k"], c["variant"]) == (kind, mode, k, variant)),
+                     None)
+            r = runs.get(c["name"]) if c else None
+            cells[variant] = (c, r)
+        row = [kind, mode, f"{k:.0e}".replace("+0", "")]
+        for variant in ("paper", "stable"):
+            c, r = cells[variant]
+            if r is None:  # a stabilised design refused (listed below the table)
+                row += ["—", "refused by the design", "", "", "", "", "—"] if variant == "stable" else ["n/a", "", ""]
+                continue
+            m = r["metrics"]
+            ratio = m["rms_e_lam_last2s"] / m["mean_abs_lam_d_last2s"] if m["mean_abs_lam_d_last2s"] else math.nan
+            status = "ok" if r["status"] == "ok" else f"stopped at {_f(r.get('t_fail'), 3)} s"
+            if variant == "stable":
+                kappa = (r.get("design") or {}).get("force_rate", {}).get("kappa")
+                row.append(_f(kappa, 3))
+            row += [status, percent(m[f"out_of_contact_after_{AFTER:g}s"]), percent(ratio)]
+            if variant == "stable":
+                t = doc["targets"].get(c["name"])
+                row += [_f(m[f"peak_abs_tau_after_{AFTER:g}s"], 4), _f(m["dissipation_holds_for_all_t"]),
+                        "—" if t is None else ("met" if all(h for _, h in t.values()) else
+                                               "**missed**: " + "; ".join(w for w, (_, h) in t.items() if not h))]
+        out.append("| " + " | ".join(row) + " |")
+    if doc["refused"]:
+        out += ["", "Refused by the stabilised design (no run):", ""]
+        out += [f"- `{name}`: {why}" for name, why in doc["refused"].items()]
+    out += ["", "Least damped force mode of the linearised continuous loop (the exact nominal model at rest at "
+            "the reference's offsets; `hinfnn design` prints the same):", "",
+            "| law | k (N/m) | paper law (κ = 0) | stabilised | κ |", "|---|---|---|---|---|"]
+    for kind in dict.fromkeys(m["kind"] for m in doc["contact_modes"]):
+        for k in dict.fromkeys(m["stiffness"] for m in doc["contact_modes"]):
+            pair = {m["variant"]: m for m in doc["contact_modes"] if m["kind"] == kind and m["stiffness"] == k}
+            words = {v: f"{pair[v]['mode']} ({'stable' if pair[v]['stable'] else '**unstable**'})" for v in pair}
+            out.append(f"| {kind} | {k:.0e} | {words.get('paper', '')} | {words.get('stable', '')} | ".replace("e+0", "e")
+                       + f"{_f(pair.get('stable', {}).get('kappa'), 3)} |")
+    out += [""] + [f"![{arm}: {name}](beyond/{arm}/{name})" for name in figures] + [""]
+    return out
+
 
 __all__ = ["GALLERY", "gallery_scenarios", "run_gallery", "gallery_report"]
