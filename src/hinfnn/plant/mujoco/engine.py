@@ -1,0 +1,649 @@
+"""The MuJoCo plant: MuJoCo's C step inside hinfnn's compiled loop (docs/mujoco.md).
+
+* :class:`MujocoPlant` — the plant protocol (``n``, ``discrete``, ``initial_state``, ``sense``,
+  ``step``). ``step`` is ONE host call per control period, whatever the number of MuJoCo substeps
+  and whatever the batch: the compiled program hands the host a block of packed rows (one per
+  batch member), the host steps them with :class:`mujoco.batch.Batch` (MuJoCo's own thread pool,
+  each member on its own model) and hands back one block. ``sense`` is pure JAX on the state.
+* :class:`MujocoState` — joint state, MuJoCo's solver warm start, and what the sensors read at
+  that state (computed in JAX from MuJoCo's tool-site pose, its Jacobian and its contact force).
+
+Batches. Plants whose MuJoCo models have the same data layout (every size of ``MjData``: the
+same arm structure with other masses, payloads, surface poses or contact parameters) share a
+*family* (:class:`_Family`); a plant is a pytree whose leaves are its index in the family
+(``member``), the joint disturbance and the sensing data (true surface, task map), so any number
+of them stack into one ``vmap`` batch and one compiled program serves them all.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ... import _linalg as la
+from ..._pytree import pytree_dataclass
+from ...errors import ConfigError
+from ...protocols import Measurement
+from . import scene as S
+
+#: How the compiled program calls MuJoCo (:meth:`MujocoPlant.from_models`, ``callback``).
+CALLBACKS = ("host", "pure_callback")
+
+
+# --------------------------------------------------------------------------------------------
+# Host side
+# --------------------------------------------------------------------------------------------
+class _Family:
+    """MuJoCo models sharing one data layout, and the host functions that step them.
+
+    Packed input row: ``[member, dt, time, qpos (nq), qvel (nv), qacc_warmstart (nv),
+    qfrc_applied (nv)]``; a row with any non-finite entry (or a dt that is not a whole number of
+    the member's timesteps) is not stepped and gives an all-NaN output row. Packed output row:
+    ``[qpos, qvel, qacc_warmstart, qacc, tool position (3), tool rotation (9, row-major),
+    jacp (3 n, row-major), jacr (3 n), contact sensor (found, force (3, contact frame, on the
+    tool), dist, normal (3, surface → tool), tangent (3))]`` at the END of the step: after the
+    substeps, MuJoCo's forward pass at the new state with the step's applied force still applied
+    (what a sensor reads just before the next torque arrives).
+    """
+
+    def __init__(self, mujoco, scene: S.Scene, signature):
+        self.mujoco = mujoco
+        self.signature = signature
+        m = scene.model
+        self.n, self.nq, self.nv = scene.n, int(m.nq), int(m.nv)
+        self.site, self.site_body, self.sensor_adr = scene.site, scene.site_body, scene.sensor_adr
+        self.size_in = 3 + self.nq + 3 * self.nv
+        self.size_out = self.nq + 3 * self.nv + 12 + 6 * self.n + S.SENSOR_SIZE
+        self.scenes: list[S.Scene] = []
+        self.meta: list = []
+        self._free: dict[int, list] = {}
+        self._lock = threading.Lock()
+        self.nthread = max(1, min(4, os.cpu_count() or 1))
+
+    def add(self, scene: S.Scene, meta) -> int:
+        with self._lock:
+            self.scenes.append(scene)
+            self.meta.append(meta)
+            return len(self.scenes) - 1
+
+    # one Batch per concurrent call and batch size (XLA may call from several threads)
+    def _acquire(self, rows: int):
+        with self._lock:
+            free = self._free.setdefault(rows, [])
+            if free:
+                return free.pop()
+        from mujoco import batch as mjbatch
+
+        b = mjbatch.Batch(self.scenes[0].model, nsim=rows, nthread=min(rows, self.nthread))
+        views = {k: b.bind(k) for k in ("time", "qpos", "qvel", "qacc_warmstart", "qfrc_applied", "qacc",
+                                        "site_xpos", "site_xmat", "sensordata")}
+        return [b, views, None]
+
+    def _release(self, rows: int, item):
+        with self._lock:
+            self._free[rows].append(item)
+
+    def run(self, x, kind: str):
+        """Step (``kind`` "step") or initialise ("init") every row of x (rows, size_in)."""
+        mujoco = self.mujoco
+        x = np.asarray(x, dtype=np.float64)
+        rows = x.shape[0]
+        out = np.full((rows, self.size_out), np.nan)
+        member = np.where(np.isfinite(x[:, 0]), x[:, 0], -1).astype(np.int64)
+        ok = np.all(np.isfinite(x), axis=1) & (member >= 0) & (member < len(self.scenes))
+        nsub = np.zeros(rows, dtype=np.int64)
+        if kind == "step":
+            for i in np.nonzero(ok)[0]:
+                ts = self.scenes[member[i]].timestep
+                k = round(x[i, 1] / ts)
+                if k >= 1 and abs(k * ts - x[i, 1]) <= 1e-9 * x[i, 1]:
+                    nsub[i] = k
+                else:
+                    ok[i] = False
+        idx = np.nonzero(ok)[0]
+        if idx.size == 0:
+            return out
+        item = self._acquire(rows)
+        try:
+            b, v, models = item
+            want = tuple(int(member[i]) if ok[i] else int(member[idx[0]]) for i in range(rows))
+            if want != models:
+                b.set_models([self.scenes[i].model for i in want])
+                item[2] = want
+            nq, nv = self.nq, self.nv
+            o = 2
+            v["time"][idx] = x[idx, o]
+            v["qpos"][idx] = x[idx, o + 1:o + 1 + nq]
+            v["qvel"][idx] = x[idx, o + 1 + nq:o + 1 + nq + nv]
+            v["qacc_warmstart"][idx] = x[idx, o + 1 + nq + nv:o + 1 + nq + 2 * nv]
+            v["qfrc_applied"][idx] = x[idx, o + 1 + nq + 2 * nv:o + 1 + nq + 3 * nv]
+            failed = []
+            try:
+                if kind == "step":
+                    for k in np.unique(nsub[idx]):
+                        b.step(ids=idx[nsub[idx] == k], nstep=int(k), stage=mujoco.mjtStage.mjSTAGE_ACC)
+                else:
+                    b.forward(ids=idx)
+            except Exception as err:  # mujoco.batch.SimulationError: those members keep their old state
+                failed = list(getattr(err, "ids", idx))
+            good = np.setdiff1d(idx, np.asarray(failed, dtype=np.int64))
+            if good.size == 0:
+                return out
+            site = self.site
+            jacp, jacr = b.jac(np.full(good.size, self.site_body), v["site_xpos"][good, site], ids=good)
+            c = 0
+            for arr in (v["qpos"][good], v["qvel"][good], v["qacc_warmstart"][good], v["qacc"][good],
+                        v["site_xpos"][good, site], v["site_xmat"][good, site],
+                        jacp[:, :, :self.n].reshape(good.size, -1), jacr[:, :, :self.n].reshape(good.size, -1),
+                        v["sensordata"][good, self.sensor_adr:self.sensor_adr + S.SENSOR_SIZE]):
+                w = arr.shape[1]
+                out[good, c:c + w] = arr
+                c += w
+        finally:
+            self._release(rows, item)
+        return out
+
+    def host_step(self, x):
+        x = np.asarray(x, dtype=np.float64)
+        lead = x.shape[:-1]
+        return self.run(x.reshape(-1, x.shape[-1]), "step").reshape(lead + (self.size_out,))
+
+    def host_init(self, x):
+        x = np.asarray(x, dtype=np.float64)
+        lead = x.shape[:-1]
+        return self.run(x.reshape(-1, x.shape[-1]), "init").reshape(lead + (self.size_out,))
+
+
+_FAMILIES: dict = {}
+_FAMILIES_LOCK = threading.Lock()
+
+
+def _family_of(scene: S.Scene, kind: str) -> _Family:
+    """The family of models with this scene's data layout (created on first use)."""
+    key = (kind,) + scene.signature()
+    with _FAMILIES_LOCK:
+        fam = _FAMILIES.get(key)
+        if fam is None:
+            fam = _FAMILIES[key] = _Family(S.require_mujoco(), scene, key)
+        return fam
+
+
+_PRIMITIVES: dict = {}
+
+
+def _host_primitive(kind: str):
+    """A JAX primitive whose CPU lowering calls ``family.host_step``/``host_init`` on the raw
+    NumPy buffers XLA hands to its Python-callback custom call (what :func:`jax.pure_callback`
+    does, without the ``device_put`` of every argument and the default-device context it adds
+    per call: 9 µs instead of 70–130 µs per call on this machine, docs/mujoco.md). Uses JAX
+    internals (``jax._src.callback.emit_python_callback``, pinned jax 0.10.2); returns None when
+    they are missing, and the plant then uses :func:`jax.pure_callback`."""
+    if kind in _PRIMITIVES:
+        return _PRIMITIVES[kind]
+    try:
+        from jax._src.callback import emit_python_callback
+        from jax.extend.core import Primitive
+        from jax.interpreters import batching, mlir
+    except ImportError:  # pragma: no cover - another JAX
+        _PRIMITIVES[kind] = None
+        return None
+    prim = Primitive(f"hinfnn_mujoco_{kind}")
+
+    def host_fn(family):
+        return family.host_step if kind == "step" else family.host_init
+
+    def impl(x, *, family):
+        return jnp.asarray(host_fn(family)(np.asarray(x, dtype=np.float64)))
+
+    def abstract(x, *, family):
+        return jax.core.ShapedArray(x.shape[:-1] + (family.size_out,), np.dtype(np.float64))
+
+    def lower(ctx, x, *, family):
+        fn = host_fn(family)
+        res, _, _ = emit_python_callback(ctx, lambda a: (fn(a),), None, [x], ctx.avals_in,
+                                         ctx.avals_out, has_side_effect=False, returns_token=False)
+        return res
+
+    def batch(args, dims, *, family):
+        # the host function takes any leading batch shape and steps the rows together
+        (x,), (bd,) = args, dims
+        return prim.bind(jnp.moveaxis(x, bd, 0), family=family), 0
+
+    prim.def_impl(impl)
+    prim.def_abstract_eval(abstract)
+    mlir.register_lowering(prim, lower, cacheable=False)
+    batching.primitive_batchers[prim] = batch
+    _PRIMITIVES[kind] = prim
+    return prim
+
+
+def _call_host(family, kind: str, x, callback: str):
+    """family.host_<kind>(x) from inside a traced program: one host call for any batch."""
+    if callback == "host":
+        prim = _host_primitive(kind)
+        if prim is not None:
+            return prim.bind(x, family=family)
+    fn = family.host_step if kind == "step" else family.host_init
+    return jax.pure_callback(fn, jax.ShapeDtypeStruct(x.shape[:-1] + (family.size_out,), jnp.float64),
+                             x, vmap_method="broadcast_all")
+
+
+# --------------------------------------------------------------------------------------------
+# Sensing (JAX, from what MuJoCo computed at the end of the step)
+# --------------------------------------------------------------------------------------------
+def _contact_force(sensor):
+    """(force the SURFACE exerts on the tool, world axes (3,), normal force f_n): from the contact
+    sensor's force in the contact frame (normal from the surface to the tool, first tangent;
+    second tangent = normal × tangent). Zero out of contact (the sensor reports zeros)."""
+    f, n, t = sensor[..., 1:4], sensor[..., 5:8], sensor[..., 8:11]
+    on_tool = f[..., 0:1] * n + f[..., 1:2] * t + f[..., 2:3] * jnp.cross(n, t)
+    return on_tool, f[..., 0]
+
+
+@pytree_dataclass
+class LineSensing:
+    """The paper's two-link arm on the inclined line: the task coordinates are the tip (x1, x2) =
+    world (x, z), so the task-space force F is the tip force itself."""
+
+    surface: object
+
+    @property
+    def cartesian(self) -> bool:
+        return False
+
+    def __call__(self, p, R, Jf, sensor):
+        on_tool, f_n = _contact_force(sensor)
+        x = jnp.stack([p[0], p[2]])
+        F = -jnp.stack([on_tool[0], on_tool[2]])
+        return dict(x_true=x, F=F, normal_force=f_n, penetration=self.surface.signed_distance(x))
+
+
+@pytree_dataclass
+class CartesianSensing:
+    """An arm with a task map (URDF, planar, a user's MJCF) on a Cartesian surface, as the
+    built-in plant senses it (:meth:`hinfnn.RigidBodyPlant._sense_cartesian`), with MuJoCo's tool
+    pose, frame Jacobian and contact force instead of hinfnn's: x_true = task(p, R), the
+    penetration is the true surface's exact signed distance at the tool point, F_contact the
+    Cartesian force the tool exerts on the surface (the arm's space: 2-D for planar arms),
+    F = (J Jᵀ)⁻¹ J J_pᵀ F_contact its task-space form (Jᵀ F = J_pᵀ F_contact)."""
+
+    task: object
+    surface: object
+
+    @property
+    def cartesian(self) -> bool:
+        return True
+
+    def __call__(self, p, R, Jf, sensor):
+        from ...model.urdf import _task_jacobian
+
+        on_tool, f_n = _contact_force(sensor)
+        rows = tuple(self.task.space_rows)
+        point = self.task.space(p)
+        F_c = -jnp.stack([on_tool[i] for i in rows])
+        J_p = jnp.stack([Jf[i] for i in rows])
+        tau_c = la.mm(J_p.T, F_c)
+        J = _task_jacobian(self.task, p, R, Jf)
+        F = la.spd_solve(la.mm(J, J.T), la.mm(J, tau_c))
+        n_in = self.surface.normal(point)
+        F_t = F_c - la.mm(n_in, F_c) * n_in
+        return dict(x_true=self.task(p, R), F=F, normal_force=f_n, penetration=self.surface.signed_distance(point),
+                    F_contact=F_c, friction_force=jnp.sqrt(jnp.sum(F_t * F_t)), task_margin=self.task.margin(p, R))
+
+
+@pytree_dataclass
+class MujocoState:
+    """The MuJoCo plant's state: everything a step is a pure function of, plus what the sensors
+    read at this state (computed from MuJoCo at the end of the step that produced it).
+
+    q, qd, qacc_warmstart (n,): MuJoCo's qpos, qvel and solver warm start; F (n,): the task-space
+    force the tool exerts on the surface; normal_force, penetration: scalars; x_true: the true
+    task coordinates. Cartesian surfaces also: F_contact (the Cartesian force at the tool point,
+    base axes), friction_force (its tangential magnitude), task_margin."""
+
+    q: jax.Array
+    qd: jax.Array
+    qacc_warmstart: jax.Array
+    F: jax.Array
+    normal_force: jax.Array
+    penetration: jax.Array
+    x_true: jax.Array
+    F_contact: jax.Array | None = None
+    friction_force: jax.Array | None = None
+    task_margin: jax.Array | None = None
+
+
+class _Meta:
+    """What a plant's construction knew, for the eager queries (start pose, effective mass)."""
+
+    def __init__(self, arm, surface, contact, friction, scene, friction_damping):
+        self.arm, self.surface, self.contact, self.friction = arm, surface, contact, friction
+        self.scene = scene
+        self.friction_damping = friction_damping
+
+
+def _check_divides(timestep: float, period: float, key: str, what: str):
+    nsub = round(period / timestep)
+    if nsub < 1 or abs(nsub * timestep - period) > 1e-9 * period:
+        raise ConfigError(f"the MuJoCo timestep {timestep:g} s must divide the {what} {period:g} s "
+                          f"(a whole number of MuJoCo steps per control period)", key=key)
+    return nsub
+
+
+class MujocoPlant:
+    """MuJoCo as the true plant, driven at the control rate (sampled data, zero-order hold).
+
+    Protocol (what hinfnn's simulator uses)::
+
+        plant.n, plant.discrete (True)
+        plant.initial_state(q0, qd0=None) -> MujocoState
+        plant.sense(t, state) -> (Measurement(q, qd, F), diagnostics)
+        plant.step(t, state, tau, dt) -> (new_state, qdd)
+
+    ``step`` and ``initial_state`` are one host call into MuJoCo each (whatever the number of
+    substeps), usable inside ``jit``, ``lax.scan`` and ``vmap`` (a batch's rows are stepped in the
+    same call by MuJoCo's thread pool); ``sense`` is pure JAX on the state. Build it with
+    :meth:`from_models` (hinfnn's arms) or :meth:`from_mjcf` (a user's MJCF). The plant is a
+    pytree whose leaves are its member index in its model family, the disturbance and the sensing
+    data; the family (the MuJoCo models) is static, hashed by identity. Not differentiable.
+    """
+
+    discrete = True
+
+    def __init__(self, family: _Family, member, disturbance, sensing, control_period: float,
+                 callback: str = "host"):
+        self._family = family
+        self.member = member
+        self.disturbance = disturbance
+        self.sensing = sensing
+        self.control_period = float(control_period)
+        self.callback = callback
+        self.n = family.n
+
+    # --- construction -------------------------------------------------------------------------
+    @classmethod
+    def _build(cls, scene, meta, sensing, disturbance, control_period, callback):
+        if callback not in CALLBACKS:
+            raise ConfigError(f"must be one of {CALLBACKS}, got {callback!r}", key="plant.callback")
+        kind = type(sensing).__name__
+        family = _family_of(scene, kind)
+        member = family.add(scene, meta)
+        return cls(family, jnp.asarray(member, dtype=jnp.int32), disturbance, sensing, control_period, callback)
+
+    @staticmethod
+    def _periods(control_period, timestep):
+        if not (isinstance(control_period, (int, float)) and math.isfinite(control_period) and control_period > 0):
+            raise ConfigError(f"must be a number > 0 (s), got {control_period!r}", key="simulation.control_period")
+        ts = control_period if timestep is None else timestep
+        if not (isinstance(ts, (int, float)) and math.isfinite(ts) and ts > 0):
+            raise ConfigError(f"must be a number > 0 (s), got {timestep!r}", key="plant.timestep")
+        _check_divides(float(ts), float(control_period), "plant.timestep", "control period")
+        return float(control_period), float(ts)
+
+    @classmethod
+    def from_models(cls, arm, surface, contact, disturbance, *, control_period: float,
+                    timestep: float | None = None, integrator: str = "RK4", callback: str = "host",
+                    friction=None, friction_damping: float = S.FRICTION_DAMPING) -> "MujocoPlant":
+        """The MuJoCo plant of a TRUE arm, surface, contact (:class:`~hinfnn.PenaltyContact`, N/m
+        and N·s/m), joint disturbance (:class:`~hinfnn.SquareWave`) and tool friction
+        (:class:`~hinfnn.plant.contact.Friction`: its Coulomb μ; MuJoCo has no viscous term).
+
+        ``arm``: :class:`~hinfnn.TwoLinkArm` (surface: :class:`~hinfnn.InclinedLine`) or a
+        :class:`~hinfnn.model.urdf.UrdfArm` (URDF or planar chain; surface: a plane, sphere,
+        cylinder, or a line or circle of a planar arm's plane). ``timestep`` (MuJoCo's, s) defaults
+        to ``control_period`` and must divide it; ``integrator``: one of ``INTEGRATORS``;
+        ``callback``: ``"host"`` (default, the fastest) or ``"pure_callback"``. Raises
+        :class:`ConfigError` naming the scenario key."""
+        from ...model.planar import TwoLinkArm
+
+        S.require_mujoco()
+        control_period, ts = cls._periods(control_period, timestep)
+        mu, c_v = _friction_values(friction)
+        if isinstance(arm, TwoLinkArm):
+            S._check_two_link(arm, surface)
+            if mu > 0:
+                raise ConfigError("the two_link arm's MuJoCo model is frictionless", key="plant.friction.coulomb")
+            scene = S.build_scene(surface, contact, rows=(0, 2), arm_xml=S.two_link_xml(arm), timestep=ts,
+                                  integrator=integrator)
+            sensing = LineSensing(surface=surface)
+        else:
+            task, rows = _task_of(arm, surface)
+            scene = S.build_scene(surface, contact, rows=rows, arm_xml=S.chain_xml(arm.chain), friction=mu,
+                                  friction_damping=friction_damping, timestep=ts, integrator=integrator)
+            sensing = CartesianSensing(task=task, surface=surface)
+        meta = _Meta(arm, surface, contact, friction, scene, friction_damping)
+        return cls._build(scene, meta, sensing, disturbance, control_period, callback)
+
+    @classmethod
+    def from_mjcf(cls, path, *, joints, tool_site: str, task, surface, contact, disturbance,
+                  control_period: float, tool_xyz=(0.0, 0.0, 0.0), tool_rot=None, timestep: float | None = None,
+                  integrator: str = "RK4", callback: str = "host", friction=None,
+                  friction_damping: float = S.FRICTION_DAMPING) -> "MujocoPlant":
+        """The MuJoCo plant of a user's MJCF arm: ``joints`` its joint names from the base to the
+        tool (all its degrees of freedom), ``tool_site`` the site the tool hangs from, the tool
+        point at ``tool_xyz`` (rotation ``tool_rot``) in that site's frame; ``task`` the task map the
+        controller's coordinates use (x_true and the task-space F are formed with it from MuJoCo's
+        tool pose and Jacobian). The model keeps what it has (armature, damping, friction loss,
+        springs); its actuators are switched off. The rest as :meth:`from_models`."""
+        from ...model.urdf import UrdfArm
+
+        S.require_mujoco()
+        control_period, ts = cls._periods(control_period, timestep)
+        mu, _ = _friction_values(friction)
+        _, rows = _task_of(None, surface, task)
+        scene = S.build_scene(surface, contact, rows=rows, arm_file=os.fspath(path), joints=tuple(joints),
+                              tool_site=tool_site, tool_xyz=tool_xyz, tool_rot=tool_rot, friction=mu,
+                              friction_damping=friction_damping, timestep=ts, integrator=integrator)
+        arm = UrdfArm(S.chain_from_model(scene.model, joints, scene.site), task)
+        meta = _Meta(arm, surface, contact, friction, scene, friction_damping)
+        return cls._build(scene, meta, CartesianSensing(task=task, surface=surface), disturbance, control_period,
+                          callback)
+
+    def replace(self, **changes) -> "MujocoPlant":
+        """The same plant with other ``disturbance``, ``sensing``, ``control_period`` or
+        ``callback`` (the MuJoCo model stays)."""
+        kw = dict(disturbance=self.disturbance, sensing=self.sensing, control_period=self.control_period,
+                  callback=self.callback)
+        unknown = set(changes) - set(kw)
+        if unknown:
+            raise TypeError(f"cannot replace {sorted(unknown)}")
+        kw.update(changes)
+        if kw["callback"] not in CALLBACKS:
+            raise ConfigError(f"must be one of {CALLBACKS}, got {kw['callback']!r}", key="plant.callback")
+        return MujocoPlant(self._family, self.member, **kw)
+
+    # --- read-only facts ----------------------------------------------------------------------
+    def _meta(self) -> _Meta:
+        try:
+            i = int(np.asarray(self.member))
+        except TypeError:
+            raise TypeError("this MuJoCo plant is a batch (or traced): take one member first") from None
+        return self._family.meta[i]
+
+    @property
+    def scene(self) -> S.Scene:
+        return self._meta().scene
+
+    @property
+    def xml(self) -> str:
+        """The MJCF of the model being simulated (MuJoCo's writer: 6 significant digits; the
+        compiled :attr:`model` is the exact one)."""
+        return self.scene.xml
+
+    @property
+    def model(self):
+        """The compiled ``mujoco.MjModel`` (do not modify it while a run uses the plant)."""
+        return self.scene.model
+
+    @property
+    def timestep(self) -> float:
+        return self.scene.timestep
+
+    @property
+    def arm(self):
+        """The true arm as hinfnn reads it (for a user's MJCF: its rigid-body part,
+        :func:`~hinfnn.plant.mujoco.scene.chain_from_model`)."""
+        return self._meta().arm
+
+    @property
+    def surface(self):
+        return self._meta().surface
+
+    @property
+    def contact(self):
+        return self._meta().contact
+
+    @property
+    def cartesian(self) -> bool:
+        return bool(self.sensing.cartesian)
+
+    def _rigid(self):
+        from ..rigid import RigidBodyPlant
+
+        meta = self._meta()
+        return RigidBodyPlant(meta.arm, meta.surface, meta.contact, self.disturbance)
+
+    def initial_q(self, u1_0, elbow_up: bool = True, q_guess=None):
+        """Joint angles with the tool on the true surface at u1 = u1_0 (as
+        :meth:`hinfnn.RigidBodyPlant.initial_q`, on the true arm's rigid-body model)."""
+        rigid = self._rigid()
+        if rigid.cartesian:
+            return rigid.initial_q(u1_0, elbow_up, q_guess=q_guess)
+        return rigid.initial_q(u1_0, elbow_up)
+
+    def effective_mass(self, q):
+        """The true arm's effective mass along the surface's normal at q (rigid-body part; a
+        user's armature is not in it)."""
+        return self._rigid().effective_mass(q)
+
+    # --- protocol -----------------------------------------------------------------------------
+    def _unpack(self, y):
+        fam = self._family
+        n, nq, nv = fam.n, fam.nq, fam.nv
+        o = 0
+
+        def take(k):
+            nonlocal o
+            out = y[..., o:o + k]
+            o += k
+            return out
+
+        qpos, qvel, warm, qacc = take(nq), take(nv), take(nv), take(nv)
+        p, R = take(3), take(9)
+        jacp, jacr = take(3 * n), take(3 * n)
+        sensor = take(S.SENSOR_SIZE)
+        lead = y.shape[:-1]
+        R = R.reshape(lead + (3, 3))
+        Jf = jnp.concatenate([jacp.reshape(lead + (3, n)), jacr.reshape(lead + (3, n))], axis=-2)
+        sense = self.sensing
+        for _ in lead:
+            sense = jax.vmap(sense)
+        sensed = sense(p, R, Jf, sensor)
+        return MujocoState(q=qpos, qd=qvel, qacc_warmstart=warm, **sensed), qacc
+
+    def _row(self, parts):
+        lead = parts[-1].shape[:-1]
+        member = jnp.broadcast_to(jnp.asarray(self.member, dtype=jnp.float64), lead)
+        x = jnp.concatenate([member[..., None]] + [jnp.broadcast_to(a, lead + a.shape[-1:]) for a in parts],
+                            axis=-1)
+        ok = jnp.all(jnp.isfinite(x), axis=-1, keepdims=True)
+        return jnp.where(ok, x, jnp.nan)  # the host skips a row with a NaN (MuJoCo is not called)
+
+    def initial_state(self, q0, qd0=None) -> MujocoState:
+        """The state at joint angles q0 and rates qd0 (default 0), zero warm start; the sensor
+        fields are MuJoCo's at that state with no applied force."""
+        q0 = jnp.asarray(q0, dtype=jnp.float64)
+        qd0 = jnp.zeros_like(q0) if qd0 is None else jnp.asarray(qd0, dtype=jnp.float64)
+        z = jnp.zeros(q0.shape[:-1] + (1,))
+        zn = jnp.zeros_like(qd0)
+        x = self._row([z, z, q0, qd0, zn, zn])
+        return self._unpack(_call_host(self._family, "init", x, self.callback))[0]
+
+    def sense(self, t, state: MujocoState):
+        """``(Measurement(q, q̇, F), diagnostics)`` at this state. Pure JAX (no callback).
+
+        F: the task-space force the tool exerts on the surface, from MuJoCo's contact force
+        (same convention as :class:`hinfnn.RigidBodyPlant`: the arm feels −Jᵀ F). diagnostics:
+        :meth:`diagnostics`' fields and ``disturbance`` (the joint torque the step from t over one
+        control period applies: d(t + control_period/2))."""
+        t = jnp.asarray(t, dtype=jnp.float64)
+        meas = Measurement(q=state.q, qd=state.qd, F=state.F)
+        return meas, self.diagnostics(state, self.disturbance(t + 0.5 * self.control_period), None)
+
+    def joints(self, state: MujocoState):
+        return state.q, state.qd
+
+    def step_input(self, t, dt):
+        """The joint disturbance of the step [t, t + dt): d(t + dt/2) (what :meth:`step` applies)."""
+        return self.disturbance(t + 0.5 * dt)
+
+    def diagnostics(self, state: MujocoState, w, cache) -> dict:
+        out = {"q": state.q, "qd": state.qd, "F": state.F, "normal_force": state.normal_force,
+               "penetration": state.penetration, "disturbance": w, "x_true": state.x_true}
+        if state.F_contact is not None:
+            out.update(F_contact=state.F_contact, friction_force=state.friction_force, task_margin=state.task_margin)
+        return out
+
+    def step(self, t, state: MujocoState, tau, dt):
+        """Advance by ``dt`` (a whole number of MuJoCo timesteps) with τ and the disturbance
+        d(t + dt/2) held as joint forces (``qfrc_applied``). Returns ``(new_state, qdd)``, qdd =
+        MuJoCo's ``qacc`` at the new state (the forward pass the sensors come from). A non-finite
+        input or a dt that is not a whole number of timesteps gives an all-NaN state (MuJoCo is not
+        called for that member)."""
+        if isinstance(dt, (int, float, np.integer, np.floating)) and not isinstance(self.member, jax.core.Tracer) \
+                and np.ndim(self.member) == 0:
+            _check_divides(self.timestep, float(dt), "plant.timestep", "step dt")
+        t = jnp.asarray(t, dtype=jnp.float64)
+        dt = jnp.asarray(dt, dtype=jnp.float64)
+        tau = jnp.asarray(tau, dtype=jnp.float64)
+        w = self.disturbance(t + 0.5 * dt)
+        x = self._row([dt[..., None], t[..., None], state.q, state.qd, state.qacc_warmstart, tau + w])
+        return self._unpack(_call_host(self._family, "step", x, self.callback))
+
+
+def _friction_values(friction):
+    if friction is None:
+        return 0.0, 0.0
+    mu, c_v = float(friction.coulomb), float(friction.viscous)
+    if c_v != 0.0:
+        raise ConfigError(f"must be 0 for the MuJoCo plant, got {c_v:g} N s/m: MuJoCo's contact has Coulomb friction "
+                          "only (plant.friction.coulomb; its slope below the cone is plant.friction_damping)",
+                          key="plant.friction.viscous")
+    return mu, c_v
+
+
+def _task_of(arm, surface, task=None):
+    """(task map, base rows of the arm's plane) for a Cartesian surface."""
+    from ...model.geometry import Geometry
+
+    task = task if task is not None else getattr(arm, "task", None)
+    if not isinstance(surface, Geometry):
+        raise ConfigError(f"a {S.surface_kind(surface)!r} surface is the two_link arm's (task space); this arm needs a "
+                          "Cartesian surface", key="plant.surface.kind")
+    if task is None:
+        raise ConfigError("the MuJoCo plant needs the arm's task map", key="task.map")
+    rows = tuple(task.space_rows)
+    dim = len(rows)
+    if int(surface.dim) != dim:
+        raise ConfigError(f"a {surface.dim}-D surface for a tool that moves in {dim}-D", key="plant.surface.kind")
+    S.surface_geom(surface, rows if dim == 2 else (0, 1))  # refuses the kinds MuJoCo has no primitive for
+    return task, rows if dim == 2 else (0, 1)
+
+
+def _flatten(plant: MujocoPlant):
+    # the family (MuJoCo models, Batches) is static and hashed by identity; the member index, the
+    # disturbance and the sensing data are leaves (a batch of plants is a stack of them)
+    return (plant.member, plant.disturbance, plant.sensing), (plant._family, plant.control_period, plant.callback)
+
+
+def _unflatten(aux, children):
+    family, period, callback = aux
+    return MujocoPlant(family, children[0], children[1], children[2], period, callback)
+
+
+jax.tree_util.register_pytree_node(MujocoPlant, _flatten, _unflatten)
