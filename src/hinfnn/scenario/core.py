@@ -381,8 +381,9 @@ def resolve_base(raw: dict, source: str, _chain: tuple = ()) -> dict:
 
 
 def _resolve_paths(raw: dict, source: str) -> dict:
-    """URDF paths (``*.arm.file`` ending in .urdf) relative to the scenario file that names them,
-    made absolute (so a scenario.toml written elsewhere still finds them)."""
+    """URDF paths (``*.arm.file`` ending in .urdf) and a user's MJCF (``plant.mjcf.file`` ending in
+    .xml) relative to the scenario file that names them, made absolute (so a scenario.toml written
+    elsewhere still finds them)."""
     if source == "<dict>" or not Path(source).is_file():
         return raw
     out = raw
@@ -393,6 +394,13 @@ def _resolve_paths(raw: dict, source: str) -> dict:
             if out is raw:
                 out = copy.deepcopy(raw)
             out[who]["arm"]["file"] = str((Path(source).parent / f).resolve())
+    plant = raw.get("plant") if isinstance(raw.get("plant"), dict) else {}
+    mjcf = plant.get("mjcf") if isinstance(plant.get("mjcf"), dict) else {}
+    f = mjcf.get("file")
+    if isinstance(f, str) and f.endswith(".xml") and not Path(f).is_absolute():  # a user's MJCF (MuJoCo plant)
+        if out is raw:
+            out = copy.deepcopy(raw)
+        out["plant"]["mjcf"]["file"] = str((Path(source).parent / f).resolve())
     return out
 
 
