@@ -601,7 +601,8 @@ def chain_from_model(model, joints, site: str | int):
     anchor; body i is every MuJoCo body whose nearest listed joint above it (itself included) is
     joint i, lumped (parallel-axis theorem) in that frame; bodies above the first joint are the
     base. Not in the chain: armature, damping, friction loss, springs, limits' forces, actuators
-    (what the nominal of a user's MJCF does not know)."""
+    (what the nominal of a user's MJCF does not know); its effort limits are the force ranges of the
+    actuators on the joints (infinite without one)."""
     import jax.numpy as jnp
 
     from ...model.urdf import UrdfChain
@@ -653,12 +654,18 @@ def chain_from_model(model, joints, site: str | int):
     lower = [model.jnt_range[j, 0] if model.jnt_limited[j] else -np.inf for j in jids]
     upper = [model.jnt_range[j, 1] if model.jnt_limited[j] else np.inf for j in jids]
     names = [[model.body(b).name for b in range(1, model.nbody) if owner(b) == i] for i in range(n)]
+    effort = np.full(n, np.inf)  # the force range of an actuator on the joint, if it has one
+    for a in range(model.nu):
+        if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and model.actuator_forcelimited[a]:
+            j = int(model.actuator_trnid[a, 0])
+            if j in jids:
+                effort[jids.index(j)] = float(np.max(np.abs(model.actuator_forcerange[a])))
     f = lambda x: jnp.asarray(np.asarray(x, dtype=float))  # noqa: E731
     return UrdfChain(
         placement_rot=f(place_R), placement_pos=f(place_p),
         axes=f([model.jnt_axis[j] / np.linalg.norm(model.jnt_axis[j]) for j in jids]), mass=f(mass), com=f(com),
         inertia=f(inertia), tool_rot=f(R_n.T @ Rs), tool_pos=f(R_n.T @ (d.site_xpos[sid] - p_n)),
-        gravity=f(model.opt.gravity), lower=f(lower), upper=f(upper), effort_limit=f(np.full(n, np.inf)),
+        gravity=f(model.opt.gravity), lower=f(lower), upper=f(upper), effort_limit=f(effort),
         velocity_limit=f(np.full(n, np.inf)), n=n,
         joint_types=tuple("prismatic" if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE else "revolute"
                           for j in jids),
@@ -677,7 +684,7 @@ def chain_urdf(chain, name: str, base_link: str = "base_link", tool_link: str = 
     """URDF text of a chain: ``base_link`` → one link per moving joint (named ``links[i]`` or
     link1 …) → the fixed ``tool_link`` at the tool frame. Joint origins and inertials are written
     with Python's shortest round-trip floats, so :func:`~hinfnn.model.urdf.load_urdf` reads back
-    the same chain to round-off (tested)."""
+    the same chain to round-off (tested). Infinite effort or velocity limits are written 1e9."""
     n = int(chain.n)
     links = list(links) if links is not None else [f"link{i + 1}" for i in range(n)]
     out = [f'<?xml version="1.0"?>', f'<robot name="{name}">', f'  <link name="{base_link}"/>']
@@ -697,7 +704,9 @@ def chain_urdf(chain, name: str, base_link: str = "base_link", tool_link: str = 
                 f'    <origin xyz="{_vec(chain.placement_pos[i])}" rpy="{_vec(_rpy(chain.placement_rot[i]))}"/>',
                 f'    <axis xyz="{_vec(chain.axes[i])}"/>']
         if kind != "continuous":
-            out.append(f'    <limit lower="{_num(lo)}" upper="{_num(hi)}" effort="1e9" velocity="1e9"/>')
+            eff, vel = float(chain.effort_limit[i]), float(chain.velocity_limit[i])
+            eff, vel = (_num(v) if math.isfinite(v) else "1e9" for v in (eff, vel))
+            out.append(f'    <limit lower="{_num(lo)}" upper="{_num(hi)}" effort="{eff}" velocity="{vel}"/>')
         out.append("  </joint>")
         parent = links[i]
     out += [f'  <link name="{tool_link}"/>', f'  <joint name="{tool_link}_fixed_joint" type="fixed">',
