@@ -62,8 +62,14 @@ class _Family:
         self.scenes: list[S.Scene] = []
         self.meta: list = []
         self._free: dict[int, list] = {}
+        self._datas: dict[int, list] = {}
         self._lock = threading.Lock()
         self.nthread = max(1, min(4, os.cpu_count() or 1))
+        st = mujoco.mjtState
+        self._spec = int(st.mjSTATE_TIME | st.mjSTATE_QPOS | st.mjSTATE_QVEL | st.mjSTATE_WARMSTART
+                         | st.mjSTATE_QFRC_APPLIED)
+        #: step single rows with mujoco.batch too (tests compare the two paths)
+        self.always_batch = False
 
     def add(self, scene: S.Scene, meta) -> int:
         with self._lock:
@@ -88,11 +94,59 @@ class _Family:
         with self._lock:
             self._free[rows].append(item)
 
+    def _one(self, x, kind: str):
+        """One row, on an MjData of its own (the unbatched case, without the batch's array
+        bookkeeping: a run's every control period). The same numbers as :meth:`run` (tested)."""
+        mujoco = self.mujoco
+        out = np.full(self.size_out, np.nan)
+        if not math.isfinite(float(np.sum(x))):
+            return out
+        i = int(x[0])
+        if not 0 <= i < len(self.scenes):
+            return out
+        scene = self.scenes[i]
+        m = scene.model
+        nsub = 0
+        if kind == "step":
+            ts = scene.timestep
+            nsub = round(x[1] / ts)
+            if nsub < 1 or abs(nsub * ts - x[1]) > 1e-9 * x[1]:
+                return out
+        with self._lock:
+            free = self._datas.setdefault(i, [])
+            item = free.pop() if free else None
+        if item is None:
+            item = (mujoco.MjData(m), np.zeros((3, self.nv)), np.zeros((3, self.nv)))
+        try:
+            d, jacp, jacr = item
+            mujoco.mj_setState(m, d, x[2:], self._spec)
+            try:
+                for _ in range(nsub):
+                    mujoco.mj_step(m, d)
+                mujoco.mj_forward(m, d)
+            except Exception:  # MuJoCo raised (mju_error): this row is unusable
+                return out
+            mujoco.mj_jacSite(m, d, jacp, jacr, self.site)
+            nq, nv, n, c = self.nq, self.nv, self.n, 0
+            for arr in (d.qpos, d.qvel, d.qacc_warmstart, d.qacc, d.site_xpos[self.site], d.site_xmat[self.site],
+                        jacp[:, :n].ravel(), jacr[:, :n].ravel(),
+                        d.sensordata[self.sensor_adr:self.sensor_adr + S.SENSOR_SIZE]):
+                w = arr.shape[0]
+                out[c:c + w] = arr
+                c += w
+            del nq, nv
+            return out
+        finally:
+            with self._lock:
+                self._datas[i].append(item)
+
     def run(self, x, kind: str):
         """Step (``kind`` "step") or initialise ("init") every row of x (rows, size_in)."""
         mujoco = self.mujoco
         x = np.asarray(x, dtype=np.float64)
         rows = x.shape[0]
+        if rows == 1 and not self.always_batch:
+            return self._one(x[0], kind)[None]
         out = np.full((rows, self.size_out), np.nan)
         member = np.where(np.isfinite(x[:, 0]), x[:, 0], -1).astype(np.int64)
         ok = np.all(np.isfinite(x), axis=1) & (member >= 0) & (member < len(self.scenes))
