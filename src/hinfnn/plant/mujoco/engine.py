@@ -59,8 +59,9 @@ class _Family:
         self.site, self.site_body, self.sensor_adr = scene.site, scene.site_body, scene.sensor_adr
         self.size_in = 3 + self.nq + 3 * self.nv
         self.size_out = self.nq + 3 * self.nv + 12 + 6 * self.n + S.SENSOR_SIZE
-        self.scenes: list[S.Scene] = []
-        self.meta: list = []
+        self.scenes: dict[int, S.Scene] = {}
+        self.meta: dict[int, object] = {}
+        self._first = scene
         self._free: dict[int, list] = {}
         self._datas: dict[int, list] = {}
         self._lock = threading.Lock()
@@ -71,11 +72,21 @@ class _Family:
         #: step single rows with mujoco.batch too (tests compare the two paths)
         self.always_batch = False
 
-    def add(self, scene: S.Scene, meta) -> int:
+    def add(self, scene: S.Scene, meta, key: int) -> int:
+        """Register a model under its content key (the same key: the same model, kept once)."""
         with self._lock:
-            self.scenes.append(scene)
-            self.meta.append(meta)
-            return len(self.scenes) - 1
+            if key not in self.scenes:
+                self.scenes[key] = scene
+                self.meta[key] = meta
+            return key
+
+    def _scene(self, key: int) -> S.Scene:
+        try:
+            return self.scenes[key]
+        except KeyError:
+            raise RuntimeError(f"MuJoCo model {key} is not known in this process (process {os.getpid()}): a MuJoCo "
+                               "plant's models live in the process that built it; build the plant here "
+                               "(e.g. from its scenario) instead of passing its leaves from another process") from None
 
     # one Batch per concurrent call and batch size (XLA may call from several threads)
     def _acquire(self, rows: int):
@@ -85,7 +96,7 @@ class _Family:
                 return free.pop()
         from mujoco import batch as mjbatch
 
-        b = mjbatch.Batch(self.scenes[0].model, nsim=rows, nthread=min(rows, self.nthread))
+        b = mjbatch.Batch(self._first.model, nsim=rows, nthread=min(rows, self.nthread))
         views = {k: b.bind(k) for k in ("time", "qpos", "qvel", "qacc_warmstart", "qfrc_applied", "qacc",
                                         "site_xpos", "site_xmat", "sensordata")}
         return [b, views, None]
@@ -102,9 +113,7 @@ class _Family:
         if not math.isfinite(float(np.sum(x))):
             return out
         i = int(x[0])
-        if not 0 <= i < len(self.scenes):
-            return out
-        scene = self.scenes[i]
+        scene = self._scene(i)
         m = scene.model
         nsub = 0
         if kind == "step":
@@ -149,7 +158,9 @@ class _Family:
             return self._one(x[0], kind)[None]
         out = np.full((rows, self.size_out), np.nan)
         member = np.where(np.isfinite(x[:, 0]), x[:, 0], -1).astype(np.int64)
-        ok = np.all(np.isfinite(x), axis=1) & (member >= 0) & (member < len(self.scenes))
+        for key in set(member[np.isfinite(x[:, 0])].tolist()):
+            self._scene(key)  # an unknown model is an error, not a NaN
+        ok = np.all(np.isfinite(x), axis=1)
         nsub = np.zeros(rows, dtype=np.int64)
         if kind == "step":
             for i in np.nonzero(ok)[0]:
@@ -381,6 +392,19 @@ class _Meta:
         self.friction_damping = friction_damping
 
 
+def _content_key(scene: S.Scene, sensing, disturbance) -> int:
+    """A plant's member key: a 48-bit hash of its MuJoCo model (the MJCF at full precision) and of
+    its sensing data (task map, true surface), exact in float64, the same in every process."""
+    import hashlib
+
+    from ..._pytree import value_key
+
+    h = hashlib.sha256(scene.xml.encode())
+    h.update(repr(value_key(sensing)).encode())
+    h.update(repr((scene.source, scene.timestep)).encode())
+    return int.from_bytes(h.digest()[:6], "little")
+
+
 def _check_divides(timestep: float, period: float, key: str, what: str):
     nsub = round(period / timestep)
     if nsub < 1 or abs(nsub * timestep - period) > 1e-9 * period:
@@ -426,8 +450,8 @@ class MujocoPlant:
             raise ConfigError(f"must be one of {CALLBACKS}, got {callback!r}", key="plant.callback")
         kind = type(sensing).__name__
         family = _family_of(scene, kind)
-        member = family.add(scene, meta)
-        return cls(family, jnp.asarray(member, dtype=jnp.int32), disturbance, sensing, control_period, callback)
+        member = family.add(scene, meta, _content_key(scene, sensing, disturbance))
+        return cls(family, jnp.asarray(member, dtype=jnp.int64), disturbance, sensing, control_period, callback)
 
     @staticmethod
     def _periods(control_period, timestep):
