@@ -25,6 +25,7 @@ import hinfnn as H  # noqa: E402
 from hinfnn.errors import ConfigError  # noqa: E402
 from hinfnn.plant import mujoco as hm  # noqa: E402
 from hinfnn.plant.mujoco import MujocoPlant, mjcf_two_link  # noqa: E402
+from mujoco_helpers import fit_oscillation  # noqa: E402
 
 #: one xdist worker runs this module: its tests share compiled programs and expensive fixtures
 pytestmark = pytest.mark.xdist_group("mujoco")
@@ -107,26 +108,6 @@ def test_mjcf_contact_parameters():
 # --------------------------------------------------------------------------------------------
 # Contact calibration
 # --------------------------------------------------------------------------------------------
-def _fit_oscillation(t, p):
-    """p(t) = p_eq + e^{−σt}(a cos ω_d t + b sin ω_d t) by least squares, guessed from the data
-    (mean of the second half, zero crossings). Returns p_eq, ω_n, ζ and the worst residual."""
-    from scipy.optimize import least_squares
-
-    p_eq0 = p[len(p) // 2:].mean()
-    s = np.sign(p - p_eq0)
-    crossings = t[1:][s[1:] != s[:-1]]
-    wd0 = np.pi / np.median(np.diff(crossings))
-
-    def res(th):
-        p_eq, sig, wd, a, b = th
-        return p_eq + np.exp(-sig * t) * (a * np.cos(wd * t) + b * np.sin(wd * t)) - p
-
-    fit = least_squares(res, [p_eq0, 0.0, wd0, p[0] - p_eq0, 0.0], x_scale="jac")
-    p_eq, sig, wd, _, _ = fit.x
-    wn = float(np.hypot(wd, sig))
-    return float(p_eq), wn, float(sig / wn), float(np.abs(fit.fun).max())
-
-
 CALIBRATION = [(1e5, 0.0), (1e5, 200.0), (1e6, 0.0), (1e6, 200.0)]
 
 
@@ -159,7 +140,7 @@ def test_contact_is_the_requested_spring_damper(k, c, q_start):
     # the sensed force is MuJoCo's normal force along the inward normal
     np.testing.assert_allclose(np.asarray(F), np.asarray(fn)[:, None] * N_IN, atol=1e-9)
 
-    p_eq, wn, zeta, worst_residual = _fit_oscillation(t, p)
+    p_eq, wn, zeta, worst_residual = fit_oscillation(t, p)
     q_end = np.asarray(s_end.q)
     J, M = np.asarray(arm.J(q_end)), np.asarray(arm.M(q_end))
     m_eff = 1.0 / (N_IN @ J @ np.linalg.solve(M, J.T) @ N_IN)
@@ -198,7 +179,7 @@ def test_contact_calibration_with_substeps_and_other_integrators(q_start):
 
         _, states = run(s0)
         p = np.concatenate([[float(s0.penetration)], np.asarray(states.penetration)])
-        p_eq, wn, zeta, _ = _fit_oscillation(H_CTRL * np.arange(1001), p)
+        p_eq, wn, zeta, _ = fit_oscillation(H_CTRL * np.arange(1001), p)
         J, M = np.asarray(arm.J(q_start)), np.asarray(arm.M(q_start))
         m_eff = 1.0 / (N_IN @ J @ np.linalg.solve(M, J.T) @ N_IN)
         assert p_eq == pytest.approx(P / k, rel=0.02), kw

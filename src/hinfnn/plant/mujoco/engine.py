@@ -700,6 +700,9 @@ def _task_of(arm, surface, task=None):
     from ...model.geometry import Geometry
 
     task = task if task is not None else getattr(arm, "task", None)
+    kind = S.surface_kind(surface)
+    if kind not in S.SUPPORTED_SURFACES:
+        raise S.unsupported_surface(kind)
     if not isinstance(surface, Geometry):
         raise ConfigError(f"a {S.surface_kind(surface)!r} surface is the two_link arm's (task space); this arm needs a "
                           "Cartesian surface", key="plant.surface.kind")

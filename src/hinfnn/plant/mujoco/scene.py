@@ -46,8 +46,11 @@ IMPEDANCE = 1e-4
 POINT_MASS_GYRATION_RADIUS = 1e-5
 
 #: Radius (m) of the contact sphere at the tool point. The surface geom sits TIP_RADIUS inside the
-#: true surface, so the sphere–surface distance equals the tool point's signed distance.
-TIP_RADIUS = 0.01
+#: true surface, so the sphere–surface distance equals the tool point's signed distance. MuJoCo's
+#: friction acts where the sphere touches, TIP_RADIUS from the tool point: its slip velocity there
+#: includes ω × (TIP_RADIUS n) and its moment about the tool point is TIP_RADIUS |F_t| (the built-in
+#: plant's friction acts at the point itself); 1 mm keeps both small (docs/mujoco.md, "Friction").
+TIP_RADIUS = 0.001
 
 #: MuJoCo's ratio of frictional to normal constraint impedance (``impratio``) for the tool's
 #: friction: the friction rows' added mass is IMPRATIO times the normal row's, and the normal force
@@ -398,7 +401,7 @@ def _check_user_model(mujoco, model, joints, site_name, source):
         jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)
         if jid < 0:
             raise ConfigError(f"{source}: no joint named {j!r}{_hint(j, names)}", key="plant.mjcf.joints")
-        if model.jnt_type[jid] not in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+        if int(model.jnt_type[jid]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             raise ConfigError(f"{source}: joint {j!r} is not a hinge or a slide (allowed: hinge, slide)",
                               key="plant.mjcf.joints")
         if model.qpos0[model.jnt_qposadr[jid]] != 0.0:
@@ -656,7 +659,7 @@ def chain_from_model(model, joints, site: str | int):
     names = [[model.body(b).name for b in range(1, model.nbody) if owner(b) == i] for i in range(n)]
     effort = np.full(n, np.inf)  # the force range of an actuator on the joint, if it has one
     for a in range(model.nu):
-        if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and model.actuator_forcelimited[a]:
+        if int(model.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and model.actuator_forcelimited[a]:
             j = int(model.actuator_trnid[a, 0])
             if j in jids:
                 effort[jids.index(j)] = float(np.max(np.abs(model.actuator_forcerange[a])))
@@ -667,7 +670,7 @@ def chain_from_model(model, joints, site: str | int):
         inertia=f(inertia), tool_rot=f(R_n.T @ Rs), tool_pos=f(R_n.T @ (d.site_xpos[sid] - p_n)),
         gravity=f(model.opt.gravity), lower=f(lower), upper=f(upper), effort_limit=f(effort),
         velocity_limit=f(np.full(n, np.inf)), n=n,
-        joint_types=tuple("prismatic" if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE else "revolute"
+        joint_types=tuple("prismatic" if int(model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_SLIDE) else "revolute"
                           for j in jids),
         joint_names=tuple(joints), body_links=tuple(tuple(x) for x in names))
 
