@@ -387,3 +387,52 @@ def test_the_controller_is_designed_for_mujocos_step():
     a, b = design_summary(on_mujoco.build_controller()), design_summary(twin.build_controller())
     assert a == b and a["force_rate"]["tau_f"] == on_mujoco.simulation.dt
     assert H.load_scenario("paper-stable", over).control_period is None
+
+
+# --------------------------------------------------------------------------------------------
+# Batches of MuJoCo plants, and a URDF arm's closed loop
+# --------------------------------------------------------------------------------------------
+def test_a_batch_of_mujoco_plants_is_its_members():
+    """simulate_batch over MuJoCo plants with other masses and contact stiffnesses (other MuJoCo
+    models, one family: one host call per step for the batch, mujoco.batch stepping the rows) gives
+    each member's single run: MuJoCo's numbers bit for bit, the controller's to rounding."""
+    from hinfnn.sim import simulate_batch
+
+    scs = [H.load_scenario("paper", {"plant.engine": "mujoco", "controller.kind": "hinf", "plant.contact.damping": 200.0,
+                                     "simulation.t_final": 0.01, "plant.contact.stiffness": k, "plant.arm.m2": m2})
+           for k, m2 in ((1e5, 1.1), (3e5, 1.3))]
+    runs = [sc.run() for sc in scs]
+    assert runs[0].plant._family is runs[1].plant._family and int(runs[0].plant.member) != int(runs[1].plant.member)
+    batch = simulate_batch([r.plant for r in runs], runs[0].controller, runs[0].reference, q0=[r.q0 for r in runs],
+                           t_final=0.01, dt=H_CTRL, fields=("q", "qd", "lam", "penetration"))
+    for i, r in enumerate(runs):
+        one = H.simulate(r.plant, r.controller, r.reference, q0=r.q0, t_final=0.01, dt=H_CTRL,
+                         fields=("q", "qd", "lam", "penetration"))
+        a, b = batch.member(i).arrays, one.arrays
+        np.testing.assert_allclose(a["q"], b["q"], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(a["lam"], b["lam"], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(a["penetration"], b["penetration"], rtol=0, atol=1e-15)
+    assert not np.allclose(batch.member(0).arrays["lam"], batch.member(1).arrays["lam"])
+
+
+def test_ur5_closed_loop_on_mujoco_matches_the_builtin_plant():
+    """ur5-table's H∞-only law at 1 kHz (zero-order hold), damped contact, tool friction off, 50 ms:
+    the built-in plant (RK4, dt = 0.1 ms) and MuJoCo (its RK4, 10 steps of 0.1 ms per control period,
+    one call per period) give the same λ and e_u1 at every control instant: |Δλ| < 0.01 N (λ up to
+    ~12 N), |Δe_u1| < 1e-7 (m and rad); measured over 0.5 s: 6e-4 N and 9e-9."""
+    over = {"controller.kind": "hinf", "plant.friction.coulomb": 0.0, "plant.friction.viscous": 0.0,
+            "simulation.control": "sampled", "simulation.control_period": 1e-3, "simulation.t_final": 0.05,
+            "simulation.output_interval": 1e-3}
+    fields = ("lam", "e_u1", "penetration", "F_contact")
+    builtin = H.load_scenario("ur5-table", over).simulate(fields=fields)
+    mj = H.load_scenario("ur5-table", {**over, "plant.engine": "mujoco", "simulation.dt": 1e-3,
+                                       "plant.timestep": 1e-4}).simulate(fields=fields)
+    a, b = mj.arrays, builtin.arrays
+    assert a["lam"].shape == b["lam"].shape == (51, 1)
+    d_lam, d_u1 = np.abs(a["lam"] - b["lam"]).max(), np.abs(a["e_u1"] - b["e_u1"]).max()
+    print(f"max |Δλ| = {d_lam:.3g} N (λ up to {np.abs(b['lam']).max():.3g}), max |Δe_u1| = {d_u1:.3g}, "
+          f"max |ΔF_contact| = {np.abs(a['F_contact'] - b['F_contact']).max():.3g} N")
+    assert np.abs(b["lam"]).max() > 5.0  # pressing
+    assert d_lam < 0.01 and d_u1 < 1e-7
+    np.testing.assert_allclose(a["penetration"], b["penetration"], atol=1e-7)
+    np.testing.assert_allclose(a["F_contact"], b["F_contact"], atol=0.01)

@@ -78,6 +78,7 @@ class _Family:
             if key not in self.scenes:
                 self.scenes[key] = scene
                 self.meta[key] = meta
+            _MEMBERS[key] = self
             return key
 
     def _scene(self, key: int) -> S.Scene:
@@ -238,61 +239,38 @@ def _family_of(scene: S.Scene, kind: str) -> _Family:
         return fam
 
 
-_PRIMITIVES: dict = {}
+#: Every member key this process knows, and its family (the FFI handler finds a row's model here).
+_MEMBERS: dict = {}
 
 
-def _host_primitive(kind: str):
-    """A JAX primitive whose CPU lowering calls ``family.host_step``/``host_init`` on the raw
-    NumPy buffers XLA hands to its Python-callback custom call (what :func:`jax.pure_callback`
-    does, without the ``device_put`` of every argument and the default-device context it adds
-    per call: 9 µs instead of 70–130 µs per call on this machine, docs/mujoco.md). Uses JAX
-    internals (``jax._src.callback.emit_python_callback``, pinned jax 0.10.2); returns None when
-    they are missing, and the plant then uses :func:`jax.pure_callback`."""
-    if kind in _PRIMITIVES:
-        return _PRIMITIVES[kind]
-    try:
-        from jax._src.callback import emit_python_callback
-        from jax.extend.core import Primitive
-        from jax.interpreters import batching, mlir
-    except ImportError:  # pragma: no cover - another JAX
-        _PRIMITIVES[kind] = None
-        return None
-    prim = Primitive(f"hinfnn_mujoco_{kind}")
-
-    def host_fn(family):
-        return family.host_step if kind == "step" else family.host_init
-
-    def impl(x, *, family):
-        return jnp.asarray(host_fn(family)(np.asarray(x, dtype=np.float64)))
-
-    def abstract(x, *, family):
-        return jax.core.ShapedArray(x.shape[:-1] + (family.size_out,), np.dtype(np.float64))
-
-    def lower(ctx, x, *, family):
-        fn = host_fn(family)
-        res, _, _ = emit_python_callback(ctx, lambda a: (fn(a),), None, [x], ctx.avals_in,
-                                         ctx.avals_out, has_side_effect=False, returns_token=False)
-        return res
-
-    def batch(args, dims, *, family):
-        # the host function takes any leading batch shape and steps the rows together
-        (x,), (bd,) = args, dims
-        return prim.bind(jnp.moveaxis(x, bd, 0), family=family), 0
-
-    prim.def_impl(impl)
-    prim.def_abstract_eval(abstract)
-    mlir.register_lowering(prim, lower, cacheable=False)
-    batching.primitive_batchers[prim] = batch
-    _PRIMITIVES[kind] = prim
-    return prim
+def _dispatch(kind: str, x, out) -> None:
+    """The FFI handler's work (:mod:`.ffi`): step (or initialise) every row of x into out."""
+    rows = x.reshape(-1, x.shape[-1])
+    res = out.reshape(-1, out.shape[-1])
+    keys = rows[:, 0][np.isfinite(rows[:, 0])]
+    if keys.size == 0:
+        res[...] = np.nan
+        return
+    key = int(keys[0])
+    family = _MEMBERS.get(key)
+    if family is None:
+        raise RuntimeError(f"MuJoCo model {key} is not known in this process (process {os.getpid()}): a MuJoCo "
+                           "plant's models live in the process that built it; build the plant here (e.g. from its "
+                           "scenario) instead of passing its leaves from another process")
+    res[...] = family.run(rows, kind)
 
 
 def _call_host(family, kind: str, x, callback: str):
-    """family.host_<kind>(x) from inside a traced program: one host call for any batch."""
+    """family.host_<kind>(x) from inside a traced program: one call for any batch.
+
+    ``"host"``: the FFI custom call of :mod:`.ffi` (a compiled program that steps MuJoCo is cached
+    like any other); ``"pure_callback"``: :func:`jax.pure_callback` (never cached: JAX does not
+    write programs with Python callbacks to its persistent cache)."""
     if callback == "host":
-        prim = _host_primitive(kind)
-        if prim is not None:
-            return prim.bind(x, family=family)
+        from . import ffi
+
+        ffi.register(_dispatch)
+        return ffi.call(kind, x, family.size_out)
     fn = family.host_step if kind == "step" else family.host_init
     return jax.pure_callback(fn, jax.ShapeDtypeStruct(x.shape[:-1] + (family.size_out,), jnp.float64),
                              x, vmap_method="broadcast_all")
