@@ -416,11 +416,13 @@ def test_a_batch_of_mujoco_plants_is_its_members():
 
 
 def test_ur5_closed_loop_on_mujoco_matches_the_builtin_plant():
-    """ur5-table's H∞-only law at 1 kHz (zero-order hold), damped contact, tool friction off, 50 ms:
-    the built-in plant (RK4, dt = 0.1 ms) and MuJoCo (its RK4, 10 steps of 0.1 ms per control period,
-    one call per period) give the same λ and e_u1 at every control instant: |Δλ| < 0.01 N (λ up to
-    ~12 N), |Δe_u1| < 1e-7 (m and rad); measured over 0.5 s: 6e-4 N and 9e-9."""
-    over = {"controller.kind": "hinf", "plant.friction.coulomb": 0.0, "plant.friction.viscous": 0.0,
+    """ur5-table at 1 kHz (zero-order hold), damped contact, tool friction off, 50 ms, with the
+    FL-like law (the cheapest UR5 program to compile; the plants are what is compared): the built-in
+    plant (RK4, dt = 0.1 ms) and MuJoCo (its RK4, 10 steps of 0.1 ms per control period, one call per
+    period) give the same λ, e_u1, penetration and tool force at every control instant: |Δλ| < 0.01 N,
+    |Δe_u1| < 1e-7 (m and rad). (H∞-only over 0.5 s: 6e-4 N and 9e-9; benchmarks/mujoco_table.py
+    compares 10-s runs of both laws of the issue.)"""
+    over = {"controller.kind": "fl", "plant.friction.coulomb": 0.0, "plant.friction.viscous": 0.0,
             "simulation.control": "sampled", "simulation.control_period": 1e-3, "simulation.t_final": 0.05,
             "simulation.output_interval": 1e-3}
     fields = ("lam", "e_u1", "penetration", "F_contact")
@@ -432,7 +434,7 @@ def test_ur5_closed_loop_on_mujoco_matches_the_builtin_plant():
     d_lam, d_u1 = np.abs(a["lam"] - b["lam"]).max(), np.abs(a["e_u1"] - b["e_u1"]).max()
     print(f"max |Δλ| = {d_lam:.3g} N (λ up to {np.abs(b['lam']).max():.3g}), max |Δe_u1| = {d_u1:.3g}, "
           f"max |ΔF_contact| = {np.abs(a['F_contact'] - b['F_contact']).max():.3g} N")
-    assert np.abs(b["lam"]).max() > 5.0  # pressing
+    assert np.abs(b["lam"]).max() > 1.0 and np.all(b["penetration"][5:] > 0)  # pressing, in contact
     assert d_lam < 0.01 and d_u1 < 1e-7
     np.testing.assert_allclose(a["penetration"], b["penetration"], atol=1e-7)
     np.testing.assert_allclose(a["F_contact"], b["F_contact"], atol=0.01)

@@ -21,6 +21,7 @@ tests/test_mujoco.py.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
@@ -106,6 +107,18 @@ def _model(chain):
     return mujoco.MjModel.from_xml_string(chain_xml(chain))
 
 
+@jax.jit
+def _terms(chain, Q, QD):
+    """M, C q̇ + G, G and the tool frame of a chain at a batch of states (one program per chain
+    structure)."""
+    return jax.vmap(lambda q, qd: (chain.M(q), chain.bias(q, qd), chain.G(q), *chain.fk(q)))(Q, QD)
+
+
+@jax.jit
+def _distances(surface, P):
+    return jax.vmap(surface.signed_distance)(P), jax.vmap(surface.normal)(P)
+
+
 def _rel(a, b):
     return float(np.linalg.norm(np.asarray(a) - np.asarray(b)) / np.linalg.norm(np.asarray(b)))
 
@@ -126,21 +139,21 @@ def test_generated_model_is_the_builtin_arm(name):
     d = mujoco.MjData(m)
     site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "tool")
     rng = np.random.default_rng(3)
+    Q, QD = rng.uniform(-np.pi, np.pi, (20, n)), rng.uniform(-3.0, 3.0, (20, n))
+    Ms, biases, Gs, ps, Rs = map(np.asarray, _terms(chain, jnp.asarray(Q), jnp.asarray(QD)))
     worst = dict(M=0.0, bias=0.0, G=0.0, p=0.0, R=0.0)
     M = np.zeros((n, n))
-    for _ in range(20):
-        q, qd = rng.uniform(-np.pi, np.pi, n), rng.uniform(-3.0, 3.0, n)
-        d.qpos[:], d.qvel[:] = q, qd
+    for i in range(20):
+        d.qpos[:], d.qvel[:] = Q[i], QD[i]
         mujoco.mj_forward(m, d)
         mujoco.mj_fullM(m, d, M)
-        p, R = chain.fk(jnp.asarray(q))
-        worst["M"] = max(worst["M"], _rel(M, chain.M(jnp.asarray(q))))
-        worst["bias"] = max(worst["bias"], _rel(d.qfrc_bias, chain.bias(jnp.asarray(q), jnp.asarray(qd))))
-        worst["p"] = max(worst["p"], float(np.max(np.abs(d.site_xpos[site] - np.asarray(p)))))
-        worst["R"] = max(worst["R"], float(np.max(np.abs(d.site_xmat[site].reshape(3, 3) - np.asarray(R)))))
+        worst["M"] = max(worst["M"], _rel(M, Ms[i]))
+        worst["bias"] = max(worst["bias"], _rel(d.qfrc_bias, biases[i]))
+        worst["p"] = max(worst["p"], float(np.max(np.abs(d.site_xpos[site] - ps[i]))))
+        worst["R"] = max(worst["R"], float(np.max(np.abs(d.site_xmat[site].reshape(3, 3) - Rs[i]))))
         d.qvel[:] = 0.0
         mujoco.mj_forward(m, d)
-        worst["G"] = max(worst["G"], _rel(d.qfrc_bias, chain.G(jnp.asarray(q))))
+        worst["G"] = max(worst["G"], _rel(d.qfrc_bias, Gs[i]))
     print(name, {k: f"{v:.1e}" for k, v in worst.items()})
     # the planar arm's point masses carry m (1e-5 m)^2 of rotational inertia: 2e-10 of M
     assert all(v < 1e-9 for v in worst.values()), worst
@@ -155,15 +168,14 @@ def test_model_reads_back_into_the_chain_and_the_chain_writes_as_urdf():
     urdf = load_urdf_string(chain_urdf(chain, "seven", links=[f"b{i}" for i in range(chain.n)]), "base_link", "tool0")
     assert back.joint_types == chain.joint_types == urdf.joint_types
     rng = np.random.default_rng(4)
-    for _ in range(10):
-        q, qd = jnp.asarray(rng.uniform(-2, 2, chain.n)), jnp.asarray(rng.uniform(-2, 2, chain.n))
-        for other in (back, urdf):
-            assert _rel(other.M(q), chain.M(q)) < 1e-12
-            assert _rel(other.bias(q, qd), chain.bias(q, qd)) < 1e-12
-            p0, R0 = chain.fk(q)
-            p1, R1 = other.fk(q)
-            assert np.max(np.abs(np.asarray(p1) - np.asarray(p0))) < 1e-12
-            assert np.max(np.abs(np.asarray(R1) - np.asarray(R0))) < 1e-12
+    Q, QD = jnp.asarray(rng.uniform(-2, 2, (10, chain.n))), jnp.asarray(rng.uniform(-2, 2, (10, chain.n)))
+    want = _terms(chain, Q, QD)
+    for other in (back, urdf):
+        got = _terms(other, Q, QD)
+        for a, b in zip(got[:3], want[:3]):
+            assert max(_rel(x, y) for x, y in zip(np.asarray(a), np.asarray(b))) < 1e-12
+        for a, b in zip(got[3:], want[3:]):
+            assert np.max(np.abs(np.asarray(a) - np.asarray(b))) < 1e-12
 
 
 def test_menagerie_ur5e_loads_without_meshes_and_its_urdf_is_its_rigid_body_part():
@@ -174,18 +186,18 @@ def test_menagerie_ur5e_loads_without_meshes_and_its_urdf_is_its_rigid_body_part
     d = mujoco.MjData(m)
     site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "attachment_site")
     rng = np.random.default_rng(5)
+    Q = rng.uniform(-np.pi, np.pi, (10, 6))
+    Ms, _, Gs, ps, Rs = map(np.asarray, _terms(urdf, jnp.asarray(Q), jnp.zeros((10, 6))))
     M = np.zeros((6, 6))
-    for _ in range(10):
-        q = rng.uniform(-np.pi, np.pi, 6)
-        d.qpos[:], d.qvel[:] = q, 0.0
+    for i in range(10):
+        d.qpos[:], d.qvel[:] = Q[i], 0.0
         mujoco.mj_forward(m, d)
         mujoco.mj_fullM(m, d, M)
         # the MJCF's joint armature (0.1 kg m^2 each) is the only difference in M; gravity equal
-        np.testing.assert_allclose(M - np.asarray(urdf.M(jnp.asarray(q))), 0.1 * np.eye(6), atol=1e-12)
-        np.testing.assert_allclose(d.qfrc_bias, np.asarray(urdf.G(jnp.asarray(q))), atol=1e-12)
-        p, R = urdf.fk(jnp.asarray(q))
-        np.testing.assert_allclose(d.site_xpos[site], np.asarray(p), atol=1e-12)
-        np.testing.assert_allclose(d.site_xmat[site].reshape(3, 3), np.asarray(R), atol=1e-12)
+        np.testing.assert_allclose(M - Ms[i], 0.1 * np.eye(6), atol=1e-12)
+        np.testing.assert_allclose(d.qfrc_bias, Gs[i], atol=1e-12)
+        np.testing.assert_allclose(d.site_xpos[site], ps[i], atol=1e-12)
+        np.testing.assert_allclose(d.site_xmat[site].reshape(3, 3), Rs[i], atol=1e-12)
 
 
 # --------------------------------------------------------------------------------------------
@@ -215,21 +227,22 @@ def test_surface_geom_distance_is_the_exact_signed_distance(kind):
     m = scene.model
     d = mujoco.MjData(m)
     rng = np.random.default_rng(6)
-    seen = 0
+    pts, dist, sensors = [], [], []
     for _ in range(200):
         d.qpos[:] = Q_UR5 + rng.normal(0.0, 0.1, 6)
         mujoco.mj_forward(m, d)
-        p = d.site_xpos[scene.site]
-        sd = float(surface.signed_distance(jnp.asarray(p)))
-        if d.ncon:
-            seen += 1
-            assert abs(-d.contact.dist[0] - sd) < 1e-12
-            sensor = d.sensordata[scene.sensor_adr:scene.sensor_adr + 11]
-            assert sensor[0] == 1.0 and sensor[4] == pytest.approx(d.contact.dist[0], abs=1e-15)
-            np.testing.assert_allclose(sensor[5:8], -np.asarray(surface.normal(jnp.asarray(p))), atol=1e-12)
-        else:
-            assert sd < 0.0  # MuJoCo finds a contact exactly when the tool point is inside
-    assert seen > 20
+        pts.append(d.site_xpos[scene.site].copy())
+        dist.append(d.contact.dist[0] if d.ncon else np.nan)
+        sensors.append(d.sensordata[scene.sensor_adr:scene.sensor_adr + 11].copy())
+    sd, normal = map(np.asarray, _distances(surface, jnp.asarray(np.array(pts))))
+    inside = np.isfinite(dist)
+    assert inside.sum() > 20
+    assert np.all(sd[~inside] < 0.0)  # MuJoCo finds a contact exactly when the tool point is inside
+    np.testing.assert_allclose(-np.array(dist)[inside], sd[inside], rtol=0, atol=1e-12)
+    sensors = np.array(sensors)[inside]
+    assert np.all(sensors[:, 0] == 1.0)
+    np.testing.assert_allclose(sensors[:, 4], np.array(dist)[inside], atol=1e-15)
+    np.testing.assert_allclose(sensors[:, 5:8], -normal[inside], atol=1e-12)  # surface -> tool
 
 
 @pytest.mark.parametrize("kind,rows", [("line", (0, 1)), ("circle", (0, 1))])
@@ -241,18 +254,16 @@ def test_planar_surface_geoms(kind, rows):
     scene = build_scene(surface, PenaltyContact(1e5, 0.0), rows=rows, arm_xml=chain_xml(chain), timestep=1e-4)
     d = mujoco.MjData(scene.model)
     rng = np.random.default_rng(7)
-    seen = 0
+    pts, dist = [], []
     for _ in range(200):
         d.qpos[:] = np.array([0.1, -0.9, -0.8]) + rng.normal(0.0, 0.3, 3)
         mujoco.mj_forward(scene.model, d)
-        p = d.site_xpos[scene.site][list(rows)]
-        sd = float(surface.signed_distance(jnp.asarray(p)))
-        if d.ncon:
-            seen += 1
-            assert abs(-d.contact.dist[0] - sd) < 1e-12
-        else:
-            assert sd < 0.0
-    assert seen > 10
+        pts.append(d.site_xpos[scene.site][list(rows)].copy())
+        dist.append(d.contact.dist[0] if d.ncon else np.nan)
+    sd = np.asarray(_distances(surface, jnp.asarray(np.array(pts)))[0])
+    inside = np.isfinite(dist)
+    assert inside.sum() > 10 and np.all(sd[~inside] < 0.0)
+    np.testing.assert_allclose(-np.array(dist)[inside], sd[inside], rtol=0, atol=1e-12)
 
 
 def _press(scene, chain, q0, force, n_steps):
@@ -313,7 +324,7 @@ def test_contact_calibration_per_surface(kind, k, c):
     scene = build_scene(surface, PenaltyContact(k, c), arm_xml=chain_xml(chain), timestep=1e-4)
     n_steps = int(6 * 2 * np.pi / np.sqrt(k / m_eff) / 1e-4)  # six periods
     pts, sensors, _ = _press(scene, chain, Q_UR5, P * n_in, n_steps)
-    pen = np.array([float(surface.signed_distance(jnp.asarray(p))) for p in pts])
+    pen = np.asarray(_distances(surface, jnp.asarray(pts))[0])
     t = 1e-4 * np.arange(n_steps + 1)
     assert pen[0] == pytest.approx(1.5 * P / k, rel=1e-9) and np.all(pen > 0.2 * P / k)
     p_eq, wn, zeta, residual = fit_oscillation(t, pen)
