@@ -186,7 +186,10 @@ def polish(t_final=10.0):
              ("bare contact (c = 0), no force-rate term, 1 kHz", {"plant.contact.damping": 0.0}, None),
              ("bare contact (c = 0), κ = 0.05 s, 500 Hz", {"plant.contact.damping": 0.0, "simulation.dt": 2e-3,
                                                            "simulation.control_period": 2e-3,
-                                                           "simulation.output_interval": 2e-3}, 0.05)]
+                                                           "simulation.output_interval": 2e-3}, 0.05),
+             ("bare contact (c = 0), κ = 0.02 s, 500 Hz", {"plant.contact.damping": 0.0, "simulation.dt": 2e-3,
+                                                           "simulation.control_period": 2e-3,
+                                                           "simulation.output_interval": 2e-3}, 0.02)]
     for label, over, kappa in cases:
         sc = H.load_scenario("ur5-polish", {**over, "simulation.t_final": t_final})
         traj, tc, tr = timed_simulate(sc, _with_force_rate(sc, kappa) if kappa else None)
@@ -202,11 +205,16 @@ def menagerie(t_final=10.0):
     print("\n## MuJoCo Menagerie's UR5e as the truth (ur5e-polish: nominal ur5e.urdf, masses 20 % low)\n")
     print("| truth | status | out of contact after 0.2 s | RMS e_u1 (m) | RMS e_λ (N) | RMS e_λ last 2 s (N) | run s |")
     print("|---|---|---|---|---|---|---|")
-    cases = [("Menagerie ur5e.xml on MuJoCo (armature 0.1 kg m²)", {}),
-             ("ur5e.urdf on MuJoCo (generated MJCF, no armature)", {"plant.mjcf.file": ""}),
-             ("ur5e.urdf on the built-in plant (dt 0.1 ms)", {"plant.engine": "hinfnn", "simulation.dt": 1e-4})]
-    for label, over in cases:
-        sc = H.load_scenario("ur5e-polish", {**over, "simulation.t_final": t_final})
+    # the same scenario without a user's MJCF: ur5-polish with the UR5e's URDF as truth and nominal
+    urdf = {"plant.arm.file": "ur5e", "nominal.arm.file": "ur5e", "plant.arm.payload_mass": 0.0,
+            "plant.disturbance.amplitude": [2.0, 2.0, 2.0, 0.05, 0.05, 0.05],
+            "initial.q_guess": [3.14159, -1.0, 1.6, -2.17, -1.57, -1.57]}
+    cases = [("Menagerie ur5e.xml on MuJoCo (armature 0.1 kg m²)", "ur5e-polish", {}),
+             ("ur5e.urdf on MuJoCo (generated MJCF, no armature)", "ur5-polish", urdf),
+             ("ur5e.urdf on the built-in plant (RK4, dt 0.1 ms)", "ur5-polish",
+              {**urdf, "plant.engine": "hinfnn", "simulation.dt": 1e-4})]
+    for label, name, over in cases:
+        sc = H.load_scenario(name, {**over, "simulation.t_final": t_final})
         traj, _, tr = timed_simulate(sc)
         m = metrics_of(traj)
         print(f"| {label} | {m['status']} | {100 * m['out_after']:.2f} % | {m['rms_e_u1']:.5g} | {m['rms_e_lam']:.4g} | "

@@ -615,9 +615,10 @@ class MujocoPlantConfig(PlantConfig):
         "RK4", doc="MuJoCo's integrator (RK4 or implicit are accurate at the contact's frequency)")
     callback: Literal["host", "pure_callback"] = param(
         "host", doc="how the compiled loop calls MuJoCo ('pure_callback': JAX's public API, ~4x slower)")
-    timestep: Literal["dt"] | float = param("dt", doc="MuJoCo's timestep, s: it must divide simulation.dt, the plant's "
-                                                      "step (one call into MuJoCo); \"dt\": one MuJoCo step per "
-                                                      "simulation step", gt=0.0, le=0.1)
+    timestep: Literal["auto", "dt"] | float = param("auto", doc="MuJoCo's timestep, s: it must divide simulation.dt, "
+                                                    "the plant's step (one call into MuJoCo); \"auto\": the largest that "
+                                                    "divides dt and is at most 0.1 ms; \"dt\": one MuJoCo step per "
+                                                    "simulation step", gt=0.0, le=0.1)
     friction_damping: float = param(1000.0, doc="MuJoCo's friction below the Coulomb cone: the tangential force is "
                                                 "this damping times the sliding speed, up to mu f_n, N s/m (the built-in "
                                                 "plant's mu f_n / v_smooth)", gt=0.0, le=1e7)
@@ -657,13 +658,26 @@ class MujocoPlantConfig(PlantConfig):
                                   "the MJCF as written; edit the file, or leave the key at its default",
                                   key=f"{path}.arm.{perturbed[0]}")
 
+    #: The longest MuJoCo step ``timestep = "auto"`` takes, s (RK4 resolves a 1e6 N/m contact on a
+    #: 1 kg effective mass at it: ω h = 0.1).
+    AUTO_TIMESTEP = 1e-4
+
+    def mujoco_timestep(self, dt: float) -> float:
+        """MuJoCo's timestep for the simulation step dt (``timestep``: a number, "dt", or "auto": dt
+        divided into the fewest equal steps of at most :data:`AUTO_TIMESTEP`)."""
+        if self.timestep == "dt":
+            return float(dt)
+        if self.timestep == "auto":
+            return float(dt) / max(1, math.ceil(float(dt) / self.AUTO_TIMESTEP * (1 - 1e-9)))
+        return float(self.timestep)
+
     def build(self, task=None, *, dt=1e-4, control_period=None, **context):
         import math as _math
 
         from ..plant.mujoco import MujocoPlant, require_mujoco
 
         require_mujoco()
-        ts = dt if self.timestep == "dt" else float(self.timestep)
+        ts = self.mujoco_timestep(dt)
         common = dict(surface=self.surface.build(), contact=self.contact.build(), disturbance=self.disturbance.build(),
                       control_period=dt, timestep=ts, integrator=self.integrator, callback=self.callback,
                       friction=self.friction.build(), friction_damping=self.friction_damping)
