@@ -18,7 +18,10 @@ Sections (run all, or name some on the command line):
 * ``walltime``    whole ``hinfnn run ur5-table`` processes (10 s at 1 kHz, --no-figures) on MuJoCo
                   and on the built-in plant, alternating, twice each.
 
-Usage: python benchmarks/mujoco_table.py [compare] [calibration] [polish] [menagerie] [walltime]
+* ``paper``       the paper's arm at 10 kHz: µs per control update through the FFI call and through
+                  jax.pure_callback, and its 10-s runs beside the built-in plant.
+
+Usage: python benchmarks/mujoco_table.py [compare] [calibration] [polish] [menagerie] [walltime] [paper]
 The machine is shared: wall times vary by ±20 % or more with the other sessions' load; the load
 average is printed beside them.
 """
@@ -247,7 +250,43 @@ def walltime(rounds=2):
                       flush=True)
 
 
-SECTIONS = {"compare": compare, "calibration": calibration, "polish": polish, "menagerie": menagerie,
+def paper(rounds=3, t_short=2.0):
+    """The paper's arm at 10 kHz on MuJoCo: µs per control update with the FFI call ("host") and
+    with jax.pure_callback, interleaved; then the 10-s H∞-only and adaptive runs beside the built-in
+    plant (damped contact 200 N·s/m)."""
+    import hinfnn as H
+
+    print("\n## The paper's arm on MuJoCo, 10 kHz control (one MuJoCo RK4 step per update)\n")
+    print("| call | round | µs per update | load |")
+    print("|---|---|---|---|")
+    runs = {}
+    for cb in ("host", "pure_callback"):
+        sc = H.load_scenario("paper", {"plant.engine": "mujoco", "plant.callback": cb, "plant.contact.damping": 200.0,
+                                       "controller.kind": "hinf", "simulation.t_final": t_short})
+        r = sc.run()
+        H.simulate(r.plant, r.controller, r.reference, q0=r.q0, **{**sc.sim_options(), "t_final": 0.01})
+        runs[cb] = (sc, r)
+    for i in range(rounds):
+        for cb, (sc, r) in runs.items():
+            t0 = time.perf_counter()
+            H.simulate(r.plant, r.controller, r.reference, q0=r.q0, **sc.sim_options())
+            us = (time.perf_counter() - t0) / (t_short / 1e-4) * 1e6
+            print(f"| {cb} | {i + 1} | {us:.1f} | {load()} |", flush=True)
+    print("\n| controller | plant | RMS e_u1 (m) | RMS e_λ | RMS e_λ last 2 s | J(T) | run s |")
+    print("|---|---|---|---|---|---|---|")
+    for kind in ("hinf", "hinf_nn"):
+        for engine in ("hinfnn", "mujoco"):
+            sc = H.load_scenario("paper", {"plant.engine": engine, "plant.contact.damping": 200.0, "controller.kind": kind})
+            traj, _, tr = timed_simulate(sc)
+            m = metrics_of(traj)
+            from hinfnn.metrics import compute_metrics
+
+            J = compute_metrics(traj).get("J_T", float("nan"))
+            print(f"| {kind} | {engine} | {m['rms_e_u1']:.5g} | {m['rms_e_lam']:.4g} | {m['rms_e_lam_2s']:.4g} | {J:.4g} | "
+                  f"{tr:.1f} ({load()}) |", flush=True)
+
+
+SECTIONS = {"paper": paper, "compare": compare, "calibration": calibration, "polish": polish, "menagerie": menagerie,
             "walltime": walltime}
 
 if __name__ == "__main__":
