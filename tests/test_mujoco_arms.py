@@ -511,3 +511,21 @@ def test_cli_sine_surface_on_mujoco_exits_2(capsys):
                      'plant.surface={kind="sine", amplitude=0.05, wavelength=0.6}'])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "plant.surface.kind" in err, err
+
+
+@pytest.mark.parametrize("name", ["ur5-polish", "ur5e-polish"])
+def test_shipped_mujoco_scenarios_check_and_design(name):
+    """The shipped MuJoCo scenarios load, pass every check (start pose on the true drum, the step
+    against the contact, the design) and build their MuJoCo plant: the generated UR5 with its payload,
+    and Menagerie's UR5e MJCF."""
+    sc = H.load_scenario(name)
+    plant = sc.build_plant()
+    assert isinstance(plant, MujocoPlant) and plant.timestep == pytest.approx(1e-4)
+    assert sc.control_period == 1e-3 and sc.simulation.dt == 1e-3
+    q0 = np.asarray(sc.initial_q(plant))
+    s0 = plant.initial_state(q0)
+    assert abs(float(s0.penetration)) < 1e-12 and np.max(np.abs(np.asarray(s0.x_true))) < 1e-12
+    if name == "ur5e-polish":
+        np.testing.assert_array_equal(plant.model.dof_armature, 0.1)
+    else:  # the payload is in the true arm's last body
+        assert plant.model.body_mass[-1] == pytest.approx(0.1879 + 0.5)

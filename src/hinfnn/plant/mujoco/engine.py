@@ -69,6 +69,11 @@ class _Family:
         st = mujoco.mjtState
         self._spec = int(st.mjSTATE_TIME | st.mjSTATE_QPOS | st.mjSTATE_QVEL | st.mjSTATE_WARMSTART
                          | st.mjSTATE_QFRC_APPLIED)
+        self._spec_out = int(st.mjSTATE_QPOS | st.mjSTATE_QVEL | st.mjSTATE_WARMSTART)
+        assert self.nv == self.n  # every degree of freedom is an arm joint (checked when the scene is built)
+        a = self.nq + 2 * self.nv
+        self._offsets = np.cumsum([a, self.nv, 3, 9, 3 * self.n, 3 * self.n]).tolist()
+        self._slots: dict = {}
         #: step single rows with mujoco.batch too (tests compare the two paths)
         self.always_batch = False
 
@@ -106,49 +111,53 @@ class _Family:
         with self._lock:
             self._free[rows].append(item)
 
-    def _one(self, x, kind: str):
-        """One row, on an MjData of its own (the unbatched case, without the batch's array
-        bookkeeping: a run's every control period). The same numbers as :meth:`run` (tested)."""
-        mujoco = self.mujoco
-        out = np.full(self.size_out, np.nan)
-        if not math.isfinite(float(np.sum(x))):
+    def _one(self, x, kind: str, out=None):
+        """One row, on a pooled MjData (the unbatched case, without the batch's array bookkeeping:
+        a run's every control period), written into ``out``. The same numbers as the batch path
+        (tested). Every MuJoCo output is written in place: the state by ``mj_getState``, the
+        Jacobians by ``mj_jacSite`` into the output row itself."""
+        if out is None:
+            out = np.empty(self.size_out)
+        if not math.isfinite(x.sum()):
+            out.fill(np.nan)
             return out
-        i = int(x[0])
-        scene = self._scene(i)
-        m = scene.model
+        slot = self._slots.get(int(x[0]))
+        if slot is None:
+            slot = self._slot(int(x[0]))
+        m, ts, pool = slot
         nsub = 0
         if kind == "step":
-            ts = scene.timestep
             nsub = round(x[1] / ts)
             if nsub < 1 or abs(nsub * ts - x[1]) > 1e-9 * x[1]:
+                out.fill(np.nan)
                 return out
-        with self._lock:
-            free = self._datas.setdefault(i, [])
-            item = free.pop() if free else None
-        if item is None:
-            item = (mujoco.MjData(m), np.zeros((3, self.nv)), np.zeros((3, self.nv)))
+        d = pool.pop() if pool else self.mujoco.MjData(m)  # list.pop/append: atomic under the GIL
         try:
-            d, jacp, jacr = item
-            mujoco.mj_setState(m, d, x[2:], self._spec)
+            mj = self.mujoco
+            mj.mj_setState(m, d, x[2:], self._spec)
             try:
                 for _ in range(nsub):
-                    mujoco.mj_step(m, d)
-                mujoco.mj_forward(m, d)
+                    mj.mj_step(m, d)
+                mj.mj_forward(m, d)
             except Exception:  # MuJoCo raised (mju_error): this row is unusable
+                out.fill(np.nan)
                 return out
-            mujoco.mj_jacSite(m, d, jacp, jacr, self.site)
-            nq, nv, n, c = self.nq, self.nv, self.n, 0
-            for arr in (d.qpos, d.qvel, d.qacc_warmstart, d.qacc, d.site_xpos[self.site], d.site_xmat[self.site],
-                        jacp[:, :n].ravel(), jacr[:, :n].ravel(),
-                        d.sensordata[self.sensor_adr:self.sensor_adr + S.SENSOR_SIZE]):
-                w = arr.shape[0]
-                out[c:c + w] = arr
-                c += w
-            del nq, nv
+            o = self._offsets
+            mj.mj_getState(m, d, out[:o[0]], self._spec_out)
+            out[o[0]:o[1]] = d.qacc
+            out[o[1]:o[2]] = d.site_xpos[self.site]
+            out[o[2]:o[3]] = d.site_xmat[self.site]
+            mj.mj_jacSite(m, d, out[o[3]:o[4]].reshape(3, self.nv), out[o[4]:o[5]].reshape(3, self.nv), self.site)
+            out[o[5]:] = d.sensordata[self.sensor_adr:self.sensor_adr + S.SENSOR_SIZE]
             return out
         finally:
-            with self._lock:
-                self._datas[i].append(item)
+            pool.append(d)
+
+    def _slot(self, key: int):
+        scene = self._scene(key)
+        slot = (scene.model, scene.timestep, [])
+        self._slots[key] = slot
+        return slot
 
     def run(self, x, kind: str):
         """Step (``kind`` "step") or initialise ("init") every row of x (rows, size_in)."""
@@ -156,7 +165,7 @@ class _Family:
         x = np.asarray(x, dtype=np.float64)
         rows = x.shape[0]
         if rows == 1 and not self.always_batch:
-            return self._one(x[0], kind)[None]
+            return self._one(np.ascontiguousarray(x[0]), kind)[None]
         out = np.full((rows, self.size_out), np.nan)
         member = np.where(np.isfinite(x[:, 0]), x[:, 0], -1).astype(np.int64)
         for key in set(member[np.isfinite(x[:, 0])].tolist()):
@@ -245,6 +254,16 @@ _MEMBERS: dict = {}
 
 def _dispatch(kind: str, x, out) -> None:
     """The FFI handler's work (:mod:`.ffi`): step (or initialise) every row of x into out."""
+    if x.ndim == 1 or x.shape[0] == 1 and x.ndim == 2:  # one row: the common case, straight through
+        row, res = x.reshape(-1), out.reshape(-1)
+        key = row[0]
+        if not math.isfinite(key):
+            res.fill(np.nan)
+            return
+        family = _MEMBERS.get(int(key))
+        if family is not None and not family.always_batch:
+            family._one(row, kind, res)
+            return
     rows = x.reshape(-1, x.shape[-1])
     res = out.reshape(-1, out.shape[-1])
     keys = rows[:, 0][np.isfinite(rows[:, 0])]
