@@ -63,7 +63,6 @@ class _Family:
         self.meta: dict[int, object] = {}
         self._first = scene
         self._free: dict[int, list] = {}
-        self._datas: dict[int, list] = {}
         self._lock = threading.Lock()
         self.nthread = max(1, min(4, os.cpu_count() or 1))
         st = mujoco.mjtState
