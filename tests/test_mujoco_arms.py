@@ -421,6 +421,75 @@ def test_batch_and_single_row_paths_agree():
         fam.run(np.concatenate([[123.0], x[0, 1:]])[None], "step")
 
 
+def test_sensing_and_record_are_the_builtin_plants():
+    """The UR5 (gravity off) at rest with its tool point 0.1 mm inside a sphere (k = 1e5 N/m,
+    c = 100 N·s/m): MuJoCo's Measurement carries the force the tool exerts on the surface at the
+    tool point in base axes (3 components), the built-in plant's k p n up to MuJoCo's constraint
+    impedance: frictionless, f = k p / (1 + d A / ((1 − d) W)) (docs/mujoco.md eq. (3) at rest
+    with no load, A = nᵀ J_p M⁻¹ J_pᵀ n), to 1e-9 relative; with μ = 0.2 the normal part to 1e-5
+    and a tangential part within the cone (MuJoCo's soft friction rows answer the tangential
+    acceleration the normal force causes: 0.09 N here, where the built-in plant's friction is 0 at
+    rest). The PlantRecord has the built-in plant's signal names and values (q, qd, x_true,
+    F_contact, task_margin, the joint limit margins); with the elbow's upper limit moved below its
+    angle it is the same fault as the built-in plant's (joint 3, elbow_joint), and the start pose
+    solver gives the built-in plant's pose, within the limits or not."""
+    from hinfnn.model.taskmap import PositionTaskMap
+    from hinfnn._pytree import replace
+
+    chain = load_urdf(UR5, "base_link", "tool0", tool_xyz=(0.0, 0.0, 0.1)).with_gravity(jnp.zeros(3))
+    q = jnp.asarray(Q_UR5)
+    p = np.asarray(chain.fk(q)[0])
+    depth, R = 1e-4, 0.3
+    surface = Sphere.build(tuple(p - (R - depth) * np.array([0.0, 0.0, 1.0])), R)
+    contact = PenaltyContact(1e5, 100.0)
+    kw = dict(surface=surface, contact=contact, disturbance=SquareWave.none(6))
+    for upper_elbow, friction in ((None, None), (float(Q_UR5[2]) - 0.01, Friction(coulomb=0.2))):
+        c = chain if upper_elbow is None else replace(chain, upper=chain.upper.at[2].set(upper_elbow))
+        arm = UrdfArm(c, PositionTaskMap())
+        mj = MujocoPlant.from_models(arm, control_period=1e-3, timestep=1e-4, friction=friction, **kw)
+        rigid = H.RigidBodyPlant(arm=arm, friction=friction, **kw)
+        s_mj, s_rb = mj.initial_state(q), rigid.initial_state(q)
+        (m_mj, c_mj), (m_rb, c_rb) = mj.sense(0.0, s_mj), rigid.sense(0.0, s_rb)
+        assert m_mj.force.shape == m_rb.force.shape == (3,)
+        n_in = np.asarray(surface.normal(jnp.asarray(p)))
+        J_p = np.asarray(c_rb.terms.J_p)
+        A = n_in @ J_p @ np.linalg.solve(np.asarray(c_rb.terms.M), J_p.T @ n_in)
+        W, d = mj.scene.diag_approx, IMPEDANCE
+        want = np.asarray(m_rb.force) / (1.0 + d * A / ((1.0 - d) * W))
+        np.testing.assert_allclose(np.asarray(m_rb.force), 1e5 * depth * n_in, rtol=1e-9)
+        f = np.asarray(m_mj.force)
+        f_n = f @ n_in
+        f_t = np.linalg.norm(f - f_n * n_in)
+        if friction is None:
+            np.testing.assert_allclose(f, want, rtol=1e-9, atol=1e-9)
+        else:
+            assert f_n == pytest.approx(want @ n_in, rel=1e-5) and f_t < 0.2 * f_n
+            print(f"μ = 0.2 at rest: f_n = {f_n:.6f} N (built-in {want @ n_in:.6f}), |F_t| = {f_t:.3g} N")
+        w = jnp.zeros(6)
+        r_mj, r_rb = mj.record(s_mj, w, c_mj), rigid.record(s_rb, w, c_rb)
+        assert set(r_mj.signals) == set(r_rb.signals), (set(r_mj.signals) ^ set(r_rb.signals))
+        for name in ("q", "qd", "x_true", "task_margin", "joint_limit_margin", "disturbance"):
+            np.testing.assert_allclose(np.asarray(r_mj.signals[name]), np.asarray(r_rb.signals[name]), atol=1e-12,
+                                       err_msg=name)
+        np.testing.assert_array_equal(np.asarray(r_mj.signals["F_contact"]), f)
+        assert float(r_mj.signals["friction_force"]) == pytest.approx(f_t, rel=1e-9, abs=1e-15)
+        assert float(r_mj.penetration) == pytest.approx(depth, rel=1e-9)
+        for name in ("fault", "fault_index"):
+            assert int(getattr(r_mj, name)) == int(getattr(r_rb, name)), name
+        assert float(r_mj.fault_value) == pytest.approx(float(r_rb.fault_value), abs=1e-12)
+        if upper_elbow is None:
+            assert not bool(r_mj.fault)
+        else:
+            assert bool(r_mj.fault) and int(r_mj.fault_index) == 2
+            assert mj.fault_item(2) == rigid.fault_item(2) == "joint 3 (elbow_joint)"
+            np.testing.assert_array_equal(np.asarray(mj.joint_limits()[1]), np.asarray(c.upper))
+        # the start pose on the true surface, within the limits or not, as the built-in plant finds it
+        for within in (True, False):
+            q_mj = np.asarray(mj.initial_q(jnp.asarray(p[:2]), q_guess=Q_UR5, within_limits=within))
+            q_rb = np.asarray(rigid.initial_q(jnp.asarray(p[:2]), q_guess=Q_UR5, within_limits=within))
+            np.testing.assert_array_equal(q_mj, q_rb)
+
+
 # --------------------------------------------------------------------------------------------
 # A user's MJCF
 # --------------------------------------------------------------------------------------------
