@@ -148,10 +148,8 @@ def _lm(residual, q, iterations):
 
 def _balance(plant, ctrl, u1d, lam_d, q):
     """(ĥ1(q) − u1d, (λ(q) − λd)/max(|λd|, 1)) at rest: λ the controller's reading of the plant's sensor."""
-    from .controllers.law import force_multiplier
-
     x = ctrl.arm.h(q)
-    lam = force_multiplier(ctrl.surface.A_hat(x), plant.measure(q, jnp.zeros_like(q)).F)
+    lam = ctrl.observe(plant.measure(q, jnp.zeros_like(q)))[2]  # the sensor's force through the nominal kinematics
     return jnp.concatenate([x[:ctrl.m] - u1d, (lam - lam_d) / jnp.maximum(jnp.abs(lam_d), 1.0)])
 
 
