@@ -342,16 +342,24 @@ def _check_step_against_contact(sc, plant, q0) -> None:
     if effective_mass is None:
         return
     m_eff = float(effective_mass(np.asarray(q0, dtype=float)))
-    k, c, dt = sc.plant.contact.stiffness, sc.plant.contact.damping, sc.simulation.dt
+    # the integration step: MuJoCo's timestep for a plant that steps itself (substeps of dt)
+    step_key = "plant.timestep" if getattr(plant, "discrete", False) else "simulation.dt"
+    k, c, dt = sc.plant.contact.stiffness, sc.plant.contact.damping, float(getattr(plant, "timestep", sc.simulation.dt))
     omega = math.sqrt(k / m_eff)
     rate = max(omega, c / m_eff)  # the damping rate c/m_eff matters too
     if rate * dt > 0.5:
         raise ConfigError(
             f"dt = {dt:g} s is too large for the contact: its natural frequency is {omega:.4g} rad/s "
             f"(stiffness {k:g} N/m, effective mass {m_eff:.3g} kg) and its damping rate "
-            f"{c / m_eff:.4g} 1/s, so RK4 needs dt <= {0.5 / rate:.3g} s", key="simulation.dt")
+            f"{c / m_eff:.4g} 1/s, so RK4 needs dt <= {0.5 / rate:.3g} s", key=step_key)
     fr = sc.plant.friction
-    if fr.active:
+    slope = getattr(sc.plant, "friction_damping", None)  # MuJoCo's regularised Coulomb friction
+    if fr.active and slope is not None:
+        if slope / m_eff * dt > 0.5:
+            raise ConfigError(f"{slope:g} N s/m is too large for MuJoCo's timestep {dt:g} s (effective mass {m_eff:.3g} kg): "
+                              f"it needs friction_damping <= {0.5 * m_eff / dt:.4g} N s/m (or a smaller timestep)",
+                              key="plant.friction_damping")
+    elif fr.active:
         # the smoothed Coulomb law is a damper of slope mu f_n / v_s for |v_t| << v_s: the same rule
         f_scale = _force_scale(sc)
         slope = fr.coulomb * f_scale / fr.v_smooth + fr.viscous

@@ -335,10 +335,11 @@ def resolve_base(raw: dict, source: str, _chain: tuple = ()) -> dict:
 
 
 def _resolve_paths(raw: dict, source: str) -> dict:
-    """URDF paths (``*.arm.file``) relative to the scenario file that names them, made absolute
-    (so a scenario.toml written elsewhere still finds them): a value is a path when a file or
-    folder of that name exists beside the scenario, or when it looks like one (a '/' or an
-    extension) and is not the name of a shipped robot (then the error names the path tried)."""
+    """URDF paths (``*.arm.file``) and a user's MJCF (``plant.mjcf.file`` ending in .xml)
+    relative to the scenario file that names them, made absolute (so a scenario.toml written
+    elsewhere still finds them): an arm's value is a path when a file or folder of that name
+    exists beside the scenario, or when it looks like one (a '/' or an extension) and is not the
+    name of a shipped robot (then the error names the path tried)."""
     if source == "<dict>" or not Path(source).is_file():
         return raw
     from ..model.urdf import shipped_robots
@@ -355,6 +356,13 @@ def _resolve_paths(raw: dict, source: str) -> dict:
             if out is raw:
                 out = copy.deepcopy(raw)
             out[who]["arm"]["file"] = str(candidate.resolve())
+    plant = raw.get("plant") if isinstance(raw.get("plant"), dict) else {}
+    mjcf = plant.get("mjcf") if isinstance(plant.get("mjcf"), dict) else {}
+    f = mjcf.get("file")
+    if isinstance(f, str) and f.endswith(".xml") and not Path(f).is_absolute():  # a user's MJCF (MuJoCo plant)
+        if out is raw:
+            out = copy.deepcopy(raw)
+        out["plant"]["mjcf"]["file"] = str((Path(source).parent / f).resolve())
     return out
 
 

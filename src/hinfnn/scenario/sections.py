@@ -613,38 +613,124 @@ class RigidPlantConfig(PlantConfig):
                               friction=self.friction.build())
 
 
+def mjcf_path(value: str) -> str:
+    """A ``plant.mjcf.file`` value: a shipped MJCF (``"ur5e"``: a name without ``.xml``) or a path to
+    a ``.xml`` file."""
+    if value.endswith(".xml"):
+        return value
+    from ..model.urdf import asset_path
+
+    parts = value.split("/")
+    if len(parts) == 1:
+        parts = [parts[0], parts[0]]
+    return asset_path(*parts[:-1], parts[-1] + ".xml")
+
+
+@section
+class MjcfConfig:
+    """A user's MJCF as the true arm (``file`` empty: the MJCF is generated from ``plant.arm``)."""
+
+    file: str = param("", doc="MJCF of the true arm: a shipped model ('ur5e': MuJoCo Menagerie's UR5e) or a path to "
+                              "a .xml file (relative to the scenario file); empty: generated from plant.arm")
+    joints: tuple[str, ...] = param((), doc="the arm's joints in the MJCF, from the base to the tool (all of its degrees "
+                                            "of freedom; default: the joint names of plant.arm)")
+    tool_site: str = param("", doc="the MJCF site the tool hangs from (e.g. the flange)")
+    tool_xyz: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="the tool point in the site's frame, m", ge=-10.0,
+                                        le=10.0)
+    tool_rpy_deg: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="the tool frame's roll, pitch, yaw in the site's "
+                                            "frame, degrees", ge=-360.0, le=360.0)
+
+    def validate(self, path):
+        for name in ("tool_xyz", "tool_rpy_deg"):
+            _length(path, name, getattr(self, name), (3,))
+        if self.file and not self.tool_site:
+            raise ConfigError("name the MJCF site the tool hangs from", key=f"{path}.tool_site")
+
+
 @PLANTS.register("mujoco")
 @section
 class MujocoPlantConfig(PlantConfig):
     """MuJoCo as the true plant (optional extra ``hinfnn[mujoco]``; docs/mujoco.md): the true arm
-    and surface as MJCF, the contact converted from N/m and N·s/m, stepped every simulation dt
-    (MuJoCo's timestep) with the torque held over the control period (sampled-data control)."""
+    (generated from ``plant.arm``, or a user's MJCF: ``plant.mjcf``) and surface as a MuJoCo model,
+    the contact converted from N/m and N·s/m, MuJoCo's Coulomb friction; one plant step (one call
+    into MuJoCo) per simulation dt, in MuJoCo timesteps, with the torque held (sampled-data
+    control)."""
 
     discrete: ClassVar[bool] = True
     integrator: Literal["RK4", "implicit", "implicitfast", "Euler"] = param(
         "RK4", doc="MuJoCo's integrator (RK4 or implicit are accurate at the contact's frequency)")
     callback: Literal["host", "pure_callback"] = param(
         "host", doc="how the compiled loop calls MuJoCo ('pure_callback': JAX's public API, ~4x slower)")
+    timestep: Literal["auto", "dt"] | float = param("auto", doc="MuJoCo's timestep, s: it must divide simulation.dt, "
+                                                    "the plant's step (one call into MuJoCo); \"auto\": the largest that "
+                                                    "divides dt and is at most 0.1 ms; \"dt\": one MuJoCo step per "
+                                                    "simulation step", gt=0.0, le=0.1)
+    friction_damping: float = param(1000.0, doc="MuJoCo's friction below the Coulomb cone: the tangential force is "
+                                                "this damping times the sliding speed, up to mu f_n, N s/m (the built-in "
+                                                "plant's mu f_n / v_smooth)", gt=0.0, le=1e7)
+    mjcf: MjcfConfig = param(MjcfConfig(), doc="a user's MJCF as the true arm")
 
     def validate(self, path):
-        # the MJCF is written for the Sec. VI arm and a flat contact line (docs/mujoco.md)
-        if self.arm.model != "two_link":
-            raise ConfigError(f"the MuJoCo plant models the two_link arm only, got arm model {self.arm.model!r}; "
-                              "use plant.engine = \"hinfnn\" for this arm", key=f"{path}.engine")
-        if self.surface.kind != "inclined_line":
-            raise ConfigError(f"the MuJoCo plant models the inclined_line surface only, got {self.surface.kind!r}; "
-                              "use plant.engine = \"hinfnn\" for this surface", key=f"{path}.engine")
-        if getattr(self.friction, "active", False):
-            raise ConfigError("the MuJoCo plant has no tool friction along the surface; set plant.friction's "
-                              "coefficients to 0 or use plant.engine = \"hinfnn\"", key=f"{path}.friction")
+        from ..plant.mujoco.scene import SUPPORTED_SURFACES
+
+        kind = self.surface.kind
+        if kind not in SUPPORTED_SURFACES:
+            raise ConfigError(f"MuJoCo has no primitive for a {kind!r} surface; the MuJoCo plant models "
+                              f"{', '.join(repr(k) for k in SUPPORTED_SURFACES)} (use plant.engine = \"hinfnn\" for "
+                              f"{kind!r})", key=f"{path}.surface.kind")
+        two_link = self.arm.model == "two_link"
+        if two_link != (kind == "inclined_line"):
+            what = ("the two_link arm's MuJoCo model has the inclined_line only (its task space is the tip position)"
+                    if two_link else "the inclined_line is the two_link arm's (task space); use a plane or a line")
+            raise ConfigError(f"{what}, got a {self.arm.model!r} arm on a {kind!r}", key=f"{path}.surface.kind")
+        if self.friction.viscous != 0.0:
+            raise ConfigError(f"must be 0 for the MuJoCo plant, got {self.friction.viscous:g} N s/m: MuJoCo's contact "
+                              "has Coulomb friction only (its slope below the cone is plant.friction_damping)",
+                              key=f"{path}.friction.viscous")
+        if two_link and self.friction.active:
+            raise ConfigError("the two_link arm's MuJoCo model is frictionless; set plant.friction's coefficients to 0 "
+                              "or use plant.engine = \"hinfnn\"", key=f"{path}.friction.coulomb")
+        if self.mjcf.file:
+            if self.arm.model not in ("urdf",):
+                raise ConfigError(f"a user's MJCF needs task coordinates of a spatial arm: give plant.arm as the "
+                                  f"nominal's urdf arm (got {self.arm.model!r})", key=f"{path}.arm.model")
+            a = self.arm
+            perturbed = [k for k, v, default in (("mass_scale", a.mass_scale, 1.0), ("payload_mass", a.payload_mass, 0.0))
+                         if v != default and not (isinstance(v, tuple) and all(x == default for x in v))]
+            if any(c != 0.0 for c in a.com_shift):
+                perturbed.append("com_shift")
+            if perturbed:
+                raise ConfigError(f"has no effect on a user's MJCF (plant.mjcf.file = {self.mjcf.file!r}): the true arm is "
+                                  "the MJCF as written; edit the file, or leave the key at its default",
+                                  key=f"{path}.arm.{perturbed[0]}")
+
+    #: The longest MuJoCo step ``timestep = "auto"`` takes, s (RK4 resolves a 1e6 N/m contact on a
+    #: 1 kg effective mass at it: ω h = 0.1).
+    AUTO_TIMESTEP = 1e-4
+
+    def mujoco_timestep(self, dt: float) -> float:
+        """MuJoCo's timestep for the simulation step dt (``timestep``: a number, "dt", or "auto": dt
+        divided into the fewest equal steps of at most :data:`AUTO_TIMESTEP`)."""
+        if self.timestep == "dt":
+            return float(dt)
+        if self.timestep == "auto":
+            return float(dt) / max(1, math.ceil(float(dt) / self.AUTO_TIMESTEP * (1 - 1e-9)))
+        return float(self.timestep)
 
     def build(self, task=None, *, dt=1e-4, control_period=None, **context):
         from ..plant.mujoco import MujocoPlant, require_mujoco
 
         require_mujoco()
-        return MujocoPlant.from_models(self.arm.build(), self.surface.build(), self.contact.build(),
-                                       self.disturbance.build(), control_period=dt, timestep=dt,
-                                       integrator=self.integrator, callback=self.callback)
+        ts = self.mujoco_timestep(dt)
+        common = dict(surface=self.surface.build(), contact=self.contact.build(), disturbance=self.disturbance.build(),
+                      control_period=dt, timestep=ts, integrator=self.integrator, callback=self.callback,
+                      friction=self.friction.build(), friction_damping=self.friction_damping)
+        if self.mjcf.file:
+            joints = self.mjcf.joints or tuple(self.arm.chain("plant.arm").joint_names)
+            return MujocoPlant.from_mjcf(mjcf_path(self.mjcf.file), joints=joints, tool_site=self.mjcf.tool_site,
+                                         tool_xyz=self.mjcf.tool_xyz, tool_rot=_rpy(self.mjcf.tool_rpy_deg),
+                                         task=task, **common)
+        return MujocoPlant.from_models(self.arm.build(task, key="plant.arm"), **common)
 
 
 @section
