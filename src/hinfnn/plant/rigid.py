@@ -36,6 +36,7 @@ from ..model.geometry import Geometry
 from ..protocols import ContinuousPlant, Measurement, PlantRecord
 from .contact import Friction, PenaltyContact
 from .disturbance import SquareWave
+from .limits import limit_record
 
 
 @pytree_dataclass
@@ -140,11 +141,7 @@ class RigidBodyPlant(ContinuousPlant):
             out["task_margin"] = self.arm.task_margin(state.q)
         if hasattr(self.arm, "chain"):  # a chain has joint limits (±inf where none): the run stops past them
             lo, hi = self.joint_limits()
-            margin = jnp.minimum(state.q - lo, hi - state.q)
-            out["joint_limit_margin"] = margin
-            worst = jnp.argmin(margin)
-            return PlantRecord(penetration=cache.penetration, signals=out, fault=margin[worst] < 0,
-                               fault_value=margin[worst], fault_index=worst.astype(jnp.int32))
+            return limit_record(cache.penetration, out, state.q, lo, hi)
         return PlantRecord(penetration=cache.penetration, signals=out)
 
     def fault_item(self, index: int) -> str:

@@ -30,6 +30,7 @@ from ... import _linalg as la
 from ..._pytree import pytree_dataclass
 from ...errors import ConfigError
 from ...protocols import DiscretePlant, Measurement, PlantRecord
+from ..limits import limit_record
 from . import scene as S
 
 #: How the compiled program calls MuJoCo (:meth:`MujocoPlant.from_models`, ``callback``).
@@ -689,11 +690,7 @@ class MujocoPlant(DiscretePlant):
             out.update(F_contact=state.force, friction_force=state.friction_force, task_margin=state.task_margin)
         if self.limits is not None:  # a chain's joints: the run stops past a limit
             lo, hi = self.limits
-            margin = jnp.minimum(state.q - lo, hi - state.q)
-            out["joint_limit_margin"] = margin
-            worst = jnp.argmin(margin)
-            return PlantRecord(penetration=state.penetration, signals=out, fault=margin[worst] < 0,
-                               fault_value=margin[worst], fault_index=worst.astype(jnp.int32))
+            return limit_record(state.penetration, out, state.q, lo, hi)
         return PlantRecord(penetration=state.penetration, signals=out)
 
     def diagnostics(self, state: MujocoState, w, cache=None) -> dict:
