@@ -417,3 +417,15 @@ def test_the_default_xla_emitters_give_the_tested_numbers(tmp_path):
             assert a.shape == b.shape, name
             scale = max(1.0, float(np.max(np.abs(b)))) if b.size else 1.0
             assert np.max(np.abs(a - b), initial=0.0) <= 1e-10 * scale, name
+
+
+def test_release_programs_then_the_same_run_gives_the_same_numbers():
+    """release_programs drops every compiled program of the process (a workflow over many arms
+    calls it between them); the next run compiles or loads its program again and gives the same
+    numbers bit for bit."""
+    sc = H.load_scenario("paper", {"simulation.t_final": 0.005, "controller.kind": "hinf_nn"})
+    before = sc.simulate()
+    H.sim.release_programs()
+    after = sc.simulate()
+    for key, value in before.arrays.items():
+        np.testing.assert_array_equal(value, after.arrays[key], err_msg=key)

@@ -318,6 +318,21 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
     return chunk, jax.jit(_with_options(final, loop)), jax.jit(_with_options(init, loop), static_argnums=2)
 
 
+def release_programs() -> None:
+    """Drop every compiled program this process holds (hinfnn's and JAX's in-memory caches; the
+    persistent compilation cache on disk is kept, so a program needed again is loaded, not
+    compiled). A workflow that runs many different arms in one process calls it between them:
+    XLA's CPU backend keeps each program's machine code in one region of memory, and a process that
+    compiled some forty large arm programs (``hinfnn gallery --beyond``: three arms, each with its
+    runs, batches and linearisations) failed there with "LLVM ERROR: Unable to allocate section
+    memory"."""
+    import gc
+
+    _compiled.cache_clear()
+    jax.clear_caches()
+    gc.collect()
+
+
 def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, fields, loop: LoopOptions,
            progress=None, what: str = ""):
     """Run the chunks from Python; returns (records, status, t_fail, details, final).

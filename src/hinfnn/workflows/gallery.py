@@ -24,6 +24,7 @@ from pathlib import Path
 from ..experiment import cases, check_memory, result_folder, simulate_cases, write_result
 from ..report.markdown import _f, percent
 from ..scenario import Scenario
+from ..sim import release_programs
 
 #: The shipped scenarios the gallery runs, in order.
 GALLERY = ("planar3-drum", "ur5-table", "ur5-sphere")
@@ -56,6 +57,7 @@ def run_gallery(out: Path | None = None, *, overrides=(), only=None, force: bool
 
         for sc in scenarios:
             stiff_cases(sc.name, overrides)
+        release_programs()
     sections, stiff = [], []
     with result_folder(out, command="gallery", name="gallery", kind="gallery", force=force, log=log,
                        command_line=command) as written:
@@ -71,6 +73,7 @@ def run_gallery(out: Path | None = None, *, overrides=(), only=None, force: bool
             figures = [Path(p).name for p in run_figures(outcome.trajectories, sub)]
             sections.append({"scenario": sc, "doc": doc, "figures": figures, "seconds": outcome.seconds})
             log(f"{sc.name}: {len(todo)} runs in {outcome.seconds:.0f} s")
+            release_programs()  # each arm's programs are its own (see release_programs)
         if beyond:
             stiff = _run_stiff_part(written.path, scenarios, overrides, progress, log, command)
         atomic_write_text(written.path / "report.md", gallery_report(sections, command=command, stiff=stiff))
@@ -251,6 +254,8 @@ def _run_stiff_part(root: Path, scenarios, overrides, progress, log, command: st
         statuses = {r["name"]: {**r["metrics"], "status": r["status"]} for r in doc["runs"]}
         figures = [Path(p).name for p in beyond_figures(result["outcome"].trajectories, statuses, doc["cases"], sub)]
         out.append({"doc": doc, "figures": figures, "seconds": result["seconds"]})
+        del result
+        release_programs()
         log(f"{sc.name}: stiff contact, {len(doc['runs'])} runs and {len(doc['contact_modes'])} linearisations in "
             f"{result['seconds']:.0f} s")
     return out
