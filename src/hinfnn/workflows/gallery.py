@@ -254,10 +254,10 @@ def _run_stiff_part(root: Path, scenarios, overrides, progress, log, command: st
         statuses = {r["name"]: {**r["metrics"], "status": r["status"]} for r in doc["runs"]}
         figures = [Path(p).name for p in beyond_figures(result["outcome"].trajectories, statuses, doc["cases"], sub)]
         out.append({"doc": doc, "figures": figures, "seconds": result["seconds"]})
-        del result
-        release_programs()
         log(f"{sc.name}: stiff contact, {len(doc['runs'])} runs and {len(doc['contact_modes'])} linearisations in "
             f"{result['seconds']:.0f} s")
+        result = None  # its trajectories and programs go before the next arm's
+        release_programs()
     return out
 
 
