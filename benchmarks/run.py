@@ -327,17 +327,29 @@ def case_device_run(args) -> dict:
 
 #: The switches of ``--disable``: the loop options (hinfnn._loop.LoopOptions) and the controller's
 #: block layout (``blocks``).
-SWITCHES = ("blocks", "sincos", "small_mm", "rolled_rk4", "batch_groups")
+SWITCHES = ("blocks", "sincos", "small_mm", "rolled_rk4", "batch_groups", "arm_kernels", "rolled_stages",
+            "fusion_emitters")
 
 
 def _loop_options(args):
     """The LoopOptions of this worker: every option on but those of ``--disable``."""
     from hinfnn._loop import LoopOptions
 
+    import dataclasses
+
     off = set(args.disable)
-    return LoopOptions(sincos="sincos" not in off, small_mm="small_mm" not in off,
-                       rolled_rk4=False if "rolled_rk4" in off else None,
-                       batch_group=0 if "batch_groups" in off else LoopOptions().batch_group)
+    kw = dict(sincos="sincos" not in off, small_mm="small_mm" not in off,
+              rolled_rk4=False if "rolled_rk4" in off else None,
+              batch_group=0 if "batch_groups" in off else LoopOptions().batch_group)
+    have = {f.name for f in dataclasses.fields(LoopOptions)}  # options of the hinfnn being measured
+    extra = {"arm_kernels": ("arm_kernels", False), "rolled_stages": ("rolled_stages", 4),
+             "fusion_emitters": ("fusion_emitters", True)}
+    for switch, (name, value) in extra.items():
+        if switch in off:
+            if name not in have:
+                raise SystemExit(f"--disable {switch}: this hinfnn has no such loop option")
+            kw[name] = value
+    return LoopOptions(**kw)
 
 
 def _controller(sc, kind, args):
@@ -438,10 +450,85 @@ def case_program_gc(args) -> dict:
                 "n": len(v)} for k, v in runs.items()}
 
 
+def _ur5(kind="hinf_nn", **over):
+    import hinfnn as H
+
+    return H.load_scenario("ur5-table", {"controller.kind": kind, **over})
+
+
+def case_ur5_single(args) -> dict:
+    """The UR5 on its table (ur5-table), H∞ + NN, one run with continuous control: the first
+    0.01-s run (compile, empty cache), then ``--repeats`` runs of ``--arm-horizon`` s: steady-state
+    RK4 steps per second and the 10-s run's simulation time at that rate."""
+    loop = _loop_options(args)
+    sc = _ur5(**{"simulation.t_final": 0.01})
+    t0 = time.perf_counter()
+    sc.simulate("hinf_nn", loop=loop)
+    first = time.perf_counter() - t0
+    sc = sc.with_overrides({"simulation.t_final": args.arm_horizon})
+    times = []
+    for _ in range(max(1, args.repeats)):
+        t0 = time.perf_counter()
+        sc.simulate("hinf_nn", loop=loop)
+        times.append(time.perf_counter() - t0)
+    steps = round(args.arm_horizon / DT)
+    best = min(times)
+    return dict(first_run_s=first, run_s=_stats(times), steps_per_s=steps / best,
+                s_per_10s_run=T_RUN / args.arm_horizon * best)
+
+
+def case_ur5_batch(args) -> dict:
+    """The UR5 (ur5-table, H∞ + NN) as batches of B plants (``simulate_batch``, the same plant B
+    times, stacked: every member computes the whole arithmetic), fields="metrics": for each B of
+    ``--arm-batches`` a first ``--arm-batch-horizon``-s run (compile included, empty cache) and a
+    second one, timed: trajectory-steps per second and the time per member-step."""
+    import numpy as np
+
+    import hinfnn as H
+
+    loop = _loop_options(args)
+    sc = _ur5()
+    plant, ctrl, ref = sc.build_plant(), sc.build_controller("hinf_nn"), sc.build_reference()
+    q0 = sc.initial_q(plant)
+    out = {}
+    for B in args.arm_batches:
+        kw = dict(dt=DT, q0=[q0] * B, fields="metrics", loop=loop)
+        t0 = time.perf_counter()  # the first run of the timed horizon: compiled (a batch's chunk size follows it)
+        H.simulate_batch([plant] * B, ctrl, ref, t_final=args.arm_batch_horizon, **kw)
+        compile_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        traj = H.simulate_batch([plant] * B, ctrl, ref, t_final=args.arm_batch_horizon, **kw)
+        wall = time.perf_counter() - t0
+        rate = B * round(args.arm_batch_horizon / DT) / wall
+        out[str(B)] = dict(compile_s=compile_s, wall_s=wall, traj_steps_per_s=rate, us_per_member_step=1e6 / rate,
+                           failed=int((np.asarray(traj.status) != 0).sum()))
+        print(f"ur5_batch B={B}: {json.dumps(out[str(B)])}", file=sys.stderr, flush=True)  # kept if killed
+    return out
+
+
+def case_ur5_whole(args) -> dict:
+    """``hinfnn run ur5-table`` (H∞ + NN, 10 s, ``--no-figures``) as a new process from launch to
+    exit, cold (empty caches) then warm: wall and CPU time."""
+    sys.path.insert(0, str(HERE))
+    from startup import hinfnn_command, launch
+
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {**os.environ, "HINFNN_CACHE_DIR": str(Path(tmp) / "cache"), "HINFNN_TRACE_STARTUP": "1"}
+        cmd = hinfnn_command() + ["run", "ur5-table", "--set", "controller.kind=hinf_nn",
+                                  "--set", f"simulation.t_final={args.arm_whole_horizon}", "--no-figures",
+                                  "--quiet", "--force", "--out", str(Path(tmp) / "out")]
+        for name in ("cold", "warm"):
+            r = launch(cmd, env)
+            out[name] = dict(wall_s=r["total"], cpu_s=r["cpu_total"])
+    return out
+
+
 CASES = {"single": case_single, "batch": case_batch, "startup": case_startup, "whole": case_whole,
          "latency": case_latency, "latency_sync": case_latency_sync, "devices": case_devices,
          "device_run": case_device_run, "arm_devices": case_arm_devices, "arm_run": case_arm_run,
-         "batch_devices": case_batch_devices, "batch_run": case_batch_run, "program_gc": case_program_gc}
+         "batch_devices": case_batch_devices, "batch_run": case_batch_run, "program_gc": case_program_gc,
+         "ur5_single": case_ur5_single, "ur5_batch": case_ur5_batch, "ur5_whole": case_ur5_whole}
 DEFAULT_CASES = ["single", "batch", "startup", "whole", "latency", "latency_sync", "devices", "arm_devices",
                  "batch_devices", "program_gc"]
 
@@ -456,7 +543,9 @@ def run_worker(case: str, args) -> dict:
                "--repeats", str(args.repeats), "--horizon", str(args.horizon),
                "--batch-horizon", str(args.batch_horizon), "--numpy-horizon", str(args.numpy_horizon),
                "--calls", str(args.calls), "--seed", str(args.seed), "--batch-fields", args.batch_fields,
-               "--batches", *map(str, args.batches)]
+               "--batches", *map(str, args.batches), "--arm-horizon", str(args.arm_horizon),
+               "--arm-batch-horizon", str(args.arm_batch_horizon), "--arm-whole-horizon", str(args.arm_whole_horizon),
+               "--arm-batches", *map(str, args.arm_batches)]
         if getattr(args, "disable", None):
             cmd += ["--disable", *args.disable]
         # compile times are cold: a fresh, empty compilation cache for every worker (case 3
@@ -465,7 +554,7 @@ def run_worker(case: str, args) -> dict:
         t0 = time.perf_counter()
         proc = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         wall = time.perf_counter() - t0
-        if proc.returncode != 0:
+        if proc.returncode != 0 or case == "ur5_batch":
             sys.stderr.write(proc.stderr[-4000:])
             return dict(error=f"worker for {case!r} exited with {proc.returncode}", wall_s=wall)
         res = json.loads(out.read_text())
@@ -495,11 +584,31 @@ def _print_each_off(title: str, case: dict | None, cols: list) -> None:
             print(f"{name:<14}" + "".join(f"{show(r):>{w}}" for _, w, show in cols))
 
 
+def _print_ur5(c: dict) -> None:
+    """The UR5 cases (ur5_single, ur5_batch, ur5_whole), when run."""
+    if "ur5_single" in c and "steps_per_s" in c["ur5_single"]:
+        r = c["ur5_single"]
+        print(f"\nUR5 (ur5-table, H∞ + NN), one run: first 0.01-s run {r['first_run_s']:.1f} s (compile); "
+              f"{r['steps_per_s']:,.0f} RK4 steps/s (best of {r['run_s']['n'] if 'n' in r['run_s'] else '?'}), "
+              f"a 10-s run's simulation {r['s_per_10s_run']:.2f} s")
+    if "ur5_whole" in c and "cold" in c["ur5_whole"]:
+        w = c["ur5_whole"]
+        print(f"UR5 `hinfnn run ur5-table --no-figures` process: cold {w['cold']['wall_s']:.1f} s "
+              f"(CPU {w['cold']['cpu_s']:.1f}), warm {w['warm']['wall_s']:.1f} s (CPU {w['warm']['cpu_s']:.1f})")
+    if "ur5_batch" in c and "error" not in c["ur5_batch"]:
+        hdr = f"{'B':>6}{'1st run s':>11}{'wall s':>9}{'traj-steps/s':>14}{'µs/member-step':>16}{'failed':>8}"
+        print("UR5 batches (fields=metrics)\n" + hdr + "\n" + "-" * len(hdr))
+        for B, r in c["ur5_batch"].items():
+            print(f"{B:>6}{r['compile_s']:>11.1f}{r['wall_s']:>9.2f}{r['traj_steps_per_s']:>14,.0f}"
+                  f"{r['us_per_member_step']:>16.1f}{r['failed']:>8}")
+
+
 def print_report(res: dict) -> None:
     m = res["machine"]
     print(f"\nhinfnn {m['hinfnn']} ({m['commit']}) · {m['cpu']} · {m['usable_cores']} of {m['cores']} cores · "
           f"{m['memory_gb']} GB · Python {m['python']} · JAX {m['jax']} (jaxlib {m['jaxlib']}) · {m['platform']}")
     c = res["cases"]
+    _print_ur5(c)
     if "single" in c and "rows" in c["single"]:
         print("\n1. One 10-s run of the paper scenario (100,000 RK4 steps, dt = 1e-4, controller at every stage)")
         hdr = (f"{'controller':<13}{'s/run med':>10}{'min':>7}{'max':>7}{'steps/s':>10}{'compile s':>10}"
@@ -644,6 +753,10 @@ def main(argv=None) -> int:
     ap.add_argument("--horizon", type=float, default=T_RUN, help="simulated seconds per timed single run")
     ap.add_argument("--batches", type=int, nargs="*", default=[1, 10, 100, 1000])
     ap.add_argument("--batch-horizon", type=float, default=T_RUN, help="simulated seconds per batch run")
+    ap.add_argument("--arm-horizon", type=float, default=2.0, help="simulated seconds per timed UR5 run")
+    ap.add_argument("--arm-batches", type=int, nargs="*", default=[1, 16, 64, 256], help="UR5 batch sizes")
+    ap.add_argument("--arm-batch-horizon", type=float, default=0.2, help="simulated seconds per UR5 batch run")
+    ap.add_argument("--arm-whole-horizon", type=float, default=10.0, help="simulated seconds of the UR5 process")
     ap.add_argument("--batch-fields", default="metrics", help="what batch runs store: 'metrics' or 'all'")
     ap.add_argument("--numpy-horizon", type=float, default=1.0, help="NumPy oracle horizon (scaled to 10 s)")
     ap.add_argument("--calls", type=int, default=10_000, help="update() calls in the latency case")

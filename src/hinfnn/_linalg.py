@@ -12,6 +12,8 @@ made at trace time; :mod:`hinfnn._loop` says which of these the traced program u
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
+from jax import lax
 
 from . import _loop
 
@@ -22,8 +24,27 @@ SMALL_MM = 8
 
 def mm(a, b):
     """``a @ b`` for vectors and matrices; contractions over at most :data:`SMALL_MM` terms are
-    written as multiply-and-sum (the ``small_mm`` loop option, :mod:`hinfnn._loop`)."""
-    if (not _loop.current().small_mm or a.ndim > 2 or b.ndim > 2 or a.shape[-1] != b.shape[0]
+    written as multiply-and-sum (the ``small_mm`` loop option, :mod:`hinfnn._loop`). With the
+    ``arm_kernels`` option (arms of 3 or more joints), contractions of 3 to :data:`SMALL_MM` terms
+    are a sum of products term by term, all elementwise: a reduction is a kernel of its own in
+    XLA's CPU compiler, the elementwise sum fuses with the arithmetic around it."""
+    opts = _loop.current()
+    K = a.shape[-1] if a.ndim else 0
+    if (opts.small_mm and opts.arm_kernels and 3 <= K <= SMALL_MM and 1 <= a.ndim <= 2 and 1 <= b.ndim <= 2
+            and b.shape[0] == K):
+        if a.ndim == 2 and b.ndim == 2:
+            terms = [a[:, k:k + 1] * b[k:k + 1, :] for k in range(K)]
+        elif a.ndim == 2:
+            terms = [a[:, k] * b[k] for k in range(K)]
+        elif b.ndim == 2:
+            terms = [a[k] * b[k, :] for k in range(K)]
+        else:
+            terms = [a[k] * b[k] for k in range(K)]
+        out = terms[0]
+        for t in terms[1:]:
+            out = out + t
+        return out
+    if (not opts.small_mm or a.ndim > 2 or b.ndim > 2 or a.shape[-1] != b.shape[0]
             or a.shape[-1] > SMALL_MM):
         return a @ b
     if a.ndim == 1 and b.ndim == 1:
@@ -73,43 +94,97 @@ def solve(A, b):
 SMALL_SPD = 8
 
 
+def runtime_one(x):
+    """1.0 as a value XLA cannot fold (1 + 0·x₀, x any array; NaN when x₀ is not finite, as
+    everything computed from x then is)."""
+    return 1.0 + 0.0 * jnp.reshape(x, (-1,))[0]
+
+
+def store(x, one):
+    """x computed once and kept: divided by ``one`` (:func:`runtime_one`, exact). XLA's CPU
+    compiler recomputes cheap arithmetic in every kernel that uses it, and a division is not cheap
+    in its book, so the value is computed in one kernel and read by the others. Keep what is
+    stored at most 64 values (512 bytes: XLA's CPU runtime runs a loop body's kernels inline only
+    when every buffer is that small)."""
+    return x / one
+
+
 def chol(A):
     """Lower Cholesky factor L (A = L Lᵀ) of a symmetric positive definite A (NaN if it is not),
-    column by column as whole-vector operations."""
+    column by column as whole-vector operations: L_:j = v / √v_j with v = A_:j − Σ_{k<j} L_:k L_jk.
+    With the ``arm_kernels`` loop option each column is one stored kernel (:func:`store`), written
+    v · rsqrt(v_j) with the pivot taken in every entry (a scalar broadcast is a kernel of its own)."""
     n = A.shape[-1]
     if n > SMALL_SPD or A.ndim != 2:
         return jnp.linalg.cholesky(A)
-    rows = jnp.arange(n)
+    kept = _loop.current().arm_kernels
+    one = runtime_one(A) if kept else None
+    rows = np.arange(n)
     cols = []
     for j in range(n):
         v = A[:, j]
         for k in range(j):
             v = v - cols[k] * cols[k][j]
-        cols.append(jnp.where(rows >= j, v / jnp.sqrt(v[j]), 0.0))
+        if kept:
+            pivot = v[j] + 0.0 * v  # v_j in every entry (exact)
+            cols.append(store(jnp.where(rows >= j, v * lax.rsqrt(pivot), 0.0), one))
+        else:
+            cols.append(jnp.where(rows >= j, v / jnp.sqrt(v[j]), 0.0))
     return jnp.stack(cols, axis=1)
 
 
 def chol_solve(L, B):
     """A⁻¹ B from A's Cholesky factor L (B a vector or a matrix): forward and back substitution
-    written out, row by row."""
+    written out, row by row. With the ``arm_kernels`` loop option the reciprocals of L's diagonal
+    are computed once and the solution is one stored kernel (:func:`store`)."""
     n = L.shape[-1]
     if n > SMALL_SPD:
         import jax.scipy.linalg as jsl
 
         return jsl.cho_solve((L, True), B)
+    kept = _loop.current().arm_kernels
+    if kept:
+        one = runtime_one(L)
+        d = store(1.0 / jnp.diagonal(L), one)
+
+        def div(x, i):
+            return x * d[i]
+    else:
+        def div(x, i):
+            return x / L[i, i]
     y = []
     for i in range(n):
         acc = B[i]
         for k in range(i):
             acc = acc - L[i, k] * y[k]
-        y.append(acc / L[i, i])
+        y.append(div(acc, i))
     x = [None] * n
     for i in reversed(range(n)):
         acc = y[i]
         for k in range(i + 1, n):
             acc = acc - L[k, i] * x[k]
-        x[i] = acc / L[i, i]
-    return jnp.stack(x)
+        x[i] = div(acc, i)
+    out = jnp.stack(x)
+    return store(out, one) if kept else out
+
+
+def positive_definite(A):
+    """Whether the symmetric A (n ≤ :data:`SMALL_SPD`) is positive definite: every pivot of its
+    Cholesky factorisation (written out as in :func:`chol`) is positive (a traced boolean). Exact
+    up to the rounding of the pivots: for A = J Jᵀ − s² I it says σ_min(J) > s without a singular
+    value decomposition."""
+    n = A.shape[-1]
+    one = runtime_one(A)
+    ok = jnp.array(True)
+    cols = []
+    for j in range(n):
+        v = A[:, j]
+        for k in range(j):
+            v = v - cols[k] * cols[k][j]
+        ok = ok & (v[j] > 0.0)
+        pivot = jnp.where(v[j] > 0.0, v[j], 1.0) + 0.0 * v
+        cols.append(store(v * lax.rsqrt(pivot), one))
+    return ok
 
 
 def spd_solve(A, B):

@@ -24,6 +24,25 @@ Outside a trace the defaults apply.
     controller once instead of four times (the same operations in the same order, bit for bit).
     ``None`` (default): for arms of at least :data:`ROLL_FROM_JOINTS` joints, where it saves
     compile time; the paper's 2-joint arm keeps the stages written out (rolled, it runs slower).
+``arm_kernels``
+    For arms of at least :data:`ROLL_FROM_JOINTS` joints (``None``, the default; ``True``/``False``
+    force it): products of small matrices with contractions of 3 to
+    :data:`hinfnn._linalg.SMALL_MM` terms written as a sum of products term by term (no reduction:
+    a reduction is a kernel of its own in XLA's CPU compiler, the elementwise sum fuses with its
+    neighbours), and the written-out Cholesky factorisation and solves of :mod:`hinfnn._linalg`
+    with their columns computed once and kept (:func:`hinfnn._linalg.store`). The paper's 2-joint
+    arm keeps its reductions (its numbers bit for bit).
+``rolled_stages``
+    With RK4 rolled: 3, stage 1 (the one that gives the record) written out and stages 2–4 a
+    loop (the record computed once per step, never at the other stages); 4, all four stages a
+    loop (the record computed at every stage and the first one kept).
+``fusion_emitters``
+    For arms of at least :data:`ROLL_FROM_JOINTS` joints (``None``, the default), the simulation's
+    programs are compiled with XLA's older CPU loop emitters (the compile option
+    ``xla_cpu_use_fusion_emitters=False`` of those programs alone, :meth:`LoopOptions.compiler_options`):
+    the arm's rigid-body algorithms written out for fusion (:mod:`hinfnn.model.rbd`) make large
+    fused kernels, which XLA's default emitters compile several times slower. ``True``: XLA's
+    defaults for every arm. The paper's 2-joint arm keeps XLA's defaults.
 ``batch_group``
     A batch of more than this many members runs as equal groups of at most that many, one after
     the other, through one compiled program (the last group padded with copies of its first
@@ -54,14 +73,33 @@ class LoopOptions:
     small_mm: bool = True
     rolled_rk4: bool | None = None
     batch_group: int = 500
+    arm_kernels: bool | None = None
+    rolled_stages: int = 3
+    fusion_emitters: bool | None = None
 
     def __post_init__(self):
         if not (isinstance(self.batch_group, int) and self.batch_group >= 0):
             raise ValueError(f"batch_group must be a whole number >= 0 (0: off), got {self.batch_group!r}")
+        if self.rolled_stages not in (3, 4):
+            raise ValueError(f"rolled_stages must be 3 or 4, got {self.rolled_stages!r}")
 
     def rolled(self, n_joints: int) -> bool:
         """Whether a plant with ``n_joints`` joints integrates with RK4's stages rolled."""
         return n_joints >= ROLL_FROM_JOINTS if self.rolled_rk4 is None else bool(self.rolled_rk4)
+
+    def for_joints(self, n_joints: int) -> "LoopOptions":
+        """These options with the choices left to the arm (``None``) made for ``n_joints`` joints:
+        what the simulator traces a plant of that size with."""
+        big = n_joints >= ROLL_FROM_JOINTS
+        return dataclasses.replace(self, rolled_rk4=self.rolled(n_joints),
+                                   arm_kernels=big if self.arm_kernels is None else bool(self.arm_kernels),
+                                   fusion_emitters=(not big) if self.fusion_emitters is None
+                                   else bool(self.fusion_emitters))
+
+    def compiler_options(self, n_joints: int) -> dict | None:
+        """XLA compile options of a simulation program for a plant of ``n_joints`` joints
+        (``fusion_emitters``): None for XLA's defaults."""
+        return None if self.for_joints(n_joints).fusion_emitters else {"xla_cpu_use_fusion_emitters": False}
 
     def groups(self, B: int) -> list:
         """Member indices of the groups a batch of B runs in: one group of all when B ≤

@@ -134,8 +134,11 @@ class ControllerOutput:
     metrics are built on them); ``signals``: further named signals to record (units in
     :data:`hinfnn.fields.FIELDS`); ``fault``: True when the law cannot be trusted at this sample
     (the simulator stops the run with :attr:`~hinfnn.status.RunStatus.CONTROLLER_FAULT`, the
-    sampled controller returns NaN), with the measure that decided it; ``aux``: whatever the
-    controller's own bookkeeping needs of this evaluation (opaque to the simulator).
+    sampled controller returns NaN), with the measure that decided it (NaN: the measure is
+    computed once, where the run stopped, by :meth:`Controller.fault_measure`); ``deferred``:
+    what :meth:`Controller.deferred_fields` computes recorded fields from, once per stored sample
+    rather than at every stage (None: nothing); ``aux``: whatever the controller's own bookkeeping
+    needs of this evaluation (opaque to the simulator).
     """
 
     tau: jax.Array
@@ -145,6 +148,7 @@ class ControllerOutput:
     signals: dict
     fault: jax.Array = False
     fault_value: jax.Array = jnp.nan
+    deferred: Any = None
     aux: Any = None
 
 
@@ -191,6 +195,18 @@ class Controller(abc.ABC):
 
     def check_start(self, q0) -> None:
         """Design-time check of the start pose (raise :class:`~hinfnn.errors.DesignError`)."""
+
+    def deferred_fields(self, deferred) -> dict:
+        """Recorded fields computed from :attr:`ControllerOutput.deferred`, once per stored sample
+        (what is cheap to carry and costly to compute at every RK4 stage). Default: none."""
+        return {}
+
+    def fault_measure(self, t, state, measurement: Measurement, reference, value):
+        """The measure of the fault that stopped a run, at the state where it stopped, given the
+        :attr:`ControllerOutput.fault_value` the loop recorded there (``value``). Default:
+        ``value``; a controller whose loop decides the fault by a cheaper test than its measure
+        computes the measure here, once."""
+        return value
 
     def summary(self) -> dict:
         """The designed controller as plain numbers (``metrics.json``, ``hinfnn show`` and

@@ -286,12 +286,33 @@ class ReducedOrderController(Controller, Dissipative):
             Gamma = rm.S[m:, :m]
             tau = mm(rm.J.T, jnp.concatenate([lam_p - mm(Gamma.T, y2), y2]))
         dz = -g.mu_z * state.z - g.alpha_z * e_lam  # eq. (27)
-        sigma = sigma_min(rm.J)
         signals = {"F": F, "u1": u1, "u1_dot": u1_dot, "lam": lam, "u1_d": r.u1_d, "u1_d_dot": r.u1_d_dot,
-                   "lam_d": r.lam_d, "e_u1_dot": e_u1_dot, "z": state.z, "sigma_min_J": sigma, **signals}
+                   "lam_d": r.lam_d, "e_u1_dot": e_u1_dot, "z": state.z, **signals}
+        if _closed_form_sigma(rm.J):  # the guard's measure in closed form, recorded at every sample
+            sigma = sigma_min(rm.J)
+            signals["sigma_min_J"] = sigma
+            fault, fault_value, deferred = sigma < self.sigma_stop, sigma, None
+        else:  # no singular values in the loop: the guard by a Cholesky test (singular), σ_min(Ĵ)
+            # recorded per stored sample (deferred_fields) and at a stop (fault_measure)
+            fault, fault_value, deferred = singular(rm.J, self.sigma_stop), jnp.nan, {"J": rm.J}
         aux = LawAux(ref=r, values=tuple(values), J=rm.J, J_dot=rm.J_dot, ctx=ctx, Jd_qd=rm.Jd_qd)
         return ControllerOutput(tau=tau, dstate=ControllerState(z=dz, parts=dparts), e_u1=e_u1, e_lam=e_lam,
-                                signals=signals, fault=sigma < self.sigma_stop, fault_value=sigma, aux=aux)
+                                signals=signals, fault=fault, fault_value=fault_value, deferred=deferred, aux=aux)
+
+    def deferred_fields(self, deferred) -> dict:
+        """σ_min(Ĵ) of a stored sample (arms whose Ĵ is larger than 2 × 2), from the Ĵ the loop kept."""
+        if deferred is None:
+            return {}
+        J = deferred["J"]
+        return {"sigma_min_J": jnp.linalg.svd(J, compute_uv=False)[..., -1]}
+
+    def fault_measure(self, t, state, meas, ref, value):
+        """σ_min(Ĵ) where the run stopped, when the loop decided the guard without it (``value``
+        NaN, arms whose Ĵ is larger than 2 × 2)."""
+        out = self.evaluate(jnp.where(jnp.isnan(t), 0.0, t), state, meas, ref)
+        if out.deferred is None:
+            return value
+        return jnp.where(jnp.isnan(value), self.deferred_fields(out.deferred)["sigma_min_J"], value)
 
     @property
     def needs_start(self) -> bool:
@@ -414,6 +435,20 @@ def sigma_min(J):
         det = J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0]
         return jnp.sqrt(jnp.maximum(0.5 * (a - jnp.sqrt(jnp.maximum(a * a - 4.0 * det * det, 0.0))), 0.0))
     return jnp.linalg.svd(J, compute_uv=False)[-1]
+
+
+def _closed_form_sigma(J) -> bool:
+    """Whether :func:`sigma_min` has a closed form for this Ĵ (1 × 1 and 2 × 2)."""
+    return J.shape in ((1, 1), (2, 2))
+
+
+def singular(J, stop):
+    """The singularity guard σ_min(Ĵ) < ``stop`` without the singular values (Ĵ square, larger than
+    2 × 2): Ĵ Ĵᵀ − stop² I is not positive definite (a written-out Cholesky,
+    :func:`hinfnn._linalg.positive_definite`: the same test up to the rounding of the pivots, and
+    no LAPACK call in the loop); never when ``stop`` is 0 (the guard off)."""
+    A = la.mm(J, J.T) - (stop * stop) * jnp.eye(J.shape[0], dtype=J.dtype)
+    return (stop > 0.0) & ~la.positive_definite(A)
 
 
 @jax.jit

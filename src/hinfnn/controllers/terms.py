@@ -129,7 +129,7 @@ class RobustPosition(Term):
     fields: ClassVar[dict] = {"v_p": ("m/s²", "robustifying position term v_p, eq. (33)")}
 
     def evaluate(self, ctx, parts):
-        v_p = -la.solve(ctx.gains.R_p, ctx.s_p)
+        v_p = -la.spd_solve(ctx.gains.R_p, ctx.s_p)  # R_p symmetric positive definite (the design checks it)
         return v_p, {}, {"v_p": v_p}
 
     def extra_performance(self, ctx, value):

@@ -46,7 +46,7 @@ import math
 import os
 import warnings
 import xml.etree.ElementTree as ET
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -55,6 +55,7 @@ import numpy as np
 from .. import _linalg as la
 from .._pytree import pytree_dataclass, replace, static_field
 from ..errors import ConfigError
+from . import rbd
 from .arm import Arm, ArmTerms
 
 MOVING_TYPES = ("revolute", "continuous", "prismatic")
@@ -449,67 +450,13 @@ def _ancestors(link, parent_joint):
 
 
 # ---------------------------------------------------------------------------------------------
-# Spatial algebra, motion vectors (linear, angular) at the base origin, base-frame coordinates
+# Spatial algebra (the rigid-body algorithms themselves are in hinfnn.model.rbd)
 # ---------------------------------------------------------------------------------------------
 def skew(v):
     """[v]×, so that skew(v) @ u = v × u."""
     z = jnp.zeros_like(v[0])
     return jnp.stack([jnp.stack([z, -v[2], v[1]]), jnp.stack([v[2], z, -v[0]]),
                       jnp.stack([-v[1], v[0], z])])
-
-
-def _cross(a, b):
-    """a × b along the last axis, as three rolls of it: 12 operations where the written-out
-    components take 24 (the UR5's right-hand side: 4,671 instead of 5,657 traced operations, and
-    10-14 % less compile time)."""
-    a, b = jnp.broadcast_arrays(a, b)
-    d = a * _roll(b) - _roll(a) * b  # d_i = a_i b_(i+1) - a_(i+1) b_i = (a x b)_(i+2)
-    return _roll(d)
-
-
-def _roll(x):
-    """(x_1, x_2, x_0) along the last axis."""
-    return jnp.concatenate([x[..., 1:], x[..., :1]], axis=-1)
-
-
-def _crm(v, m):
-    """Motion cross product v ×ₘ m (Featherstone eq. 2.31 with (linear, angular) order)."""
-    return jnp.concatenate([_cross(v[..., 3:], m[..., :3]) + _cross(v[..., :3], m[..., 3:]),
-                            _cross(v[..., 3:], m[..., 3:])], axis=-1)
-
-
-def _crf(v, f):
-    """Force cross product v ×* f = −(v ×ₘ)ᵀ f (force, moment order)."""
-    return jnp.concatenate([_cross(v[..., 3:], f[..., :3]),
-                            _cross(v[..., 3:], f[..., 3:]) + _cross(v[..., :3], f[..., :3])], axis=-1)
-
-
-def _inertia_apply(m, h, Ib, x):
-    """Spatial inertia (mass m, first moment h = m c, rotational inertia Ī about the origin)
-    times motion vectors x: (m x_l − h × x_w, h × x_l + Ī x_w). Batched over a leading axis."""
-    xl, xw = x[..., :3], x[..., 3:]
-    fl = m[..., None] * xl - _cross(h, xw)
-    fw = _cross(h, xl) + jnp.sum(Ib * xw[..., None, :], axis=-1)
-    return jnp.concatenate([fl, fw], axis=-1)
-
-
-def _rcumsum(x):
-    """Σ_{k ≥ i} x_k along axis 0 (the composite sums of the backward passes)."""
-    return jnp.cumsum(x[::-1], axis=0)[::-1]
-
-
-class _Kinematics(NamedTuple):
-    """Everything position-dependent, in the base frame: body rotations R (n,3,3) and origins
-    p (n,3), motion subspaces S (n,6), body inertias (m, h, Ī) and the tool frame."""
-
-    R: jax.Array
-    p: jax.Array
-    S: jax.Array
-    m: jax.Array
-    h: jax.Array
-    Ib: jax.Array
-    R_tool: jax.Array
-    p_tool: jax.Array
 
 
 @pytree_dataclass
@@ -542,58 +489,23 @@ class UrdfChain:
     joint_names: tuple = static_field(default=())
     body_links: tuple = static_field(default=())
 
-    # --- kinematics --------------------------------------------------------------------------
-    def _kinematics(self, q) -> _Kinematics:
-        """Forward pass: body placements (Python loop over the static joints), motion
-        subspaces S_i = (p_i × a_i, a_i) (revolute) or (a_i, 0) (prismatic), body inertias."""
-        s, c = la.sincos(q)
-        a, eye = self.axes, jnp.eye(3)
-        z = jnp.zeros_like(a[:, 0])
-        K = jnp.stack([jnp.stack([z, -a[:, 2], a[:, 1]], -1), jnp.stack([a[:, 2], z, -a[:, 0]], -1),
-                       jnp.stack([-a[:, 1], a[:, 0], z], -1)], -2)  # [a_i]×
-        rot = (c[:, None, None] * eye[None] + s[:, None, None] * K
-               + (1.0 - c)[:, None, None] * (a[:, :, None] * a[:, None, :]))  # Rodrigues, all joints
-        R, p = eye, jnp.zeros(3)
-        Rs, ps = [], []
-        for i, kind in enumerate(self.joint_types):
-            p = p + la.mm(R, self.placement_pos[i])
-            R = la.mm(R, self.placement_rot[i])
-            if kind == "prismatic":
-                p = p + la.mm(R, a[i]) * q[i]
-            else:
-                R = la.mm(R, rot[i])
-            Rs.append(R)
-            ps.append(p)
-        R, p = jnp.stack(Rs), jnp.stack(ps)
-        aw = jnp.sum(R * self.axes[:, None, :], axis=-1)  # world axes
-        prism = np.array([k == "prismatic" for k in self.joint_types])[:, None]
-        S = jnp.concatenate([jnp.where(prism, aw, _cross(p, aw)), jnp.where(prism, 0.0, aw)], axis=-1)
-        cw = p + jnp.sum(R * self.com[:, None, :], axis=-1)
-        RI = jnp.sum(R[:, :, :, None] * self.inertia[:, None, :, :], axis=2)  # R_i I_i (batched 3 × 3)
-        Ic = jnp.sum(RI[:, :, None, :] * R[:, None, :, :], axis=3)  # (R_i I_i) R_iᵀ
-        Ib = Ic + self.mass[:, None, None] * (jnp.sum(cw * cw, axis=-1)[:, None, None] * eye[None]
-                                              - cw[:, :, None] * cw[:, None, :])
-        R_tool = la.mm(R[-1], self.tool_rot)
-        p_tool = p[-1] + la.mm(R[-1], self.tool_pos)
-        return _Kinematics(R, p, S, self.mass, self.mass[:, None] * cw, Ib, R_tool, p_tool)
+    # --- kinematics (hinfnn.model.rbd) --------------------------------------------------------
+    def _kinematics(self, q) -> rbd.Frames:
+        """Forward pass (:func:`hinfnn.model.rbd.frames`): body placements, motion subspaces
+        S_i = (p_i × a_i, a_i) (revolute) or (a_i, 0) (prismatic), body inertias, tool frame."""
+        return rbd.frames(self, q)
 
     def fk(self, q):
         """Tool frame (position (3,), rotation (3,3)) in the base frame."""
-        k = self._kinematics(q)
-        return k.p_tool, k.R_tool
+        return _tool_frame(self._kinematics(q))
 
     @staticmethod
-    def _jacobian(k: _Kinematics):
-        lin = k.S[:, :3] + _cross(k.S[:, 3:], k.p_tool[None, :])
-        return jnp.concatenate([lin, k.S[:, 3:]], axis=1).T
+    def _jacobian(k: rbd.Frames):
+        return rbd.frame_jacobian(k)
 
     @staticmethod
-    def _jacobian_dot(k: _Kinematics, qd):
-        v = jnp.cumsum(k.S * qd[:, None], axis=0)
-        Sd = _crm(v, k.S)  # Ṡ_i = v_i ×ₘ S_i
-        pd = v[-1, :3] + _cross(v[-1, 3:], k.p_tool)  # tool-point velocity
-        lin = Sd[:, :3] + _cross(Sd[:, 3:], k.p_tool[None, :]) + _cross(k.S[:, 3:], pd[None, :])
-        return jnp.concatenate([lin, Sd[:, 3:]], axis=1).T
+    def _jacobian_dot(k: rbd.Frames, qd, v=None):
+        return rbd.frame_jacobian_dot(k, qd, v)
 
     def frame_jacobian(self, q):
         """Geometric Jacobian (6, n) of the tool frame: rows (ṗ_tool, ω), base-frame axes
@@ -605,48 +517,30 @@ class UrdfChain:
         (p̈, ω̇) at q̈ = 0."""
         return self._jacobian_dot(self._kinematics(q), qd)
 
-    # --- dynamics ----------------------------------------------------------------------------
+    # --- dynamics (hinfnn.model.rbd) ----------------------------------------------------------
     def _a0(self):
-        return jnp.concatenate([-self.gravity, jnp.zeros(3)])
+        """The base's spatial acceleration (−g, 0) that puts gravity into RNEA (a 6-tuple)."""
+        return rbd.gravity_vector(self.gravity)
 
     @staticmethod
-    def _crba(k: _Kinematics):
-        """M_ij = S_iᵀ I^c_{max(i,j)} S_j with composite inertias I^c_j = Σ_{k≥j} I_k."""
-        F = _inertia_apply(_rcumsum(k.m), _rcumsum(k.h), _rcumsum(k.Ib), k.S)  # F_j = I^c_j S_j
-        A = la.mm(k.S, F.T)  # A_ij = S_i · F_j, equal to M_ij for i ≤ j
-        upper = np.triu(np.ones(A.shape, dtype=bool))
-        return jnp.where(upper, A, A.T)
+    def _crba(k: rbd.Frames):
+        """M by the composite-rigid-body algorithm: M_ij = S_iᵀ I^c_{max(i,j)} S_j with composite
+        inertias I^c_j = Σ_{k≥j} I_k."""
+        return rbd.crba(k)
 
     @staticmethod
-    def _rnea(k: _Kinematics, qd, qdd, a0):
-        """Recursive Newton–Euler in the base frame: v_i = Σ_{k≤i} S_k q̇_k, a_i = a0 +
-        Σ_{k≤i} (S_k q̈_k + Ṡ_k q̇_k), f_i = I_i a_i + v_i ×* I_i v_i, τ_i = S_i · Σ_{k≥i} f_k."""
-        v = jnp.cumsum(k.S * qd[:, None], axis=0)
-        a = jnp.cumsum(k.S * qdd[:, None] + _crm(v, k.S) * qd[:, None], axis=0) + a0[None, :]
-        f = _inertia_apply(k.m, k.h, k.Ib, a) + _crf(v, _inertia_apply(k.m, k.h, k.Ib, v))
-        return jnp.sum(k.S * _rcumsum(f), axis=1)
+    def _rnea(k: rbd.Frames, qd, qdd, a0, v=None):
+        """Recursive Newton–Euler (:func:`hinfnn.model.rbd.rnea`; ``qdd`` None: q̈ = 0)."""
+        return rbd.rnea(k, qd, qdd, a0, v)
 
     @staticmethod
-    def _christoffel(k: _Kinematics, a, b):
-        """The Christoffel bilinear form Γ(a, b) = C(q, a) b, symmetric in a, b.
+    def _christoffel(k: rbd.Frames, a, b, va=None):
+        """The Christoffel bilinear form Γ(a, b) = C(q, a) b (:func:`hinfnn.model.rbd.christoffel`)."""
+        return rbd.christoffel(k, a, b, va)
 
-        It is the polarization of c(v) = C(q, v) v (RNEA without gravity, q̈ = 0), written out:
-        with velocities V^a, V^b of the two velocity vectors,
-        acc_i = ½ Σ_{k≤i} (V^a_k ×ₘ S_k b_k + V^b_k ×ₘ S_k a_k),
-        f_i = I_i acc_i + ½ (V^a_i ×* I_i V^b_i + V^b_i ×* I_i V^a_i);
-        Γ(v, v) = c(v), and it equals ¼[c(a + b) − c(a − b)] without that formula's
-        cancellation.
-        """
-        Va = jnp.cumsum(k.S * a[:, None], axis=0)
-        Vb = jnp.cumsum(k.S * b[:, None], axis=0)
-        acc = 0.5 * jnp.cumsum(_crm(Va, k.S) * b[:, None] + _crm(Vb, k.S) * a[:, None], axis=0)
-        f = (_inertia_apply(k.m, k.h, k.Ib, acc)
-             + 0.5 * (_crf(Va, _inertia_apply(k.m, k.h, k.Ib, Vb))
-                      + _crf(Vb, _inertia_apply(k.m, k.h, k.Ib, Va))))
-        return jnp.sum(k.S * _rcumsum(f), axis=1)
-
-    def _coriolis(self, k: _Kinematics, qd):
-        cols = jax.vmap(lambda e: self._christoffel(k, qd, e))(jnp.eye(self.n))
+    def _coriolis(self, k: rbd.Frames, qd):
+        va = rbd.velocities(k, qd)
+        cols = jax.vmap(lambda e: self._christoffel(k, qd, e, va))(jnp.eye(self.n))
         return cols.T
 
     def M(self, q):
@@ -655,12 +549,11 @@ class UrdfChain:
 
     def bias(self, q, qd):
         """C(q, q̇) q̇ + G(q) by recursive Newton–Euler (q̈ = 0)."""
-        return self._rnea(self._kinematics(q), qd, jnp.zeros_like(qd), self._a0())
+        return self._rnea(self._kinematics(q), qd, None, self._a0())
 
-    def _gravity(self, k: _Kinematics):
+    def _gravity(self, k: rbd.Frames):
         """G_i = S_i · I^c_i a0: RNEA at q̇ = q̈ = 0 with composite inertias."""
-        a0 = jnp.broadcast_to(self._a0(), k.S.shape)
-        return jnp.sum(k.S * _inertia_apply(_rcumsum(k.m), _rcumsum(k.h), _rcumsum(k.Ib), a0), axis=1)
+        return rbd.gravity(k, self._a0())
 
     def G(self, q):
         """Gravity torque G(q) = ∂U/∂q (RNEA at q̇ = q̈ = 0)."""
@@ -668,17 +561,17 @@ class UrdfChain:
 
     def potential(self, q):
         """Potential energy U(q) = −Σ m_i g · c_i (zero at the base origin)."""
-        k = self._kinematics(q)
-        return -jnp.sum(k.h * self.gravity[None, :])
+        return rbd.potential(self._kinematics(q), self.gravity)
 
     def inverse_dynamics(self, q, qd, qdd):
         """τ = M(q) q̈ + C(q, q̇) q̇ + G(q) (RNEA)."""
         return self._rnea(self._kinematics(q), qd, qdd, self._a0())
 
     def forward_dynamics(self, q, qd, tau):
-        """q̈ = M(q)⁻¹ (τ − C(q, q̇) q̇ − G(q)) (CRBA and RNEA share the forward pass)."""
+        """q̈ = M(q)⁻¹ (τ − C(q, q̇) q̇ − G(q)) (CRBA and RNEA share the forward pass; M by its
+        Cholesky factor)."""
         k = self._kinematics(q)
-        return la.solve(self._crba(k), tau - self._rnea(k, qd, jnp.zeros_like(qd), self._a0()))
+        return la.spd_solve(self._crba(k), tau - self._rnea(k, qd, None, self._a0()))
 
     def C(self, q, qd):
         """Coriolis matrix from the Christoffel symbols of M (Ṁ − 2C skew-symmetric):
@@ -787,6 +680,11 @@ def load_urdf(path, base_link: str, ee_link: str, *, tool_xyz=(0.0, 0.0, 0.0),
 # ---------------------------------------------------------------------------------------------
 # The arm
 # ---------------------------------------------------------------------------------------------
+def _tool_frame(k: rbd.Frames):
+    """(p_tool (3,), R_tool (3, 3)) as arrays."""
+    return jnp.stack(k.p_tool), rbd.as_matrix(k.R_tool)
+
+
 def _task_derivatives(task, p, R, Jf, Jf_dot, qd):
     """Task Jacobian J = ∂x/∂q and J̇ from the frame Jacobian and the task map's derivative.
 
@@ -864,9 +762,9 @@ class UrdfArm(Arm):
     def h(self, q):
         return self.task(*self.chain.fk(q))
 
-    def _J_Jdot(self, k, qd):
-        return _task_derivatives(self.task, k.p_tool, k.R_tool, self.chain._jacobian(k),
-                                 self.chain._jacobian_dot(k, qd), qd)
+    def _J_Jdot(self, k, qd, v=None):
+        return _task_derivatives(self.task, *_tool_frame(k), self.chain._jacobian(k),
+                                 self.chain._jacobian_dot(k, qd, v), qd)
 
     def J(self, q):
         """∂h/∂q = (∂task/∂(p, R)) · frame Jacobian."""
@@ -901,7 +799,7 @@ class UrdfArm(Arm):
         """h, J, J̇, M, C, G sharing one forward kinematics pass."""
         k = self.chain._kinematics(q)
         J, J_dot = self._J_Jdot(k, qd)
-        return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=J, J_dot=J_dot, M=self.chain._crba(k),
+        return ArmTerms(x=self.task(*_tool_frame(k)), J=J, J_dot=J_dot, M=self.chain._crba(k),
                         C=self.chain._coriolis(k, qd), G=self.chain._gravity(k))
 
     def law_terms(self, q, qd) -> ArmTerms:
@@ -909,11 +807,13 @@ class UrdfArm(Arm):
         the kinematics, the frame Jacobian and its derivative for :meth:`C_product` and
         :meth:`J_dot_times`."""
         k = self.chain._kinematics(q)
+        v = rbd.velocities(k, qd)  # shared by J̇ and the Christoffel products along q̇
         Jf = self.chain._jacobian(k)
-        Jf_dot = self.chain._jacobian_dot(k, qd)
-        J = _task_jacobian(self.task, k.p_tool, k.R_tool, Jf)
-        return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=J, J_dot=None, M=self.chain._crba(k), C=None,
-                        G=self.chain._gravity(k), aux=(k, Jf, Jf_dot),
+        Jf_dot = self.chain._jacobian_dot(k, qd, v)
+        p, R = _tool_frame(k)
+        J = _task_jacobian(self.task, p, R, Jf)
+        return ArmTerms(x=self.task(p, R), J=J, J_dot=None, M=self.chain._crba(k), C=None,
+                        G=self.chain._gravity(k), aux=(k, Jf, Jf_dot, v),
                         J_p=None if self.task_is_point else jnp.stack([Jf[i] for i in self.task.space_rows]))
 
     def C_product(self, terms: ArmTerms, q, qd, v):
@@ -922,7 +822,8 @@ class UrdfArm(Arm):
             return la.mm(terms.C, v)
         if terms.aux is None:
             return self.chain.C_times(q, qd, v)
-        return self.chain._christoffel(terms.aux[0], qd, v)
+        k, va = terms.aux[0], terms.aux[3]
+        return self.chain._christoffel(k, qd, v, va)
 
     def J_dot_times(self, terms: ArmTerms, q, qd, v):
         """J̇(q, q̇) v: one column of :func:`_task_derivatives` (the task map's second directional
@@ -931,8 +832,8 @@ class UrdfArm(Arm):
             return la.mm(terms.J_dot, v)
         if terms.aux is None:
             return la.mm(self.J_dot(q, qd), v)
-        k, Jf, Jf_dot = terms.aux
-        return _task_derivatives_times(self.task, k.p_tool, k.R_tool, Jf, Jf_dot, qd, v)
+        k, Jf, Jf_dot, _ = terms.aux
+        return _task_derivatives_times(self.task, *_tool_frame(k), Jf, Jf_dot, qd, v)
 
     @property
     def task_is_point(self) -> bool:
@@ -957,10 +858,11 @@ class UrdfArm(Arm):
         """x, J, M, bias = C q̇ + G (RNEA), tool point and its Jacobian, from one forward pass."""
         k = self.chain._kinematics(q)
         Jf = self.chain._jacobian(k)
-        return ArmTerms(x=self.task(k.p_tool, k.R_tool), J=_task_jacobian(self.task, k.p_tool, k.R_tool, Jf),
+        p, R = _tool_frame(k)
+        return ArmTerms(x=self.task(p, R), J=_task_jacobian(self.task, p, R, Jf),
                         J_dot=None, M=self.chain._crba(k), C=None, G=None,
-                        bias=self.chain._rnea(k, qd, jnp.zeros_like(qd), self.chain._a0()),
-                        p=self.task.space(k.p_tool), J_p=jnp.stack([Jf[i] for i in self.task.space_rows]))
+                        bias=self.chain._rnea(k, qd, None, self.chain._a0()),
+                        p=self.task.space(p), J_p=jnp.stack([Jf[i] for i in self.task.space_rows]))
 
     def task_margin(self, q):
         """The task map's distance from its singularities at q (:meth:`~hinfnn.model.taskmap.PoseTaskMap.margin`)."""

@@ -10,13 +10,29 @@ def _axpy(a, x, y):
     return jax.tree.map(lambda xi, yi: yi + a * xi, x, y)
 
 
-def rk4_step(f, t, y, dt, *, rolled: bool = False):
+def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4):
     """One RK4 step of ẏ = f(t, y); ``f`` returns ``(dy, aux)``. Returns ``(y_next, aux_1)``,
     aux_1 the auxiliary output of the first stage (the state at the start of the step).
 
-    ``rolled``: the four stages as a loop of four iterations, so a compiled program holds ``f``
-    once instead of four times (the same operations in the same order, bit for bit; a device for
-    arms with large dynamics, :func:`hinfnn._devices.rolled_rk4`)."""
+    ``rolled``: stages as a loop, so a compiled program holds ``f`` fewer times (the same
+    operations in the same order, bit for bit; a loop option for arms with large dynamics,
+    :class:`hinfnn._loop.LoopOptions`). ``rolled_stages`` 4: the four stages a loop of four
+    iterations (``f`` once in the program; its aux computed at every stage, the first kept);
+    3: stage 1 written out with its aux, stages 2–4 a loop of three iterations whose aux is
+    unused and not computed (``f`` twice in the program, the record once per step)."""
+    if rolled and rolled_stages == 3:
+        f = jax.jit(f, inline=True)  # traced once: for stage 1 and for the loop's body
+        k1, aux = f(t, y)  # stage 1 at (t, y), with the auxiliary output
+
+        def later(i, state):  # stages 2, 3 at t + dt/2 from k1, k2; stage 4 at t + dt from k3
+            acc, k = state
+            c = jnp.where(i == 3, 1.0, 0.5)
+            ki, _ = f(t + c * dt, jax.tree.map(lambda yi, kk: yi + c * dt * kk, y, k))
+            w = jnp.where(i == 3, 1.0, 2.0)
+            return jax.tree.map(lambda a, kk: a + w * kk, acc, ki), ki  # k1 + 2 k2 + 2 k3 + k4
+
+        acc, _ = jax.lax.fori_loop(1, 4, later, (k1, k1))
+        return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
     if rolled:
         f = jax.jit(f, inline=True)  # traced once: for the shapes below and for the loop's body
 

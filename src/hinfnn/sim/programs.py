@@ -64,14 +64,16 @@ class ExportedProgram:
     """``fn`` (a function of pytrees returning ``(carry, records)``: the carry of the same structure
     as argument ``carry_arg``, the records a dict of arrays) jit-compiled, with its lowered form kept
     on disk between processes (see the module docstring). ``settings``: what else decides the
-    program (hashable, its repr part of the key)."""
+    program (hashable, its repr part of the key); ``compiler_options``: XLA's compile options of
+    the program (None: XLA's defaults), part of the key."""
 
-    def __init__(self, fn, name: str, settings, carry_arg: int):
+    def __init__(self, fn, name: str, settings, carry_arg: int, compiler_options: dict | None = None):
         self.fn = fn
         self.name = name
-        self.settings = settings
+        self.compiler_options = dict(compiler_options) if compiler_options else None
+        self.settings = (settings, sorted((self.compiler_options or {}).items()))
         self.carry_arg = carry_arg
-        self.jitted = jax.jit(fn)
+        self.jitted = jax.jit(fn, compiler_options=self.compiler_options)
         self._entries: dict = {}
 
     # --- the key and the files ---------------------------------------------------------------------
@@ -131,7 +133,7 @@ class ExportedProgram:
             exported = jax.export.deserialize(bytearray(blob[8 + size:]))
         except Exception:  # noqa: BLE001 - a truncated or foreign file: trace as usual
             return None
-        return jax.jit(exported.call), meta["records"], exported.out_avals
+        return jax.jit(exported.call, compiler_options=self.compiler_options), meta["records"], exported.out_avals
 
     def _export(self, path: Path, args, leaves, treedef):
         keys: list = []
@@ -151,7 +153,7 @@ class ExportedProgram:
             _write(path, {"exportable": False}, b"")
             return None
         _write(path, {"exportable": True, "records": keys, "name": self.name}, payload)
-        return jax.jit(exported.call), keys, exported.out_avals
+        return jax.jit(exported.call, compiler_options=self.compiler_options), keys, exported.out_avals
 
 
 def _write(path: Path, meta: dict, payload: bytes) -> None:

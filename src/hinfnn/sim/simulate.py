@@ -88,6 +88,8 @@ def _evaluate(plant, ctrl, ref, t, y: SimState, w, held, sampled):
               "_cfault": jnp.asarray(out.fault), "_cfault_value": jnp.asarray(out.fault_value, dtype=float),
               "_pfault": jnp.asarray(pr.fault), "_pfault_value": jnp.asarray(pr.fault_value, dtype=float),
               "_pfault_index": jnp.asarray(pr.fault_index, dtype=jnp.int32)}
+    if out.deferred is not None:  # the controller's fields computed per stored sample (_derived)
+        record["_deferred"] = out.deferred
     return meas, cache, out, tau, record
 
 
@@ -159,7 +161,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             acc = jax.tree.map(lambda a, r: a + dt * r, y.acc, rates)
             return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **book}
         y_new, aux = rk4_step(lambda tt, yy: rhs(plant, ctrl, ref, tt, yy, w, held, sampled), t, y, dt,
-                              rolled=rolled)
+                              rolled=rolled, rolled_stages=_loop.current().rolled_stages)
         return SimState(plant=y_new.plant, xc=ctrl.constrain(y_new.xc), acc=y_new.acc), aux
 
     def step(c: Carry, k, first):
@@ -210,9 +212,29 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             tau_tv=stat(c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
             tau_prev=jnp.where(count | first, tau, c.tau_prev),
             sums={name: stat(rec[name], c.sums[name]) for name in STEP_SUMS},
-            maxes={name: stat(rec[name], c.maxes[name]) for name in STEP_MAXES}), pick(rec, fields)
+            maxes={name: stat(rec[name], c.maxes[name]) for name in STEP_MAXES}), _stored(rec, fields)
 
     return sample, step
+
+
+def _stored(rec, fields):
+    """The stored part of a step's record, and what the controller's deferred fields are computed
+    from (:meth:`~hinfnn.protocols.Controller.deferred_fields`), kept until the sample is taken."""
+    out = pick(rec, fields)
+    if "_deferred" in rec:
+        out["_deferred"] = rec["_deferred"]
+    return out
+
+
+def _derived(ctrl, rec, fields):
+    """A stored sample with the controller's deferred fields computed from it, once per stored
+    sample rather than at every RK4 stage of every step (σ_min(Ĵ) of a 6-DOF arm: an SVD), those
+    asked for kept."""
+    if "_deferred" not in rec:
+        return rec
+    rec = dict(rec)
+    extra = ctrl.deferred_fields(rec.pop("_deferred"))
+    return {**rec, **pick(extra, None if fields is None else tuple(f for f in fields if f in extra))}
 
 
 def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every, n_take, *, n_records, sampled,
@@ -248,20 +270,30 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
             cc, new = step(cc, k + i, jnp.asarray(i == 0, dtype=bool))
             return cc, jax.tree.map(lambda a, b: jnp.where(i == 0, a, b), new, rec)
 
-        return jax.lax.fori_loop(0, n_inner, body, (c, rec0))
+        c, rec = jax.lax.fori_loop(0, n_inner, body, (c, rec0))
+        return c, _derived(ctrl, rec, fields)
 
     return jax.lax.scan(one_record, carry, jnp.arange(n_records))
 
 
-def _final(plant, ctrl, carry):
+def _final(plant, ctrl, ref, carry):
     """The full final state (the controller's arrays by name) and why the run stopped, from the
-    carry after the last chunk."""
+    carry after the last chunk. A controller fault's measure is the controller's
+    (:meth:`~hinfnn.protocols.Controller.fault_measure`), at the frozen state: the state at the
+    start of the step that stopped the run, where the loop evaluated the fault."""
+    from ..protocols import Controller
+
     y_end = carry.y
     q, qd = plant.joints(y_end.plant)
     final = dict(q=q, qd=qd, **ctrl.state_arrays(y_end.xc), J=y_end.acc.J, J_aug=y_end.acc.J_aug,
                  supply=y_end.acc.supply)
+    fault_value = carry.bad_fault
+    if type(ctrl).fault_measure is not Controller.fault_measure:
+        meas, _ = plant.sense(carry.t_fail, y_end.plant)
+        measure = ctrl.fault_measure(carry.t_fail, y_end.xc, meas, ref, fault_value)
+        fault_value = jnp.where(carry.status == int(RunStatus.CONTROLLER_FAULT), measure, fault_value)
     details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts,
-                   fault_value=carry.bad_fault, fault_index=carry.bad_fault_index)
+                   fault_value=fault_value, fault_index=carry.bad_fault_index)
     return carry.status, carry.t_fail, details, final
 
 
@@ -298,24 +330,29 @@ def _with_options(fn, loop: LoopOptions):
 
 
 @functools.lru_cache(maxsize=128)
-def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptions()):
+def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptions(), n_joints: int = 2):
     """(chunk, final, init) compiled for one structure; in_axes=None for a single run; traced with
-    the loop options ``loop`` (part of the key).
+    the loop options ``loop`` as they are for a plant of ``n_joints`` joints
+    (:meth:`~hinfnn._loop.LoopOptions.for_joints`, part of the key), compiled with their XLA options
+    (:meth:`~hinfnn._loop.LoopOptions.compiler_options`).
 
     Horizon, dt, the hold period, the steps between samples and the samples a chunk takes are
     traced arguments, so a new t_final, dt or output interval reuses the compiled program (see
     :meth:`~hinfnn.sim.plan.StepPlan.chunk`). The chunk program is also kept traced and lowered
     between processes (:class:`~hinfnn.sim.programs.ExportedProgram`)."""
+    options = loop.compiler_options(n_joints)
+    loop = loop.for_joints(n_joints)
     chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields)
     final, init = _final, _init_carry
     if in_axes is not None:
         p, c, r, lim = in_axes
         chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None, None, None))
-        final = jax.vmap(final, in_axes=(p, c, 0))
+        final = jax.vmap(final, in_axes=(p, c, r, 0))
         init = jax.vmap(_init_carry, in_axes=(c, 0, None))
     chunk = ExportedProgram(_with_options(chunk, loop), "chunk", (in_axes, n_records, sampled, fields, loop),
-                            carry_arg=4)  # traced once, kept lowered on disk (hinfnn.sim.programs)
-    return chunk, jax.jit(_with_options(final, loop)), jax.jit(_with_options(init, loop), static_argnums=2)
+                            carry_arg=4, compiler_options=options)  # kept lowered on disk (hinfnn.sim.programs)
+    return (chunk, jax.jit(_with_options(final, loop), compiler_options=options),
+            jax.jit(_with_options(init, loop), static_argnums=2))
 
 
 def release_programs() -> None:
@@ -342,7 +379,8 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, f
     n_total, n_steps, save_every = plan.samples, plan.n_steps, plan.save_every
     slots, per_chunk = plan.chunk(batched=in_axes is not None)  # independent of the horizon
     # a single run's program stores every field; the driver keeps those asked for (one program)
-    chunk, final, init = _compiled(in_axes, slots, plan.sampled, fields if in_axes is not None else None, loop)
+    chunk, final, init = _compiled(in_axes, slots, plan.sampled, fields if in_axes is not None else None, loop,
+                                   n_joints)
     carry = init(ctrl, y0, n_joints)
     axis = 0 if in_axes is None else 1  # the time axis of the records
     n_steps_a, dt_a, hold_a, every_a, take_a = _chunk_scalars(n_steps, plan.dt, plan.n_hold, save_every, per_chunk)
@@ -373,7 +411,7 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, f
         pending = (c, rec)
     store(*pending)  # n_chunks >= 1
     del pending
-    return (out, *final(plant, ctrl, carry))
+    return (out, *final(plant, ctrl, ref, carry))
 
 
 def _chunk_scalars(n_steps, dt, n_hold, save_every, per_chunk):
@@ -593,16 +631,16 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
     def one(plant, ctrl, ref, lim, y0):
         carry = _init_carry(ctrl, y0, plant.n)
         _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True)
-        return step(carry, jnp.zeros((), jnp.int64), True)[1]
+        return _derived(ctrl, step(carry, jnp.zeros((), jnp.int64), True)[1], fields)
 
     if single:  # the arguments _drive gives the single-run program (their values do not matter)
-        chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None, loop)
+        chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None, loop, plant.n)
         carry = init.eval_shape(controller, y0, plant.n)
         k0 = jnp.zeros((), jnp.int64)
         records = chunk.eval_shape(*args[:4], carry, k0, *_chunk_scalars(1, dt, 1, 1, 1))[1]
         out = {k: jax.ShapeDtypeStruct(v.shape[1:], v.dtype) for k, v in pick(records, fields).items()}
     else:
-        out = jax.eval_shape(_with_options(one, loop), *args)
+        out = jax.eval_shape(_with_options(one, loop.for_joints(plant.n)), *args)
     shapes = {k: (tuple(v.shape), np.dtype(v.dtype)) for k, v in out.items()}
     if len(_RECORD_SHAPES) < 256:
         _RECORD_SHAPES[key] = shapes
