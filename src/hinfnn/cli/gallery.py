@@ -20,7 +20,7 @@ def main(args) -> int:
                          beyond=args.beyond, log=(lambda m: None) if args.quiet else log_stderr, command=command_line(args))
     progress.done()
     if not args.quiet:
-        for sub in sorted(p for p in target.iterdir() if p.is_dir()):
+        for sub in sorted(p for p in target.iterdir() if (p / "metrics.json").is_file()):  # not beyond/
             print(f"{sub.name}:")
             print(metrics_table(json.loads((sub / "metrics.json").read_text()), markdown=False))
         print(f"report: {target}/report.md  ({time.perf_counter() - t0:.0f} s)")
