@@ -117,20 +117,36 @@ def chol(A):
     n = A.shape[-1]
     if n > SMALL_SPD or A.ndim != 2:
         return jnp.linalg.cholesky(A)
-    kept = _loop.current().arm_kernels
-    one = runtime_one(A) if kept else None
+    if _loop.current().arm_kernels:
+        return jnp.stack(_stored_columns(A)[0], axis=1)
     rows = np.arange(n)
     cols = []
     for j in range(n):
         v = A[:, j]
         for k in range(j):
             v = v - cols[k] * cols[k][j]
-        if kept:
-            pivot = v[j] + 0.0 * v  # v_j in every entry (exact)
-            cols.append(store(jnp.where(rows >= j, v * lax.rsqrt(pivot), 0.0), one))
-        else:
-            cols.append(jnp.where(rows >= j, v / jnp.sqrt(v[j]), 0.0))
+        cols.append(jnp.where(rows >= j, v / jnp.sqrt(v[j]), 0.0))
     return jnp.stack(cols, axis=1)
+
+
+def _stored_columns(A, guard: bool = False):
+    """(the columns of A's lower Cholesky factor, whether every pivot is positive), each column one
+    stored kernel (:func:`store`), written v · rsqrt(v_j) with the pivot v_j in every entry (a
+    scalar broadcast is a kernel of its own). ``guard``: a pivot ≤ 0 is taken as 1 (the columns
+    stay finite; the answer is in the flag), else the column is NaN as √ of it is."""
+    n = A.shape[-1]
+    one = runtime_one(A)
+    rows = np.arange(n)
+    ok = jnp.array(True)
+    cols = []
+    for j in range(n):
+        v = A[:, j]
+        for k in range(j):
+            v = v - cols[k] * cols[k][j]
+        ok = ok & (v[j] > 0.0)
+        pivot = (jnp.where(v[j] > 0.0, v[j], 1.0) if guard else v[j]) + 0.0 * v  # v_j in every entry (exact)
+        cols.append(store(jnp.where(rows >= j, v * lax.rsqrt(pivot), 0.0), one))
+    return cols, ok
 
 
 def chol_solve(L, B):
@@ -173,18 +189,7 @@ def positive_definite(A):
     Cholesky factorisation (written out as in :func:`chol`) is positive (a traced boolean). Exact
     up to the rounding of the pivots: for A = J Jᵀ − s² I it says σ_min(J) > s without a singular
     value decomposition."""
-    n = A.shape[-1]
-    one = runtime_one(A)
-    ok = jnp.array(True)
-    cols = []
-    for j in range(n):
-        v = A[:, j]
-        for k in range(j):
-            v = v - cols[k] * cols[k][j]
-        ok = ok & (v[j] > 0.0)
-        pivot = jnp.where(v[j] > 0.0, v[j], 1.0) + 0.0 * v
-        cols.append(store(v * lax.rsqrt(pivot), one))
-    return ok
+    return _stored_columns(A, guard=True)[1]
 
 
 def spd_solve(A, B):
