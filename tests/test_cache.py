@@ -321,3 +321,26 @@ def test_a_kept_program_is_used_and_one_that_cannot_be_read_is_traced_again(tmp_
     off = sc.simulate("fl")
     np.testing.assert_array_equal(off.arrays["tau"], first.arrays["tau"])
     S._compiled.cache_clear()
+
+
+def test_a_run_of_many_chunks_compiles_its_kept_program_once(tmp_path, cache_state):
+    """A run of three chunks calls its kept program three times: once with the first carry (from
+    the jitted initialiser) and twice with the carry the program returned, committed to its device.
+    One compiled program serves all three (it compiled a second program for the committed carry,
+    25 s for a UR5 chunk, until the arguments were committed before every call), and a second run
+    compiles nothing more."""
+    import importlib
+
+    import hinfnn as H
+
+    S = importlib.import_module("hinfnn.sim.simulate")
+    sc = H.load_scenario("paper", {"controller.kind": "fl", "simulation.t_final": 0.5})  # 501 samples, 3 chunks
+    _cache.enable_cache(tmp_path / "c")
+    S._compiled.cache_clear()
+    sc.simulate("fl")
+    chunk = S._compiled(None, S.SINGLE_RECORDS, False, None, S.LoopOptions(), 2)[0]  # the program the run used
+    (entry,) = chunk._entries.values()
+    assert entry[0]._cache_size() == 1
+    sc.simulate("fl")
+    assert entry[0]._cache_size() == 1
+    S._compiled.cache_clear()

@@ -93,7 +93,7 @@ class ExportedProgram:
         if entry is None:
             return self.jitted(*args)
         call, keys, _ = entry
-        leaves = jax.tree.leaves(args)
+        leaves = [_committed(x) for x in jax.tree.leaves(args)]
         out = call(*leaves)
         carry_def = jax.tree.structure(args[self.carry_arg])
         n = carry_def.num_leaves
@@ -154,6 +154,18 @@ class ExportedProgram:
             return None
         _write(path, {"exportable": True, "records": keys, "name": self.name}, payload)
         return jax.jit(exported.call, compiler_options=self.compiler_options), keys, exported.out_avals
+
+
+def _committed(x):
+    """``x`` committed to its device. ``Exported.call`` returns committed arrays, and ``jax.jit``
+    compiles a second program for the same function when an argument once uncommitted (the first
+    chunk's carry, from a jitted initialiser) comes back committed (every later chunk's carry):
+    a run of more than one chunk compiled its chunk program twice (a UR5 chunk, 25 s each) until
+    every JAX array was committed before the call. NumPy arrays and Python numbers stay as they are
+    (they are the same kind at every call)."""
+    if isinstance(x, jax.Array) and not x.committed:
+        return jax.device_put(x, next(iter(x.devices())))
+    return x
 
 
 def _write(path: Path, meta: dict, payload: bytes) -> None:
