@@ -78,23 +78,37 @@ def _overrides(kind: str, units: int | None) -> dict:
     return ov
 
 
-def build(kind: str = "hinf_nn", units: int | None = None) -> H.SampledController:
-    """The paper scenario's controller ``kind`` (F_f with ``units`` units) and reference, wrapped."""
+def build(kind: str = "hinf_nn", units: int | None = None, scenario: str = "paper") -> H.SampledController:
+    """The controller ``kind`` (F_f with ``units`` units) and reference of ``scenario`` (the
+    paper's, or an arm's designed for 1 kHz sampled control: its controller is built for that
+    period), wrapped."""
     if kind in KINDS and units is None:
         kind, units = KINDS[kind]
-    sc = H.load_scenario("paper", _overrides(kind, units))
+    sc = H.load_scenario(scenario, _overrides(kind, units) if scenario == "paper" else {"controller.kind": kind})
+    sc = _sampled(sc)
     return H.SampledController(sc.build_controller(kind), sc.build_reference())
 
 
-@functools.lru_cache(maxsize=1)
-def measurements(t_final: float = 1.0) -> dict:
-    """q, q̇, F at 1 kHz from a closed-loop run of the paper scenario (adaptive controller,
-    continuous control, dt = 0.1 ms): realistic, changing sensor values to replay."""
-    sc = H.load_scenario("paper", {"controller.kind": "hinf_nn"})
+def _sampled(sc):
+    """An arm's scenario at 1 kHz sampled control (the paper's as it is: its laws run at any rate)."""
+    if sc.name == "paper":
+        return sc
+    return sc.with_overrides({"simulation.control": "sampled", "simulation.control_period": PERIOD})
+
+
+@functools.lru_cache(maxsize=4)
+def measurements(t_final: float = 1.0, scenario: str = "paper") -> dict:
+    """q, q̇, F at 1 kHz from a closed-loop run of ``scenario`` (adaptive controller, dt = 0.1 ms;
+    the paper's with continuous control, an arm's at 1 kHz): realistic, changing sensor values to
+    replay."""
+    sc = _sampled(H.load_scenario(scenario, {"controller.kind": "hinf_nn"}))
     plant = sc.build_plant()
     traj = H.simulate(plant, sc.build_controller("hinf_nn"), sc.build_reference(),
-                      t_final=t_final, dt=1e-4, q0=sc.initial_q(plant), save_every=10)
-    a = traj.arrays
+                      t_final=t_final, dt=1e-4, q0=sc.initial_q(plant), save_every=10,
+                      control_period=sc.control_period)
+    a = dict(traj.arrays)
+    if "F_contact" in a:  # an arm's measured force: Cartesian, at the tool point (its "F" is the task-space one)
+        a["F"] = a["F_contact"]
     return {k: np.ascontiguousarray(a[k][:-1]) for k in ("q", "qd", "F")}
 
 
@@ -171,7 +185,7 @@ def program_flops(sc, path: str = "loop") -> float:
 
 def measure_latency(n_calls: int = 10_000, kind: str = "hinf_nn", *, units: int | None = None,
                     path: str = "loop", warmup: int = 1000,
-                    gc_off: bool = True) -> dict:
+                    gc_off: bool = True, scenario: str = "paper") -> dict:
     """Latency of one sampled update called from a Python loop, τ back as NumPy, in µs.
 
     ``kind``: ``"fl"``, ``"hinf"``, ``"hinf_nn"`` (or ``"hinf_nn60"``, the same with 60 F_f
@@ -179,17 +193,17 @@ def measure_latency(n_calls: int = 10_000, kind: str = "hinf_nn", *, units: int 
     path) or ``"pytree"`` (``SampledController.update``). Returns median/p90/p99/max in µs, the
     number of calls, how many returned a NaN τ (none expected), the first call's compile time,
     XLA's flop estimate of the program, whether JAX's CPU async dispatch was on and the load
-    average when done.
+    average when done. ``scenario``: the paper's (default) or an arm's (``"ur5-table-stable"``).
     """
-    sc = build(kind, units)
-    meas = measurements()
+    sc = build(kind, units, scenario)
+    meas = measurements(scenario=scenario)
     call, bad = _caller(sc, path, meas)
     t0 = time.perf_counter()
     call(0)  # compile
     compile_s = time.perf_counter() - t0
     ns = _time_loop(call, n_calls, warmup, gc_off)
     n_units = sc.controller.network_f.size if sc.controller.network_f is not None else None
-    return dict(kind=sc.controller.kind, units=n_units, path=path, n_calls=n_calls,
+    return dict(scenario=scenario, kind=sc.controller.kind, units=n_units, path=path, n_calls=n_calls,
                 nan_taus=bad[0], compile_s=compile_s, flops=program_flops(sc, path),
                 async_dispatch=bool(jax.config.values["jax_cpu_enable_async_dispatch"]),
                 load_avg=os.getloadavg()[0], **_stats(ns))

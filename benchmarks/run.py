@@ -24,6 +24,14 @@ Cases (each runs in a fresh worker process so that its peak memory is its own):
 8. ``batch_devices`` — ``batch_groups`` on and off: the adaptive law at B = 1,000 (1 s, metrics).
 9. ``program_gc`` — the ``program_gc`` device on and off: ``hinfnn run paper --no-figures`` (0.05 s
    simulated, warm cache) in fresh processes, alternating; wall and CPU time.
+10. The UR5 (``ur5-table``, H∞ + NN), every per-step time also as a ratio to the anchor:
+   ``ur5_anchor`` — the rigid-body terms of one RK4 step (plant and nominal model: M, bias, the
+   tool's Jacobian and its rate, four stages) by Pinocchio called from Python;
+   ``ur5_single`` — one run, continuous and at 1 kHz sampled control (``ur5-table-stable``): compile,
+   steps per second, kernels per step of the compiled loop (benchmarks/hlo.py);
+   ``ur5_latency`` — the sampled update at 1 kHz from a Python loop;
+   ``ur5_batch`` — B = 64, 256, 1,024, 4,096 plants (``--arm-batches``): compile and trajectory-steps/s;
+   ``ur5_whole`` — ``hinfnn run ur5-table --no-figures`` as a new process, cold and warm.
 
 Baseline: the plain-NumPy closed loop of ``tests/numpy_oracle.py`` (a Python loop over RK4 steps,
 the same equations), timed in the same invocation on a 1-s horizon and scaled to 10 s.
@@ -67,6 +75,9 @@ TARGETS = {
     "batch1000_traj_steps_per_s": 450_000.0, "batch1000_memory_gb": 4.0,
     "startup_warm_s": 3.0, "whole_warm_s": 3.0, "whole_cold_s": 6.0,
     "latency_median_us": 30.0, "latency_p99_us": 100.0,
+    # issue 33 (UR5, ur5-table, H∞ + NN)
+    "ur5_s_per_10s_run": 3.0, "ur5_sampled_s_per_10s_run": 1.5, "ur5_batch_traj_steps_per_s": 100_000.0,
+    "ur5_batch_compile_s": 30.0, "ur5_latency_median_us": 50.0, "ur5_latency_p99_us": 100.0, "ur5_whole_warm_s": 6.0,
 }
 
 
@@ -109,42 +120,32 @@ def _stats(times):
 
 # --- operations per step ---------------------------------------------------------------------------
 
-def step_profile(plant, ctrl, ref) -> dict:
-    """Kernels and transcendental operations per RK4 step, read off the compiled inner loop body
-    (the loop between two stored samples)."""
+def chunk_text(plant, ctrl, ref, q0, loop=None, sampled: bool = False) -> str:
+    """The optimised HLO text of the single-run chunk program hinfnn.simulate compiles for this
+    plant, controller and reference (with the loop options ``loop``)."""
     import importlib
 
     import jax.numpy as jnp
 
+    from hinfnn._loop import LoopOptions
+
     S = importlib.import_module("hinfnn.sim.simulate")
-    y0 = S.initial_state(plant, ctrl, u1_0=1.6902)
-    chunk, _, init = S._compiled(None, S.chunk_records(10, batched=False)[0], False, None)
+    loop = loop or LoopOptions()
+    y0 = S.initial_state(plant, ctrl, q0=q0)
+    chunk, _, init = S._compiled(None, S.SINGLE_RECORDS, sampled, None, loop, plant.n)
     carry = init(ctrl, y0, plant.n)
-    args = (plant, ctrl, ref, S.Limits(), carry, jnp.asarray(0, jnp.int64), jnp.asarray(10, jnp.int64),
-            jnp.asarray(DT), jnp.asarray(1, jnp.int64), jnp.asarray(10, jnp.int64), jnp.asarray(1, jnp.int64))
-    txt = chunk.lower(*args).compile().as_text()
-    loops = re.findall(r"while\(%[\w.\-]+\), condition=%[\w.\-]+, body=%([\w.\-]+)", txt)
-    out = dict(kernels=None, transcendentals=None)
-    for body in loops:
-        start = txt.find("\n%" + body + " ")
-        block = txt[start:txt.index("\n}\n", start)]
-        if "f64[200" in block:  # the outer loop (records); we want the step loop
-            continue
-        kernels = len(re.findall(r" (?:fusion|dot|custom-call|while|conditional)\(", block))
-        called = re.findall(r"calls=%([\w.\-]+)", block)
-        trans = {"tanh": 0, "sine": 0, "cosine": 0, "divide": 0}
-        for name in [body] + called:
-            j = txt.find("\n%" + name + " ")
-            if j < 0:
-                continue
-            comp = txt[j:txt.index("\n}\n", j)]
-            for m in re.finditer(r"= f64\[([\d,]*)\]\S* (tanh|sine|cosine|divide)\(", comp):
-                size = 1
-                for d in filter(None, m.group(1).split(",")):
-                    size *= int(d)
-                trans[m.group(2)] += size
-        out = dict(kernels=kernels, elementwise_per_step=trans)
-    return out
+    hold = 10 if sampled else 1
+    args = (plant, ctrl, ref, S.Limits(), carry, jnp.zeros((), jnp.int64), *S._chunk_scalars(10, DT, hold, 10, 1))
+    return chunk.jitted.lower(*args).compile().as_text()
+
+
+def step_profile(plant, ctrl, ref, q0, loop=None) -> dict:
+    """Kernels (and library calls) per RK4 step and transcendental operations per step, read off
+    the compiled chunk's step loop (benchmarks/hlo.py)."""
+    sys.path.insert(0, str(HERE))
+    import hlo
+
+    return hlo.step_kernels(chunk_text(plant, ctrl, ref, q0, loop))
 
 
 # --- case 1 ------------------------------------------------------------------------------------------
@@ -185,7 +186,7 @@ def case_single(args) -> dict:
         st = _stats(times)
         rows[kind] = dict(compile_s=compile_s, s_per_10s_run=st, steps_per_s=T_RUN / DT / st["median"],
                           speedup_vs_numpy=base[kind]["s_per_10s_run"] / st["median"],
-                          numpy=base[kind], ops=step_profile(plant, ctrl, ref), mode="continuous")
+                          numpy=base[kind], ops=step_profile(plant, ctrl, ref, q0), mode="continuous")
     for kind in KINDS:  # the sampled-data mode: controller once per 1 ms, plant RK4 every 0.1 ms
         sc = H.load_scenario("paper", {"controller.kind": kind})
         plant, ctrl, ref = sc.build_plant(), sc.build_controller(kind), sc.build_reference()
@@ -322,7 +323,7 @@ def case_device_run(args) -> dict:
         times.append((time.perf_counter() - t0) * T_RUN / args.horizon)
     return dict(disabled=list(args.disable), compile_s=compile_s, s_per_10s_run=_stats(times),
                 batch100_traj_steps_per_s=_batch_1s(ctrl, ref, 100, args.seed, loop=loop)[1],
-                ops=step_profile(plant, ctrl, ref))
+                ops=step_profile(plant, ctrl, ref, q0, loop))
 
 
 #: The switches of ``--disable``: the loop options (hinfnn._loop.LoopOptions) and the controller's
@@ -450,31 +451,152 @@ def case_program_gc(args) -> dict:
                 "n": len(v)} for k, v in runs.items()}
 
 
-def _ur5(kind="hinf_nn", **over):
+def _ur5(kind="hinf_nn", name="ur5-table", **over):
     import hinfnn as H
 
-    return H.load_scenario("ur5-table", {"controller.kind": kind, **over})
+    return H.load_scenario(name, {"controller.kind": kind, **over})
+
+
+def case_ur5_anchor(args) -> dict:
+    """The rigid-body terms of one RK4 step of the UR5 run, by Pinocchio called from Python: at
+    each of the four stages, for the plant and for the controller's nominal model, the joint-space
+    inertia (CRBA), the bias forces (RNEA), the tool frame's Jacobian and its time derivative.
+    Microseconds per RK4 step (median of ``--repeats`` + 2 rounds of 2,000 steps): the anchor every
+    UR5 row is divided by. It is a floor neither way: hinfnn's step also holds the reduced-order
+    model, the law and the networks, and Pinocchio's C++ pays Python's call overhead here."""
+    import numpy as np
+    import pinocchio as pin
+
+    from hinfnn.model.urdf import shipped_robots
+
+    arm = _ur5().get("plant.arm")
+    text = Path(shipped_robots().get(arm.file, arm.file)).read_text(encoding="utf-8")
+    models = []
+    for _ in range(2):  # the plant's model and the nominal one: two models, two data
+        model = pin.buildModelFromXML(text)
+        parent = model.getFrameId(arm.ee_link, pin.FrameType.BODY)
+        frame = model.frames[parent]
+        tool = model.addFrame(pin.Frame("tcp", frame.parentJoint, parent,
+                                        frame.placement * pin.SE3(np.eye(3), np.asarray(arm.tool_xyz, float)),
+                                        pin.FrameType.OP_FRAME))
+        models.append((model, model.createData(), tool))
+    rng = np.random.default_rng(args.seed)
+    n = models[0][0].nq
+    qs, vs = rng.uniform(-1, 1, (64, n)), rng.uniform(-1, 1, (64, n))
+    world = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+    def step(i):
+        for stage in range(4):
+            q, v = qs[(i + stage) % 64], vs[(i + stage) % 64]
+            for model, data, tool in models:
+                pin.crba(model, data, q)
+                pin.nonLinearEffects(model, data, q, v)
+                pin.computeJointJacobiansTimeVariation(model, data, q, v)
+                pin.updateFramePlacements(model, data)
+                pin.getFrameJacobian(model, data, tool, world)
+                pin.getFrameJacobianTimeVariation(model, data, tool, world)
+
+    rounds = []
+    for r in range(max(args.repeats, 1) + 2):
+        t0 = time.perf_counter()
+        for i in range(2000):
+            step(i)
+        rounds.append((time.perf_counter() - t0) / 2000 * 1e6)
+    rounds = rounds[2:]  # warm-up
+    return dict(us_per_rk4_step=statistics.median(rounds), rounds_us=rounds, pinocchio=pin.__version__,
+                robot=arm.file, n_joints=n)
+
+
+def case_launch_floor(args) -> dict:
+    """What XLA's CPU runtime costs per kernel it launches in a loop: a ``fori_loop`` of 20,000
+    iterations whose body is a chain of K float64 6 × 6 matrix–vector products, each followed by a
+    tanh (one ``dot`` kernel and one fusion per link; the kernels counted off the compiled body),
+    for K = 25, 50, 100, 200. The slope of time per iteration against kernels per iteration is the
+    launch cost of one small kernel; times a program's kernels per step, it is that program's floor
+    on this runtime, whatever its arithmetic."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    sys.path.insert(0, str(HERE))
+    import hlo
+
+    rng = np.random.default_rng(args.seed)
+    rows = []
+    for K in (25, 50, 100, 200):
+        A = jnp.asarray(rng.normal(size=(K, 6, 6)) / 6)
+
+        def body(i, x, A=A, K=K):
+            for j in range(K):
+                x = jnp.tanh(A[j] @ x + 1e-3 * i)
+            return x
+
+        def run(x, n, body=body):
+            return jax.lax.fori_loop(0, n, body, x)
+
+        f = jax.jit(run)
+        x0 = jnp.ones(6)
+        n = jnp.asarray(20_000)
+        compiled = f.lower(x0, n).compile()
+        comps, entry = hlo.computations(compiled.as_text())
+        (_, loop_body, _), = hlo.whiles(comps[entry])
+        kernels = hlo.kernels(comps, loop_body)
+        compiled(x0, n).block_until_ready()
+        best = float("inf")
+        for _ in range(max(args.repeats, 1)):
+            t0 = time.perf_counter()
+            compiled(x0, n).block_until_ready()
+            best = min(best, time.perf_counter() - t0)
+        rows.append(dict(links=K, kernels=kernels, us_per_iteration=best / 20_000 * 1e6))
+    k = np.array([r["kernels"] for r in rows], float)
+    us = np.array([r["us_per_iteration"] for r in rows])
+    slope, intercept = np.polyfit(k, us, 1)
+    return dict(rows=rows, us_per_kernel=float(slope), us_per_iteration_fixed=float(intercept))
 
 
 def case_ur5_single(args) -> dict:
-    """The UR5 on its table (ur5-table), H∞ + NN, one run with continuous control: the first
-    0.01-s run (compile, empty cache), then ``--repeats`` runs of ``--arm-horizon`` s: steady-state
-    RK4 steps per second and the 10-s run's simulation time at that rate."""
+    """The UR5 on its table, H∞ + NN, one run: continuous control (ur5-table) and 1 kHz sampled
+    control (ur5-table-stable: the bare table with the force-rate term designed for sampled control;
+    the controller once per 1 ms with zero-order hold, the plant's RK4 every 0.1 ms). For each: the
+    first 0.01-s run (compile, empty cache), then ``--repeats`` runs of ``--arm-horizon`` s:
+    steady-state RK4 steps per second and the 10-s run's simulation time at that rate; for the
+    continuous run the kernels per RK4 step of its compiled loop."""
+    import numpy as np
+
     loop = _loop_options(args)
-    sc = _ur5(**{"simulation.t_final": 0.01})
-    t0 = time.perf_counter()
-    sc.simulate("hinf_nn", loop=loop)
-    first = time.perf_counter() - t0
-    sc = sc.with_overrides({"simulation.t_final": args.arm_horizon})
-    times = []
-    for _ in range(max(1, args.repeats)):
+    out = {}
+    for label, name, over in (("continuous", "ur5-table", {}),
+                              ("sampled 1 kHz", "ur5-table-stable",
+                               {"simulation.control": "sampled", "simulation.control_period": 1e-3})):
+        sc = _ur5(name=name, **{"simulation.t_final": 0.01, **over})
         t0 = time.perf_counter()
         sc.simulate("hinf_nn", loop=loop)
-        times.append(time.perf_counter() - t0)
-    steps = round(args.arm_horizon / DT)
-    best = min(times)
-    return dict(first_run_s=first, run_s=_stats(times), steps_per_s=steps / best,
-                s_per_10s_run=T_RUN / args.arm_horizon * best)
+        first = time.perf_counter() - t0
+        sc = sc.with_overrides({"simulation.t_final": args.arm_horizon})
+        times = []
+        for _ in range(max(1, args.repeats)):
+            t0 = time.perf_counter()
+            tr = sc.simulate("hinf_nn", loop=loop, raise_on_failure=False)
+            times.append(time.perf_counter() - t0)
+        steps = round(args.arm_horizon / DT)
+        best = min(times)
+        out[label] = dict(scenario=name, first_run_s=first, run_s=_stats(times), steps_per_s=steps / best,
+                          us_per_step=1e6 * best / steps, s_per_10s_run=T_RUN / args.arm_horizon * best,
+                          status=int(np.asarray(tr.status)))
+        if label == "continuous":
+            plant = sc.build_plant()
+            out[label]["ops"] = step_profile(plant, sc.build_controller("hinf_nn"), sc.build_reference(),
+                                             sc.initial_q(plant), loop)
+    return out
+
+
+def case_ur5_latency(args) -> dict:
+    """The UR5's sampled update (ur5-table-stable, H∞ + NN, 1 kHz) called from a Python loop as a
+    robot's loop calls it (benchmarks/latency.py), JAX's CPU async dispatch on (the default)."""
+    sys.path.insert(0, str(HERE))
+    import latency
+
+    return latency.measure_latency(n_calls=args.calls, kind="hinf_nn", scenario="ur5-table-stable")
 
 
 def case_ur5_batch(args) -> dict:
@@ -501,7 +623,7 @@ def case_ur5_batch(args) -> dict:
         wall = time.perf_counter() - t0
         rate = B * round(args.arm_batch_horizon / DT) / wall
         out[str(B)] = dict(compile_s=compile_s, wall_s=wall, traj_steps_per_s=rate, us_per_member_step=1e6 / rate,
-                           failed=int((np.asarray(traj.status) != 0).sum()))
+                           failed=int((np.asarray(traj.status) != 0).sum()), peak_rss_gb=peak_rss_gb())
         print(f"ur5_batch B={B}: {json.dumps(out[str(B)])}", file=sys.stderr, flush=True)  # kept if killed
     return out
 
@@ -528,9 +650,10 @@ CASES = {"single": case_single, "batch": case_batch, "startup": case_startup, "w
          "latency": case_latency, "latency_sync": case_latency_sync, "devices": case_devices,
          "device_run": case_device_run, "arm_devices": case_arm_devices, "arm_run": case_arm_run,
          "batch_devices": case_batch_devices, "batch_run": case_batch_run, "program_gc": case_program_gc,
-         "ur5_single": case_ur5_single, "ur5_batch": case_ur5_batch, "ur5_whole": case_ur5_whole}
+         "launch_floor": case_launch_floor, "ur5_anchor": case_ur5_anchor, "ur5_single": case_ur5_single, "ur5_latency": case_ur5_latency,
+         "ur5_batch": case_ur5_batch, "ur5_whole": case_ur5_whole}
 DEFAULT_CASES = ["single", "batch", "startup", "whole", "latency", "latency_sync", "devices", "arm_devices",
-                 "batch_devices", "program_gc"]
+                 "batch_devices", "program_gc", "launch_floor", "ur5_anchor", "ur5_single", "ur5_latency", "ur5_batch", "ur5_whole"]
 
 
 # --- driver --------------------------------------------------------------------------------------
@@ -554,7 +677,7 @@ def run_worker(case: str, args) -> dict:
         t0 = time.perf_counter()
         proc = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         wall = time.perf_counter() - t0
-        if proc.returncode != 0 or case == "ur5_batch":
+        if proc.returncode != 0:  # its stderr: the error, and what a killed ur5_batch measured before
             sys.stderr.write(proc.stderr[-4000:])
             return dict(error=f"worker for {case!r} exited with {proc.returncode}", wall_s=wall)
         res = json.loads(out.read_text())
@@ -585,22 +708,51 @@ def _print_each_off(title: str, case: dict | None, cols: list) -> None:
 
 
 def _print_ur5(c: dict) -> None:
-    """The UR5 cases (ur5_single, ur5_batch, ur5_whole), when run."""
-    if "ur5_single" in c and "steps_per_s" in c["ur5_single"]:
-        r = c["ur5_single"]
-        print(f"\nUR5 (ur5-table, H∞ + NN), one run: first 0.01-s run {r['first_run_s']:.1f} s (compile); "
-              f"{r['steps_per_s']:,.0f} RK4 steps/s (best of {r['run_s']['n'] if 'n' in r['run_s'] else '?'}), "
-              f"a 10-s run's simulation {r['s_per_10s_run']:.2f} s")
-    if "ur5_whole" in c and "cold" in c["ur5_whole"]:
-        w = c["ur5_whole"]
-        print(f"UR5 `hinfnn run ur5-table --no-figures` process: cold {w['cold']['wall_s']:.1f} s "
-              f"(CPU {w['cold']['cpu_s']:.1f}), warm {w['warm']['wall_s']:.1f} s (CPU {w['warm']['cpu_s']:.1f})")
+    """The UR5 cases (ur5_anchor, ur5_single, ur5_latency, ur5_batch, ur5_whole), when run; every
+    per-step time also as a ratio to the Pinocchio anchor of the same invocation."""
+    anchor = c.get("ur5_anchor", {}).get("us_per_rk4_step")
+    ratio = (lambda us: f"{us / anchor:.2f}") if anchor else (lambda us: "–")
+    if not any(k.startswith("ur5_") for k in c):
+        return
+    print("\nUR5 (ur5-table, H∞ + NN)")
+    if anchor:
+        a = c["ur5_anchor"]
+        print(f"anchor: the rigid-body terms of one RK4 step (plant + nominal: M, bias, tool Jacobian and its rate, "
+              f"4 stages) by Pinocchio {a['pinocchio']} from Python: {anchor:.1f} µs")
+    rows = c.get("ur5_single", {})
+    rows = {k: r for k, r in rows.items() if isinstance(r, dict) and "steps_per_s" in r}
+    if rows:
+        hdr = (f"{'one run':<16}{'1st run s':>10}{'steps/s':>9}{'µs/step':>9}{'× anchor':>9}{'10-s run s':>11}"
+               f"{'kernels/step':>13}{'lib calls':>10}{'status':>7}")
+        print(hdr + "\n" + "-" * len(hdr))
+        per_kernel = lf.get("us_per_kernel") if (lf := c.get("launch_floor", {})) else None
+        for label, r in rows.items():
+            ops = r.get("ops") or {}
+            print(f"{label:<16}{r['first_run_s']:>10.1f}{r['steps_per_s']:>9,.0f}{r['us_per_step']:>9.1f}"
+                  f"{ratio(r['us_per_step']):>9}{r['s_per_10s_run']:>11.2f}{fmt(ops.get('kernels'), 'd'):>13}"
+                  f"{fmt(ops.get('custom_calls'), 'd'):>10}{r['status']:>7}")
+            if per_kernel and ops.get("kernels"):
+                print(f"{'':<16}(launching its kernels: about {per_kernel * ops['kernels']:.0f} µs of the "
+                      f"{r['us_per_step']:.0f} µs per step, at the launch_floor slope)")
     if "ur5_batch" in c and "error" not in c["ur5_batch"]:
-        hdr = f"{'B':>6}{'1st run s':>11}{'wall s':>9}{'traj-steps/s':>14}{'µs/member-step':>16}{'failed':>8}"
-        print("UR5 batches (fields=metrics)\n" + hdr + "\n" + "-" * len(hdr))
+        hdr = (f"{'batch B':<16}{'1st run s':>10}{'wall s':>9}{'traj-steps/s':>14}{'µs/member-step':>16}"
+               f"{'× anchor':>9}{'peak GB':>8}{'failed':>7}")
+        print(hdr + "\n" + "-" * len(hdr))
         for B, r in c["ur5_batch"].items():
-            print(f"{B:>6}{r['compile_s']:>11.1f}{r['wall_s']:>9.2f}{r['traj_steps_per_s']:>14,.0f}"
-                  f"{r['us_per_member_step']:>16.1f}{r['failed']:>8}")
+            if not isinstance(r, dict):
+                continue
+            print(f"{B:<16}{r['compile_s']:>10.1f}{r['wall_s']:>9.2f}{r['traj_steps_per_s']:>14,.0f}"
+                  f"{r['us_per_member_step']:>16.1f}{ratio(r['us_per_member_step']):>9}"
+                  f"{r.get('peak_rss_gb', float('nan')):>8.2f}{r['failed']:>7}")
+    lat = c.get("ur5_latency", {})
+    if "median_us" in lat:
+        print(f"sampled update (ur5-table-stable at 1 kHz, SampledLoop.update from Python, {lat['n_calls']:,} calls): "
+              f"median {lat['median_us']:.1f} µs ({ratio(lat['median_us'])} × anchor), p99 {lat['p99_us']:.1f} µs, "
+              f"max {lat['max_us']:.1f} µs")
+    w = c.get("ur5_whole", {})
+    if "cold" in w:
+        print(f"`hinfnn run ur5-table --no-figures` (10 s) process: cold {w['cold']['wall_s']:.1f} s "
+              f"(CPU {w['cold']['cpu_s']:.1f}), warm {w['warm']['wall_s']:.1f} s (CPU {w['warm']['cpu_s']:.1f})")
 
 
 def print_report(res: dict) -> None:
@@ -608,6 +760,11 @@ def print_report(res: dict) -> None:
     print(f"\nhinfnn {m['hinfnn']} ({m['commit']}) · {m['cpu']} · {m['usable_cores']} of {m['cores']} cores · "
           f"{m['memory_gb']} GB · Python {m['python']} · JAX {m['jax']} (jaxlib {m['jaxlib']}) · {m['platform']}")
     c = res["cases"]
+    lf = c.get("launch_floor", {})
+    if "us_per_kernel" in lf:
+        print("\nXLA's CPU runtime per kernel launched in a loop (K 6×6 products and tanh per iteration): "
+              + ", ".join(f"{r['kernels']} kernels {r['us_per_iteration']:.1f} µs" for r in lf["rows"])
+              + f"; slope {lf['us_per_kernel']:.3f} µs per kernel")
     _print_ur5(c)
     if "single" in c and "rows" in c["single"]:
         print("\n1. One 10-s run of the paper scenario (100,000 RK4 steps, dt = 1e-4, controller at every stage)")
@@ -737,6 +894,21 @@ def targets(c: dict) -> dict:
     if w.get("warm_s") is not None:
         add("case 4: whole process warm, s", w["warm_s"], "<=", TARGETS["whole_warm_s"])
         add("case 4: whole process cold, s", w["cold_s"], "<=", TARGETS["whole_cold_s"])
+    u = c.get("ur5_single", {})
+    if "steps_per_s" in u.get("continuous", {}):
+        add("UR5 continuous: s per 10-s run", u["continuous"]["s_per_10s_run"], "<=", TARGETS["ur5_s_per_10s_run"])
+    if "steps_per_s" in u.get("sampled 1 kHz", {}):
+        add("UR5 1 kHz: s per 10-s run", u["sampled 1 kHz"]["s_per_10s_run"], "<=",
+            TARGETS["ur5_sampled_s_per_10s_run"])
+    for B, r in c.get("ur5_batch", {}).items():
+        if isinstance(r, dict) and int(B) >= 256:
+            add(f"UR5 B={B}: traj-steps/s", r["traj_steps_per_s"], ">=", TARGETS["ur5_batch_traj_steps_per_s"])
+            add(f"UR5 B={B}: first run (compile) s", r["compile_s"], "<=", TARGETS["ur5_batch_compile_s"])
+    if "median_us" in c.get("ur5_latency", {}):
+        add("UR5 sampled update: median µs", c["ur5_latency"]["median_us"], "<=", TARGETS["ur5_latency_median_us"])
+        add("UR5 sampled update: p99 µs", c["ur5_latency"]["p99_us"], "<=", TARGETS["ur5_latency_p99_us"])
+    if "warm" in c.get("ur5_whole", {}):
+        add("UR5 whole process warm, s", c["ur5_whole"]["warm"]["wall_s"], "<=", TARGETS["ur5_whole_warm_s"])
     for name, label in (("latency", "async on"), ("latency_sync", "async off")):
         for kind, r in c.get(name, {}).items():
             if isinstance(r, dict) and "median_us" in r:
@@ -754,8 +926,8 @@ def main(argv=None) -> int:
     ap.add_argument("--batches", type=int, nargs="*", default=[1, 10, 100, 1000])
     ap.add_argument("--batch-horizon", type=float, default=T_RUN, help="simulated seconds per batch run")
     ap.add_argument("--arm-horizon", type=float, default=2.0, help="simulated seconds per timed UR5 run")
-    ap.add_argument("--arm-batches", type=int, nargs="*", default=[1, 16, 64, 256], help="UR5 batch sizes")
-    ap.add_argument("--arm-batch-horizon", type=float, default=0.2, help="simulated seconds per UR5 batch run")
+    ap.add_argument("--arm-batches", type=int, nargs="*", default=[64, 256, 1024, 4096], help="UR5 batch sizes")
+    ap.add_argument("--arm-batch-horizon", type=float, default=0.05, help="simulated seconds per UR5 batch run")
     ap.add_argument("--arm-whole-horizon", type=float, default=10.0, help="simulated seconds of the UR5 process")
     ap.add_argument("--batch-fields", default="metrics", help="what batch runs store: 'metrics' or 'all'")
     ap.add_argument("--numpy-horizon", type=float, default=1.0, help="NumPy oracle horizon (scaled to 10 s)")

@@ -15,6 +15,28 @@ import jax.numpy as jnp
 T = TypeVar("T")
 
 
+class Note(tuple):
+    """A record carried beside a pytree's arrays that no computation reads (a design step's numbers,
+    for reports), in a :func:`static_field`. A static field is part of the pytree's structure, and
+    a program is traced and compiled per structure; every Note compares equal and hashes and prints
+    alike, so objects that differ only in their notes share their programs (a force-rate design of
+    another horizon is another record, the same dynamics). It reads as the tuple it holds."""
+
+    __slots__ = ()
+
+    def __eq__(self, other):
+        return isinstance(other, Note)
+
+    def __ne__(self, other):
+        return not self.__eq__(other)
+
+    def __hash__(self):
+        return hash(Note)
+
+    def __repr__(self):
+        return "Note(...)"
+
+
 def static_field(**kwargs: Any) -> Any:
     """A dataclass field that is compile-time metadata, not a traced array."""
     return dataclasses.field(metadata={"static": True}, **kwargs)

@@ -226,19 +226,12 @@ def _loop_jacobian(plant, ctrl, ref, y0):
     return jax.jacfwd(f)(y0), f(y0)
 
 
-def _bare(ctrl):
-    """The controller without the force-rate term's design record (a static field: the same
-    dynamics, so a continuous and a sampled design of one scenario share the compiled programs)."""
-    terms = tuple(dataclasses.replace(t, design=()) if isinstance(t, T.ForceRate) else t for t in ctrl.terms)
-    return dataclasses.replace(ctrl, terms=terms)
-
-
 def closed_loop_jacobian(plant, ctrl, ref, q_eq):
     """(A, y*, residual): the Jacobian of the closed loop's right-hand side over (q, q̇,
     controller state) at the state y* = (q_eq, 0, rest state), and max|f(y*)| (≈ 0 at an
     equilibrium). One compiled program per plant, controller and reference structure."""
     y0 = jnp.asarray(rest_state(ctrl, q_eq))
-    A, f0 = _loop_jacobian(plant, _bare(ctrl), ref, y0)
+    A, f0 = _loop_jacobian(plant, ctrl, ref, y0)
     return np.asarray(A), np.asarray(y0), float(np.max(np.abs(np.asarray(f0))))
 
 
@@ -527,7 +520,6 @@ def sampled_map_jacobian(plant, ctrl, ref, q_eq, period: float, dt: float):
     matrix over the N steps. At an equilibrium the RK4 stages all start at y*, so this is the
     linearisation of the simulator's sampled map itself (tested against ``jacfwd`` of it)."""
     n = plant.n
-    ctrl = _bare(ctrl)
     A, y0, _ = closed_loop_jacobian(plant, ctrl, ref, q_eq)
     y_p = jnp.asarray(y0[:2 * n])
     _, Jt, f0 = _held_plant_jacobian(plant, ctrl, ref, y_p, jnp.zeros(n))

@@ -20,6 +20,7 @@ from typing import Callable
 
 import jax.numpy as jnp
 
+from .._pytree import Note
 from ..errors import DesignError
 from . import terms as T
 from .gains import Gains
@@ -120,7 +121,7 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
 
         d = design_force_rate(arm, surface, g, robust=comp.robust, **force_rate)
         terms = terms + (T.ForceRate(kappa=jnp.asarray(d.kappa), tau_f=jnp.asarray(d.tau_f),
-                                     design=tuple(d.as_dict().items())),)
+                                     design=Note(d.as_dict().items())),)
     for term in terms:
         term.check(surface.m, surface.k)
     return ReducedOrderController(arm=arm, surface=surface, gains=g, P_p=P, terms=terms,

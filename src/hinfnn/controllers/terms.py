@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _linalg as la
-from .._pytree import pytree_dataclass, static_field
+from .._pytree import Note, pytree_dataclass, static_field
 from ..reference import RefSample
 from .gains import Gains
 from .network import TanhNetwork, sq_norm
@@ -252,7 +252,8 @@ class ForceRate(Term):
 
     kappa: jax.Array
     tau_f: jax.Array
-    design: tuple = static_field(default=())  # the design step's record ((name, value), ...)
+    # the design step's record ((name, value), ...), a Note: it never decides a program
+    design: tuple = static_field(default=Note())
     side: ClassVar[str] = "force"
     fields: ClassVar[dict] = {
         "v_rate": ("λ units", "force-rate term −κ ṡ added to v_λ (not in the paper)"),

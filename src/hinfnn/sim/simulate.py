@@ -140,17 +140,24 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
 
     def sample(c: Carry, k, skip=False):
         """At a sample instant: τ held from now on, controller state advanced by the controller's
-        zero-order-hold update."""
+        zero-order-hold update. The update runs only at sample instants (a ``lax.cond`` on the
+        step index, which every member of a batch shares, so it stays a branch under ``vmap``);
+        a stopped run (its own status) keeps what it held."""
         if not sampled:
             return c
-        t = k * dt
-        y = c.y
-        meas, _ = plant.sense(t, y.plant)
-        tau_s, xc_s = ctrl.sample(t, n_hold * dt, y.xc, meas, ref)
-        is_sample = (jnp.mod(k, n_hold) == 0) & (k < n_steps) & (c.status == 0) & ~skip
-        held = jnp.where(is_sample, tau_s, c.held)
-        xc = jax.tree.map(lambda new, old: jnp.where(is_sample, new, old), xc_s, y.xc)
-        return dataclasses.replace(c, y=SimState(plant=y.plant, xc=xc, acc=y.acc), held=held)
+        due = (jnp.mod(k, n_hold) == 0) & (k < n_steps) & ~jnp.asarray(skip)
+
+        def update(c):
+            t = k * dt
+            y = c.y
+            meas, _ = plant.sense(t, y.plant)
+            tau_s, xc_s = ctrl.sample(t, n_hold * dt, y.xc, meas, ref)
+            running = c.status == 0
+            held = jnp.where(running, tau_s, c.held)
+            xc = jax.tree.map(lambda new, old: jnp.where(running, new, old), xc_s, y.xc)
+            return dataclasses.replace(c, y=SimState(plant=y.plant, xc=xc, acc=y.acc), held=held)
+
+        return jax.lax.cond(due, update, lambda c: c, c)
 
     def advance(t, y, w, held):
         """(state after one step, the record at the step's start)."""
