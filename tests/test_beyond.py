@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -234,3 +235,20 @@ def test_reproduce_writes_the_beyond_part(tmp_path, reproduced):
     assert "Beyond the paper" in report
     pngs = sorted(p.name for p in out.glob("beyond_*.png"))
     assert pngs and all(f"({p})" in report or p in report for p in pngs)
+
+
+def test_two_designs_share_their_program_structure(paper):
+    """A design's record holds its numbers (κ's rule takes the normal masses on the reference's
+    path, so another horizon or another softest contact records other numbers); the record is a
+    Note (every Note equal), so two designs have one pytree structure (one compiled program) while
+    each keeps and reports its own numbers."""
+    from hinfnn._pytree import Note
+
+    sc = paper.with_overrides({**STABLE, "controller.kind": "hinf"})
+    designs = [sc.with_overrides({"controller.force_rate.stiffness_min": k}).build_controller() for k in (1e4, 3e4)]
+    records = [dict(c.term(H.controllers.terms.ForceRate).design) for c in designs]
+    assert records[0]["kappa"] != records[1]["kappa"]  # another design: another record
+    assert jax.tree.structure(designs[0]) == jax.tree.structure(designs[1])
+    summaries = [H.controllers.design_summary(c)["force_rate"] for c in designs]
+    assert [s["kappa"] for s in summaries] == [r["kappa"] for r in records]
+    assert Note((("a", 1.0),)) == Note() and hash(Note((("a", 1.0),))) == hash(Note()) and Note() != ()
