@@ -6,6 +6,7 @@ the dotted key, the value and what is allowed.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -185,6 +186,16 @@ def _check_path_joint_limits(sc, ctrl, plant, q0) -> None:
 def _path_joints(arm, surf, ref, t, q0):
     """Joint angles along x_d(t) (nominal inverse kinematics, 8 Newton steps of at most 0.2 rad per
     sample, continued from the previous one) and each sample's residual ‖ĥ(q) − x_d‖∞."""
+    import jax.numpy as jnp
+
+    return _path_joints_program()(arm, surf, ref, jnp.asarray(t), jnp.asarray(q0))
+
+
+@functools.cache
+def _path_joints_program():
+    """The jitted program of :func:`_path_joints`, made once per process (JAX imported on first
+    use), so a scenario of a known structure is not traced again: a sweep checks every draw, and a
+    program defined inside the check was traced anew for each (2.2 s per UR5 draw)."""
     import jax
     import jax.numpy as jnp
 
@@ -203,7 +214,7 @@ def _path_joints(arm, surf, ref, t, q0):
 
         return jax.lax.scan(one, q0, t)[1]
 
-    return run(arm, surf, ref, jnp.asarray(t), jnp.asarray(q0))
+    return run
 
 
 #: u1d(t) is sampled at least this often per period of its fastest cosine for the design's path ...
@@ -318,6 +329,13 @@ def _check_path(sc, ctrl, q0) -> None:
 
 
 def _path_quantities(task, surf, ref, t):
+    """The task map's margin and det Π̂ at each x_d(t) (one program per structure, as
+    :func:`_path_joints_program`)."""
+    return _path_quantities_program()(task, surf, ref, t)
+
+
+@functools.cache
+def _path_quantities_program():
     import jax
     import jax.numpy as jnp
 
@@ -332,7 +350,7 @@ def _path_quantities(task, surf, ref, t):
 
         return jax.vmap(one)(t)
 
-    return run(task, surf, ref, t)
+    return run
 
 
 def _check_step_against_contact(sc, plant, q0) -> None:
