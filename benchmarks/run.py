@@ -53,7 +53,6 @@ import datetime as _dt
 import json
 import os
 import platform
-import re
 import resource
 import statistics
 import subprocess
@@ -725,7 +724,7 @@ def _print_ur5(c: dict) -> None:
         hdr = (f"{'one run':<16}{'1st run s':>10}{'steps/s':>9}{'µs/step':>9}{'× anchor':>9}{'10-s run s':>11}"
                f"{'kernels/step':>13}{'lib calls':>10}{'status':>7}")
         print(hdr + "\n" + "-" * len(hdr))
-        per_kernel = lf.get("us_per_kernel") if (lf := c.get("launch_floor", {})) else None
+        per_kernel = c.get("launch_floor", {}).get("us_per_kernel")
         for label, r in rows.items():
             ops = r.get("ops") or {}
             print(f"{label:<16}{r['first_run_s']:>10.1f}{r['steps_per_s']:>9,.0f}{r['us_per_step']:>9.1f}"
