@@ -108,15 +108,35 @@ def _walk(comps: dict, name: str) -> tuple[int, int, dict]:
     return n, calls, ops
 
 
+def distinct(comps: dict, name: str) -> int:
+    """Kernels compiled into computation ``name`` and the loops and conditionals it holds, each
+    counted once however often it runs: the code a loop's iteration goes through (XLA's CPU runtime
+    costs more per launch the more distinct kernels a loop holds; ``run.py --cases launch_floor``)."""
+    n = 0
+    for line in comps.get(name, ()):
+        if _WHILE.search(line):
+            continue
+        m = _COND.search(line)
+        if m:
+            n += sum(distinct(comps, b.strip().lstrip("%")) for b in m.group(1).split(","))
+        elif _KERNEL.search(line):
+            n += 1
+    for cond, body, _ in whiles(comps.get(name, ())):
+        n += distinct(comps, body) + distinct(comps, cond)
+    return n
+
+
 def step_kernels(text: str) -> dict:
     """Per RK4 step of a compiled chunk (the body of the loop nested two deep from ENTRY: the
     steps between two samples, with its nested loops, RK4's rolled stages, expanded): the kernels
-    XLA's CPU runtime launches, how many of them are library calls (``custom-call``), and the
-    transcendental operations (tanh, sin, cos, divide, exp, sqrt: values computed)."""
+    XLA's CPU runtime launches, how many distinct kernels they come from (:func:`distinct`), how
+    many of them are library calls (``custom-call``), and the transcendental operations (tanh, sin,
+    cos, divide, exp, sqrt: values computed)."""
     comps, entry = computations(text)
     for _, body, _ in whiles(comps.get(entry, ())):
         inner = list(whiles(comps[body]))
         if inner:
             k, c, o = _walk(comps, inner[0][1])
-            return dict(kernels=k, custom_calls=c, elementwise_per_step=o)
-    return dict(kernels=None, custom_calls=None, elementwise_per_step={})
+            return dict(kernels=k, distinct_kernels=distinct(comps, inner[0][1]), custom_calls=c,
+                        elementwise_per_step=o)
+    return dict(kernels=None, distinct_kernels=None, custom_calls=None, elementwise_per_step={})

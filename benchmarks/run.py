@@ -342,7 +342,7 @@ def _loop_options(args):
               rolled_rk4=False if "rolled_rk4" in off else None,
               batch_group=0 if "batch_groups" in off else LoopOptions().batch_group)
     have = {f.name for f in dataclasses.fields(LoopOptions)}  # options of the hinfnn being measured
-    extra = {"arm_kernels": ("arm_kernels", False), "rolled_stages": ("rolled_stages", 4),
+    extra = {"arm_kernels": ("arm_kernels", False), "rolled_stages": ("rolled_stages", 3),
              "fusion_emitters": ("fusion_emitters", True)}
     for switch, (name, value) in extra.items():
         if switch in off:
@@ -510,9 +510,13 @@ def case_launch_floor(args) -> dict:
     """What XLA's CPU runtime costs per kernel it launches in a loop: a ``fori_loop`` of 20,000
     iterations whose body is a chain of K float64 6 × 6 matrix–vector products, each followed by a
     tanh (one ``dot`` kernel and one fusion per link; the kernels counted off the compiled body),
-    for K = 25, 50, 100, 200. The slope of time per iteration against kernels per iteration is the
-    launch cost of one small kernel; times a program's kernels per step, it is that program's floor
-    on this runtime, whatever its arithmetic."""
+    for K = 25, 50, 100, 200 (``rows``). The slope of time per iteration against kernels per
+    iteration is the launch cost of one small kernel in a loop of that size.
+
+    That cost grows with the number of *distinct* kernels the loop holds, not with the launches
+    (``footprint``): 1,200 launches per iteration made of D distinct kernels (a chain of D/2 links
+    run 1,200/D times by an inner loop), D = 1,200, 600, 400, 200. Read a program's step against
+    the row nearest its distinct kernels per step."""
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -521,6 +525,22 @@ def case_launch_floor(args) -> dict:
     import hlo
 
     rng = np.random.default_rng(args.seed)
+
+    def timed(body, n_iter):
+        f = jax.jit(lambda x, n: jax.lax.fori_loop(0, n, body, x))
+        x0 = jnp.ones(6)
+        n = jnp.asarray(n_iter)
+        compiled = f.lower(x0, n).compile()
+        comps, entry = hlo.computations(compiled.as_text())
+        (_, loop_body, _), = hlo.whiles(comps[entry])
+        compiled(x0, n).block_until_ready()
+        best = float("inf")
+        for _ in range(max(args.repeats, 1)):
+            t0 = time.perf_counter()
+            compiled(x0, n).block_until_ready()
+            best = min(best, time.perf_counter() - t0)
+        return hlo.kernels(comps, loop_body), hlo.distinct(comps, loop_body), best / n_iter * 1e6
+
     rows = []
     for K in (25, 50, 100, 200):
         A = jnp.asarray(rng.normal(size=(K, 6, 6)) / 6)
@@ -530,27 +550,29 @@ def case_launch_floor(args) -> dict:
                 x = jnp.tanh(A[j] @ x + 1e-3 * i)
             return x
 
-        def run(x, n, body=body):
-            return jax.lax.fori_loop(0, n, body, x)
-
-        f = jax.jit(run)
-        x0 = jnp.ones(6)
-        n = jnp.asarray(20_000)
-        compiled = f.lower(x0, n).compile()
-        comps, entry = hlo.computations(compiled.as_text())
-        (_, loop_body, _), = hlo.whiles(comps[entry])
-        kernels = hlo.kernels(comps, loop_body)
-        compiled(x0, n).block_until_ready()
-        best = float("inf")
-        for _ in range(max(args.repeats, 1)):
-            t0 = time.perf_counter()
-            compiled(x0, n).block_until_ready()
-            best = min(best, time.perf_counter() - t0)
-        rows.append(dict(links=K, kernels=kernels, us_per_iteration=best / 20_000 * 1e6))
+        kernels, _, us = timed(body, 20_000)
+        rows.append(dict(links=K, kernels=kernels, us_per_iteration=us))
     k = np.array([r["kernels"] for r in rows], float)
     us = np.array([r["us_per_iteration"] for r in rows])
     slope, intercept = np.polyfit(k, us, 1)
-    return dict(rows=rows, us_per_kernel=float(slope), us_per_iteration_fixed=float(intercept))
+
+    footprint = []
+    for D in (1200, 600, 400, 200):
+        K, R = D // 2, 1200 // D
+        As = tuple(jnp.asarray(a) for a in rng.normal(size=(K, 6, 6)) / 6)
+
+        def links(r, x, As=As):
+            for A in As:
+                x = jnp.tanh(A @ x + 1e-3 * r)
+            return x
+
+        def body(i, x, links=links, R=R):
+            return jax.lax.fori_loop(0, R, links, x) if R > 1 else links(i, x)
+
+        kernels, distinct, us = timed(body, 2_000)
+        footprint.append(dict(distinct=distinct, launches=kernels, us_per_iteration=us,
+                              us_per_launch=us / kernels))
+    return dict(rows=rows, us_per_kernel=float(slope), us_per_iteration_fixed=float(intercept), footprint=footprint)
 
 
 def case_ur5_single(args) -> dict:
@@ -722,17 +744,19 @@ def _print_ur5(c: dict) -> None:
     rows = {k: r for k, r in rows.items() if isinstance(r, dict) and "steps_per_s" in r}
     if rows:
         hdr = (f"{'one run':<16}{'1st run s':>10}{'steps/s':>9}{'µs/step':>9}{'× anchor':>9}{'10-s run s':>11}"
-               f"{'kernels/step':>13}{'lib calls':>10}{'status':>7}")
+               f"{'kernels/step':>13}{'distinct':>9}{'lib calls':>10}{'status':>7}")
         print(hdr + "\n" + "-" * len(hdr))
-        per_kernel = c.get("launch_floor", {}).get("us_per_kernel")
+        foot = c.get("launch_floor", {}).get("footprint") or []
         for label, r in rows.items():
             ops = r.get("ops") or {}
             print(f"{label:<16}{r['first_run_s']:>10.1f}{r['steps_per_s']:>9,.0f}{r['us_per_step']:>9.1f}"
                   f"{ratio(r['us_per_step']):>9}{r['s_per_10s_run']:>11.2f}{fmt(ops.get('kernels'), 'd'):>13}"
-                  f"{fmt(ops.get('custom_calls'), 'd'):>10}{r['status']:>7}")
-            if per_kernel and ops.get("kernels"):
-                print(f"{'':<16}(launching its kernels: about {per_kernel * ops['kernels']:.0f} µs of the "
-                      f"{r['us_per_step']:.0f} µs per step, at the launch_floor slope)")
+                  f"{fmt(ops.get('distinct_kernels'), 'd'):>9}{fmt(ops.get('custom_calls'), 'd'):>10}{r['status']:>7}")
+            if foot and ops.get("kernels") and ops.get("distinct_kernels"):
+                near = min(foot, key=lambda f: abs(f["distinct"] - ops["distinct_kernels"]))
+                print(f"{'':<16}(launching its kernels: about {near['us_per_launch'] * ops['kernels']:.0f} µs of the "
+                      f"{r['us_per_step']:.0f} µs per step, at {near['us_per_launch']:.3f} µs per launch in a loop "
+                      f"of {near['distinct']} distinct kernels, launch_floor)")
     if "ur5_batch" in c and "error" not in c["ur5_batch"]:
         hdr = (f"{'batch B':<16}{'1st run s':>10}{'wall s':>9}{'traj-steps/s':>14}{'µs/member-step':>16}"
                f"{'× anchor':>9}{'peak GB':>8}{'failed':>7}")
@@ -764,6 +788,10 @@ def print_report(res: dict) -> None:
         print("\nXLA's CPU runtime per kernel launched in a loop (K 6×6 products and tanh per iteration): "
               + ", ".join(f"{r['kernels']} kernels {r['us_per_iteration']:.1f} µs" for r in lf["rows"])
               + f"; slope {lf['us_per_kernel']:.3f} µs per kernel")
+        if lf.get("footprint"):
+            print("the same 1,200 launches per iteration from fewer distinct kernels: "
+                  + ", ".join(f"{f['distinct']} distinct {f['us_per_iteration']:.1f} µs ({f['us_per_launch']:.3f} µs/launch)"
+                              for f in lf["footprint"]))
     _print_ur5(c)
     if "single" in c and "rows" in c["single"]:
         print("\n1. One 10-s run of the paper scenario (100,000 RK4 steps, dt = 1e-4, controller at every stage)")

@@ -33,9 +33,14 @@ Outside a trace the defaults apply.
     with their columns computed once and kept (:func:`hinfnn._linalg.store`). The paper's 2-joint
     arm keeps its reductions (its numbers bit for bit).
 ``rolled_stages``
-    With RK4 rolled: 3, stage 1 (the one that gives the record) written out and stages 2–4 a
-    loop (the record computed once per step, never at the other stages); 4, all four stages a
-    loop (the record computed at every stage and the first one kept).
+    With RK4 rolled: 4 (default), all four stages a loop (the record computed at every stage and
+    the first one kept); 3, stage 1 (the one that gives the record) written out and stages 2–4 a
+    loop (the record computed once per step, but the plant and the controller twice in the
+    program). XLA's CPU runtime pays for each kernel it launches more the more distinct kernels a
+    loop holds (``benchmarks/run.py --cases launch_floor``), so the program with fewer distinct
+    kernels runs faster although it launches more: UR5 1,641 launches of 546 distinct kernels per
+    RK4 step against 1,219 of 687, 114 against 131 µs per step, and it compiles in about half the
+    time (docs/performance.md).
 ``fusion_emitters``
     For arms of at least :data:`ROLL_FROM_JOINTS` joints (``None``, the default), the simulation's
     programs are compiled with XLA's older CPU loop emitters (the compile option
@@ -74,7 +79,7 @@ class LoopOptions:
     rolled_rk4: bool | None = None
     batch_group: int = 500
     arm_kernels: bool | None = None
-    rolled_stages: int = 3
+    rolled_stages: int = 4
     fusion_emitters: bool | None = None
 
     def __post_init__(self):
