@@ -196,6 +196,12 @@ class Controller(abc.ABC):
     def check_start(self, q0) -> None:
         """Design-time check of the start pose (raise :class:`~hinfnn.errors.DesignError`)."""
 
+    def prepared(self):
+        """This controller as the compiled loop holds it, made once outside the loop (e.g. its
+        constant matrices also held by the blocks the law reads; the same numbers). Default:
+        itself."""
+        return self
+
     def deferred_fields(self, deferred) -> dict:
         """Recorded fields computed from :attr:`ControllerOutput.deferred`, once per stored sample
         (what is cheap to carry and costly to compute at every RK4 stage). Default: none."""

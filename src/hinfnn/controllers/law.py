@@ -18,6 +18,8 @@ Nothing here imports :mod:`hinfnn.plant`.
 
 from __future__ import annotations
 
+import dataclasses
+
 from typing import ClassVar
 
 import jax
@@ -148,6 +150,8 @@ class ReducedOrderController(Controller, Dissipative):
     kind: str = static_field(default="")
     augmented: bool = static_field(default=False)
     block: int | None = static_field(default=BLOCK)
+    P_blocks: tuple | None = None  # P_p's m × m blocks, taken outside a compiled loop (prepared)
+    Q_blocks: tuple | None = None  # Q_p's, the same
     fault_name: ClassVar[str] = "σ_min(Ĵ), below the singularity guard's stop"
 
     # --- sizes -----------------------------------------------------------------------------------
@@ -176,6 +180,26 @@ class ReducedOrderController(Controller, Dissipative):
     def network_f(self):
         t = self.term(T.ForceNetwork)
         return t.network if t is not None else None
+
+    # --- the compiled loop's layout ---------------------------------------------------------------
+    def _blocks(self, A, kept):
+        """The m × m blocks of P_p or Q_p: those :meth:`prepared` kept, else cut here (None when
+        the matrix is used whole)."""
+        return kept if kept is not None else split_blocks(A, self.m, self.block)
+
+    def prepared(self) -> "ReducedOrderController":
+        """This controller as a compiled loop holds it: P_p, Q_p and the networks' centres also
+        held by the blocks the law reads (of at most :data:`BLOCK` values), cut once, outside the
+        loop. XLA's CPU runtime runs a loop body's kernels one after the other, without its
+        scheduler, only when no kernel touches more than 512 bytes; a block cut inside the loop
+        reads the whole array (P_p of a 6-DOF arm on a plane is 10 × 10, 800 bytes; F_p's centres
+        5 × 40, 1,600). The same numbers."""
+        if self.block is None:
+            return self
+        return dataclasses.replace(
+            self, P_blocks=split_blocks(self.P_p, self.m, self.block),
+            Q_blocks=split_blocks(self.gains.Q_p, self.m, self.block),
+            terms=tuple(t.prepared(self.block) for t in self.terms))
 
     # --- state -----------------------------------------------------------------------------------
     def init(self, **given) -> ControllerState:
@@ -252,7 +276,7 @@ class ReducedOrderController(Controller, Dissipative):
         e_u1_dot = u1_dot - r.u1_d_dot
         e_lam = lam - r.lam_d
         x_p = jnp.concatenate([e_u1, e_u1_dot])
-        s_p = _lower_times(self.P_p, split_blocks(self.P_p, m, self.block), x_p, m)  # B_pᵀ P_p x_p
+        s_p = _lower_times(self.P_p, self._blocks(self.P_p, self.P_blocks), x_p, m)  # B_pᵀ P_p x_p
         ctx = T.Context(t=jnp.asarray(t, dtype=float), ref=r, u1=u1, u1_dot=u1_dot, lam=lam, e_u1=e_u1,
                         e_u1_dot=e_u1_dot, e_lam=e_lam, z=state.z, x_p=x_p, s_p=s_p, gains=g, P_p=self.P_p,
                         augmented=self.augmented)
@@ -352,7 +376,7 @@ class ReducedOrderController(Controller, Dissipative):
         g = self.gains
         c = out.aux.ctx
         mm = la.mm
-        j = (mm(c.x_p, _times(g.Q_p, split_blocks(g.Q_p, self.m, self.block), c.x_p, self.m)) + 0.5 * g.alpha_lam * g.alpha_z * mm(c.e_lam, c.e_lam)
+        j = (mm(c.x_p, _times(g.Q_p, self._blocks(g.Q_p, self.Q_blocks), c.x_p, self.m)) + 0.5 * g.alpha_lam * g.alpha_z * mm(c.e_lam, c.e_lam)
              + g.alpha_lam * g.mu_z / (1.0 + g.beta_lam) * mm(state.z, state.z))
         extra = jnp.zeros_like(j)
         for term, value in zip(self.terms, out.aux.values):
@@ -368,7 +392,7 @@ class ReducedOrderController(Controller, Dissipative):
         """Storage function V of eqs. (36)/(55) with Θ* = 0 (so Θ̃ = Θ̂ and ε = f), plus the
         terms' contributions: V = x_pᵀ P_p x_p + α_λ/(2(1+β_λ)) ‖z‖² + Σ V_term."""
         c = out.aux.ctx
-        V = la.mm(c.x_p, _times(self.P_p, split_blocks(self.P_p, self.m, self.block), c.x_p, self.m)) + 0.5 * c.c * la.mm(state.z, state.z)
+        V = la.mm(c.x_p, _times(self.P_p, self._blocks(self.P_p, self.P_blocks), c.x_p, self.m)) + 0.5 * c.c * la.mm(state.z, state.z)
         for term in self.terms:
             v = term.storage(c, state.parts)
             if v is not None:

@@ -21,6 +21,8 @@ way (read off Θ's blocks) and return the same layout.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -86,6 +88,23 @@ class _Network:
         """Number of adjustable weights, n_out · j."""
         return self.n_out * self.n_units
 
+    def with_centre_blocks(self, bounds) -> "_Network":
+        """This network with its centres also held as the blocks ``bounds`` (:meth:`layout`) of
+        every output: taken outside a compiled loop (:meth:`ReducedOrderController.prepared`), so
+        the loop reads blocks of at most 64 values and never the whole array (XLA's CPU runtime
+        runs a loop body's kernels one after the other, without its scheduler, only when no
+        kernel touches more than 512 bytes)."""
+        bounds = tuple((int(lo), int(hi)) for lo, hi in bounds)
+        rows = self.centres.reshape((-1, self.n_units))
+        blocks = tuple(rows[o, lo:hi] for o in range(rows.shape[0]) for lo, hi in bounds)
+        return dataclasses.replace(self, centre_blocks=blocks, centre_bounds=bounds)
+
+    def _centres(self, o: int, lo: int, hi: int):
+        """Output o's centres lo … hi − 1 (a kept block when :meth:`with_centre_blocks` made it)."""
+        if self.centre_blocks is not None and (lo, hi) in self.centre_bounds:
+            return self.centre_blocks[o * len(self.centre_bounds) + self.centre_bounds.index((lo, hi))]
+        return self.centres.reshape((-1, self.n_units))[o, lo:hi]
+
     def layout(self, theta_blocks) -> tuple:
         """[(start, stop)] of one output's centre blocks matching a blocked Θ."""
         nb = len(theta_blocks) // self.n_out
@@ -116,6 +135,8 @@ class TanhNetwork(_Network):
     radius: jax.Array  # d_p or d_f of Remark 2 (used when ``project``)
     n_out: int = static_field(default=1)
     project: bool = static_field(default=False)
+    centre_blocks: tuple | None = None  # the centres by blocks, for a compiled loop (with_centre_blocks)
+    centre_bounds: tuple = static_field(default=())
 
     @classmethod
     def build(cls, centres, *, n_out: int = 1, slope: float = 1.0, w_a=1.0, w_b=1.0,
@@ -170,7 +191,7 @@ class TanhNetwork(_Network):
     def features_blocks(self, a, b, bounds) -> tuple:
         """ξ of eq. (17), one array per centre block ``bounds`` (:meth:`layout`)."""
         phi = la.mm(jnp.broadcast_to(self.w_a, a.shape), a) + la.mm(jnp.broadcast_to(self.w_b, b.shape), b)
-        return tuple(jnp.tanh(self.slope * (phi - self.centres[..., lo:hi])) for lo, hi in bounds)
+        return tuple(jnp.tanh(self.slope * (phi - self._centres(0, lo, hi))) for lo, hi in bounds)
 
     def output_blocks(self, xi_blocks, theta_blocks):
         """F = Ξ Θ (eqs. 18–19) from blocked ξ and blocked Θ."""
@@ -231,6 +252,8 @@ class CoordinateNetwork(_Network):
     radius: jax.Array
     n_out: int = static_field(default=1)
     project: bool = static_field(default=False)
+    centre_blocks: tuple | None = None  # the centres by blocks, for a compiled loop (with_centre_blocks)
+    centre_bounds: tuple = static_field(default=())
 
     @classmethod
     def build(cls, centres, *, slope=1.0, w_a=1.0, w_b=1.0, radius: float | None = None,
@@ -286,7 +309,7 @@ class CoordinateNetwork(_Network):
     # blocks (inside the compiled loop) ---------------------------------------------------------
     def _xi_out(self, a, b, o, bounds):
         phi = self.w_a[o] * a[o] + self.w_b[o] * b[o]
-        return tuple(jnp.tanh(self.slope[o] * (phi - self.centres[o, lo:hi])) for lo, hi in bounds)
+        return tuple(jnp.tanh(self.slope[o] * (phi - self._centres(o, lo, hi))) for lo, hi in bounds)
 
     def features_blocks(self, a, b, bounds) -> tuple:
         """ξ_o of eq. (17), output by output, block by block (``bounds``: :meth:`layout`)."""

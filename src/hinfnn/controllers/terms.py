@@ -20,6 +20,8 @@ are compositions of the terms below (:mod:`hinfnn.controllers.kinds`).
 
 from __future__ import annotations
 
+import dataclasses
+
 from typing import ClassVar
 
 import jax
@@ -87,6 +89,11 @@ class Term:
     def init(self, m: int, k: int) -> dict:
         """Initial state (Sec. VI: zero), flat arrays by name."""
         return {name: jnp.zeros(size) for name, size in self.state_sizes(m, k).items()}
+
+    def prepared(self, block: int | None):
+        """This term as a compiled loop holds it (:meth:`ReducedOrderController.prepared`):
+        constant arrays it reads by blocks also held as those blocks. Default: itself."""
+        return self
 
     def evaluate(self, ctx: Context, parts: dict):
         """(value, state derivative {name: array}, signals {name: array}) at one instant.
@@ -177,6 +184,11 @@ class _NetworkTerm(Term):
 
     def _io(self, ctx):
         raise NotImplementedError
+
+    def prepared(self, block):
+        from .network import block_bounds
+
+        return dataclasses.replace(self, network=self.network.with_centre_blocks(block_bounds(self.network.n_units, block)))
 
     def evaluate(self, ctx, parts):
         a, b, drive, gamma = self._io(ctx)

@@ -262,6 +262,7 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
     in the program as a plain call would). Its arguments must then have the same types in both
     places (hence the strongly typed ``first``); if they did not, the step would be traced twice,
     with the same result (a test counts the traces), in about twice the time."""
+    ctrl = ctrl.prepared()  # its constants by the blocks the loop reads, cut once here
     sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields)
     step = jax.jit(step, inline=True)
 
