@@ -24,11 +24,13 @@ Cases (each runs in a fresh worker process so that its peak memory is its own):
 8. ``batch_devices`` — ``batch_groups`` on and off: the adaptive law at B = 1,000 (1 s, metrics).
 9. ``program_gc`` — the ``program_gc`` device on and off: ``hinfnn run paper --no-figures`` (0.05 s
    simulated, warm cache) in fresh processes, alternating; wall and CPU time.
-10. The UR5 (``ur5-table``, H∞ + NN), every per-step time also as a ratio to the anchor:
+10. ``launch_floor`` — what XLA's CPU runtime costs per kernel launched in a loop: chains of 52–402
+   small kernels, and 1,200 launches per iteration from 1,200, 600, 400 or 200 distinct kernels.
+11. The UR5 (``ur5-table``, H∞ + NN), every per-step time also as a ratio to the anchor:
    ``ur5_anchor`` — the rigid-body terms of one RK4 step (plant and nominal model: M, bias, the
    tool's Jacobian and its rate, four stages) by Pinocchio called from Python;
    ``ur5_single`` — one run, continuous and at 1 kHz sampled control (``ur5-table-stable``): compile,
-   steps per second, kernels per step of the compiled loop (benchmarks/hlo.py);
+   steps per second, kernels per step of the compiled loop, launched and distinct (benchmarks/hlo.py);
    ``ur5_latency`` — the sampled update at 1 kHz from a Python loop;
    ``ur5_batch`` — B = 64, 256, 1,024, 4,096 plants (``--arm-batches``): compile and trajectory-steps/s;
    ``ur5_whole`` — ``hinfnn run ur5-table --no-figures`` as a new process, cold and warm.
