@@ -433,54 +433,51 @@ def test_release_programs_then_the_same_run_gives_the_same_numbers():
         np.testing.assert_array_equal(value, after.arrays[key], err_msg=key)
 
 
-def _subjaxprs(eqn):
-    """The jaxprs an equation holds (loop bodies, branches, calls)."""
-    for p in eqn.params.values():
-        for x in (p if isinstance(p, (tuple, list)) else (p,)):
-            if hasattr(x, "jaxpr") and hasattr(x.jaxpr, "eqns"):
-                yield x.jaxpr
-            elif hasattr(x, "eqns"):
-                yield x
+def _whiles(jaxpr):
+    """The while loops of a jaxpr, outermost first, through the jaxprs its equations hold."""
+    for eqn in jaxpr.eqns:
+        if eqn.primitive.name == "while":
+            yield eqn
+        for p in eqn.params.values():
+            for x in (p if isinstance(p, (tuple, list)) else (p,)):
+                sub = x.jaxpr if hasattr(x, "jaxpr") and hasattr(x.jaxpr, "eqns") else x
+                if hasattr(sub, "eqns"):
+                    yield from _whiles(sub)
 
 
-def _step_loop_inputs(jaxpr):
-    """The sizes of the inputs of the step loop's body (the while loop nested in the scan over
-    records) of a chunk's jaxpr."""
-    def whiles(jx):
-        for eqn in jx.eqns:
-            if eqn.primitive.name in ("while", "scan"):
-                yield eqn
-            for sub in _subjaxprs(eqn):
-                yield from whiles(sub)
-
-    import math
-
-    scan = next(e for e in jaxpr.eqns if e.primitive.name == "scan")
-    step_loop = next(e for e in whiles(scan.params["jaxpr"].jaxpr) if e.primitive.name == "while")
-    body = step_loop.params["body_jaxpr"].jaxpr
-    return [math.prod(v.aval.shape) for v in body.invars]
-
-
-@pytest.mark.parametrize("prepared", [True, False])
-def test_the_step_loop_reads_no_array_larger_than_a_block(prepared, paper_plant, nominal_arm, nominal_surface,
+@pytest.mark.parametrize("case", ["paper", "paper-unprepared", "ur5-table"])
+def test_the_step_loop_reads_no_array_larger_than_a_block(case, paper_plant, nominal_arm, nominal_surface,
                                                           reference, sim_module, monkeypatch):
     """XLA's CPU runtime runs a loop body's kernels one after the other only when none touches
     more than 512 bytes; otherwise every kernel of every step goes through its scheduler (the
     paper's adaptive run 2.5 times slower). The controller's constants are cut into the blocks
-    the law reads before the loop (``Controller.prepared``): no input of the step loop holds more
-    than 64 values. Without it F_f's 120 centres enter the loop whole (the check can fail)."""
+    the law reads before the loop (``Controller.prepared``): no input of the step loop (the while
+    loop inside the scan over records) holds more than 64 values, on the paper's arm and on the
+    UR5 (P_p 10 × 10, F_p's centres 5 × 40). Without it F_f's 120 centres enter the loop whole
+    (the check can fail)."""
+    import math
+
     import jax.numpy as jnp
 
     from hinfnn._loop import LoopOptions
     from hinfnn.controllers.law import BLOCK, ReducedOrderController
 
-    if not prepared:
-        monkeypatch.setattr(ReducedOrderController, "prepared", lambda self: self)
     S = sim_module
-    ctrl = H.HinfNNController.design(nominal_arm, nominal_surface, H.Gains())
-    carry = S._init_carry(ctrl, S.initial_state(paper_plant, ctrl, u1_0=U1_0), 2)
-    chunk = S._compiled.__wrapped__(None, 3, False, S.select(None), LoopOptions())[0]
-    traced = chunk.jitted.trace(paper_plant, ctrl, reference, S.Limits(), carry, jnp.asarray(0), jnp.asarray(6),
+    if case == "ur5-table":
+        sc = H.load_scenario("ur5-table", {"controller.kind": "hinf_nn"})
+        plant, ctrl, ref = sc.build_plant(), sc.build_controller("hinf_nn"), sc.build_reference()
+        y0 = S.initial_state(plant, ctrl, q0=sc.initial_q(plant))
+    else:
+        if case == "paper-unprepared":
+            monkeypatch.setattr(ReducedOrderController, "prepared", lambda self: self)
+        plant, ref = paper_plant, reference
+        ctrl = H.HinfNNController.design(nominal_arm, nominal_surface, H.Gains())
+        y0 = S.initial_state(plant, ctrl, u1_0=U1_0)
+    carry = S._init_carry(ctrl, y0, plant.n)
+    chunk = S._compiled.__wrapped__(None, 3, False, S.select(None), LoopOptions(), plant.n)[0]
+    traced = chunk.jitted.trace(plant, ctrl, ref, S.Limits(), carry, jnp.asarray(0), jnp.asarray(6),
                                 jnp.asarray(1e-4), jnp.asarray(1), jnp.asarray(2), jnp.asarray(3))
-    sizes = _step_loop_inputs(traced.jaxpr.jaxpr)
-    assert (max(sizes) <= BLOCK) == prepared, sorted(sizes)[-5:]
+    scan = next(e for e in traced.jaxpr.jaxpr.eqns if e.primitive.name == "scan")
+    step_loop = next(_whiles(scan.params["jaxpr"].jaxpr))
+    sizes = sorted(math.prod(v.aval.shape) for v in step_loop.params["body_jaxpr"].jaxpr.invars)
+    assert (sizes[-1] <= BLOCK) == (case != "paper-unprepared"), sizes[-5:]
