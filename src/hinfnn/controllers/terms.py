@@ -31,7 +31,7 @@ from .. import _linalg as la
 from .._pytree import Note, pytree_dataclass, static_field
 from ..reference import RefSample
 from .gains import Gains
-from .network import TanhNetwork, sq_norm
+from .network import TanhNetwork, block_bounds, sq_norm
 
 
 @pytree_dataclass
@@ -186,8 +186,6 @@ class _NetworkTerm(Term):
         raise NotImplementedError
 
     def prepared(self, block):
-        from .network import block_bounds
-
         return dataclasses.replace(self, network=self.network.with_centre_blocks(block_bounds(self.network.n_units, block)))
 
     def evaluate(self, ctx, parts):
