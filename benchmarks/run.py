@@ -31,7 +31,8 @@ Cases (each runs in a fresh worker process so that its peak memory is its own):
    tool's Jacobian and its rate, four stages) by Pinocchio called from Python;
    ``ur5_single`` — one run, continuous and at 1 kHz sampled control (``ur5-table-stable``): compile,
    steps per second, kernels per step of the compiled loop, launched and distinct (benchmarks/hlo.py);
-   ``ur5_latency`` — the sampled update at 1 kHz from a Python loop;
+   ``ur5_latency`` — the sampled update at 1 kHz from a Python loop (``ur5_latency_sync``: with
+   JAX's CPU async dispatch off, as ``latency_sync``);
    ``ur5_batch`` — B = 64, 256, 1,024, 4,096 plants (``--arm-batches``): compile and trajectory-steps/s;
    ``ur5_whole`` — ``hinfnn run ur5-table --no-figures`` as a new process, cold and warm.
 
@@ -330,7 +331,7 @@ def case_device_run(args) -> dict:
 #: The switches of ``--disable``: the loop options (hinfnn._loop.LoopOptions) and the controller's
 #: block layout (``blocks``).
 SWITCHES = ("blocks", "sincos", "small_mm", "rolled_rk4", "batch_groups", "arm_kernels", "rolled_stages",
-            "fusion_emitters")
+            "fusion_emitters", "record_once")
 
 
 def _loop_options(args):
@@ -345,7 +346,7 @@ def _loop_options(args):
               batch_group=0 if "batch_groups" in off else LoopOptions().batch_group)
     have = {f.name for f in dataclasses.fields(LoopOptions)}  # options of the hinfnn being measured
     extra = {"arm_kernels": ("arm_kernels", False), "rolled_stages": ("rolled_stages", 3),
-             "fusion_emitters": ("fusion_emitters", True)}
+             "fusion_emitters": ("fusion_emitters", True), "record_once": ("record_once", False)}
     for switch, (name, value) in extra.items():
         if switch in off:
             if name not in have:
@@ -613,13 +614,22 @@ def case_ur5_single(args) -> dict:
     return out
 
 
-def case_ur5_latency(args) -> dict:
+def case_ur5_latency(args, sync: bool = False) -> dict:
     """The UR5's sampled update (ur5-table-stable, H∞ + NN, 1 kHz) called from a Python loop as a
-    robot's loop calls it (benchmarks/latency.py), JAX's CPU async dispatch on (the default)."""
+    robot's loop calls it (benchmarks/latency.py), JAX's CPU async dispatch on (the default) or,
+    ``sync``, off (a robot process's setting, as in ``latency_sync``)."""
+    if sync:  # before JAX's first computation in this worker
+        import jax
+
+        jax.config.update("jax_cpu_enable_async_dispatch", False)
     sys.path.insert(0, str(HERE))
     import latency
 
     return latency.measure_latency(n_calls=args.calls, kind="hinf_nn", scenario="ur5-table-stable")
+
+
+def case_ur5_latency_sync(args) -> dict:
+    return case_ur5_latency(args, sync=True)
 
 
 def case_ur5_batch(args) -> dict:
@@ -674,9 +684,11 @@ CASES = {"single": case_single, "batch": case_batch, "startup": case_startup, "w
          "device_run": case_device_run, "arm_devices": case_arm_devices, "arm_run": case_arm_run,
          "batch_devices": case_batch_devices, "batch_run": case_batch_run, "program_gc": case_program_gc,
          "launch_floor": case_launch_floor, "ur5_anchor": case_ur5_anchor, "ur5_single": case_ur5_single, "ur5_latency": case_ur5_latency,
+         "ur5_latency_sync": case_ur5_latency_sync,
          "ur5_batch": case_ur5_batch, "ur5_whole": case_ur5_whole}
 DEFAULT_CASES = ["single", "batch", "startup", "whole", "latency", "latency_sync", "devices", "arm_devices",
-                 "batch_devices", "program_gc", "launch_floor", "ur5_anchor", "ur5_single", "ur5_latency", "ur5_batch", "ur5_whole"]
+                 "batch_devices", "program_gc", "launch_floor", "ur5_anchor", "ur5_single", "ur5_latency", "ur5_latency_sync",
+                 "ur5_batch", "ur5_whole"]
 
 
 # --- driver --------------------------------------------------------------------------------------
@@ -769,11 +781,12 @@ def _print_ur5(c: dict) -> None:
             print(f"{B:<16}{r['compile_s']:>10.1f}{r['wall_s']:>9.2f}{r['traj_steps_per_s']:>14,.0f}"
                   f"{r['us_per_member_step']:>16.1f}{ratio(r['us_per_member_step']):>9}"
                   f"{r.get('peak_rss_gb', float('nan')):>8.2f}{r['failed']:>7}")
-    lat = c.get("ur5_latency", {})
-    if "median_us" in lat:
-        print(f"sampled update (ur5-table-stable at 1 kHz, SampledLoop.update from Python, {lat['n_calls']:,} calls): "
-              f"median {lat['median_us']:.1f} µs ({ratio(lat['median_us'])} × anchor), p99 {lat['p99_us']:.1f} µs, "
-              f"max {lat['max_us']:.1f} µs")
+    for name, label in (("ur5_latency", "async dispatch on"), ("ur5_latency_sync", "async dispatch off")):
+        lat = c.get(name, {})
+        if "median_us" in lat:
+            print(f"sampled update (ur5-table-stable at 1 kHz, SampledLoop.update from Python, {lat['n_calls']:,} calls, "
+                  f"JAX's CPU {label}): median {lat['median_us']:.1f} µs ({ratio(lat['median_us'])} × anchor), "
+                  f"p99 {lat['p99_us']:.1f} µs, max {lat['max_us']:.1f} µs")
     w = c.get("ur5_whole", {})
     if "cold" in w:
         print(f"`hinfnn run ur5-table --no-figures` (10 s) process: cold {w['cold']['wall_s']:.1f} s "

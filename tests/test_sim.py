@@ -240,12 +240,13 @@ def test_batch_of_one_equals_a_single_run(paper_plant, nominal_arm, nominal_surf
         np.testing.assert_array_equal(b.member(0).final[k], s.final[k], err_msg=k)
 
 
-@pytest.mark.parametrize("stages", [4, 3])
-def test_rolled_rk4_stages_equal_the_unrolled_ones(stages):
+@pytest.mark.parametrize("stages,once", [(4, True), (4, False), (3, True)])
+def test_rolled_rk4_stages_equal_the_unrolled_ones(stages, once):
     """The rolled_rk4 loop option (hinfnn._loop): the stages as a loop (all four, or 2–4 after the
-    first written out: ``rolled_stages``) give the same step as the four stages written out, bit for
-    bit, on a nonlinear pytree system with a time-dependent force (the stage times matter), the
-    first stage's auxiliary output, and order four."""
+    first written out: ``rolled_stages``; the aux at every stage or under a branch at the first:
+    ``record_once``) give the same step as the four stages written out, bit for bit, on a
+    nonlinear pytree system with a time-dependent force (the stage times matter), the first
+    stage's auxiliary output, and order four."""
     import jax
     import jax.numpy as jnp
 
@@ -253,12 +254,13 @@ def test_rolled_rk4_stages_equal_the_unrolled_ones(stages):
 
     def f(t, y):
         q, v = y["q"], y["v"]
-        return {"q": v, "v": -jnp.sin(q) - 0.3 * v + jnp.cos(3.0 * t)}, jnp.sum(q)
+        s = jnp.sin(q)  # shared by the derivative and the aux
+        return {"q": v, "v": -s - 0.3 * v + jnp.cos(3.0 * t)}, jnp.sum(q) + 0.0 * jnp.sum(s)
 
     y0 = {"q": jnp.array([0.4, -1.2, 2.0]), "v": jnp.array([0.1, 0.0, -0.5])}
 
     def run(rolled, dt, n, aux=False):
-        step = jax.jit(lambda t, y: rk4_step(f, t, y, dt, rolled=rolled, rolled_stages=stages))
+        step = jax.jit(lambda t, y: rk4_step(f, t, y, dt, rolled=rolled, rolled_stages=stages, record_once=once))
         y, sums = y0, []
         for k in range(n):
             y, s = step(k * dt, y)
@@ -272,6 +274,44 @@ def test_rolled_rk4_stages_equal_the_unrolled_ones(stages):
     fine = run(False, 0.05 / 8, 320)
     err = [np.max(np.abs(run(True, dt, n) - fine)) for dt, n in ((0.1, 20), (0.05, 40))]
     assert 12.0 < err[0] / err[1] < 20.0  # 2⁴ = 16
+
+
+def test_split_aux_cuts_the_aux_alone_out_of_the_derivative():
+    """split_aux (the record_once loop option): the first part gives f's derivative and, from the
+    residuals it returns, the second gives f's aux, both bit for bit; the first holds none of the
+    operations only the aux needs (here its exp and its reduction), the second none of those the
+    derivative needs alone (its cos), and the values they share (sin q) are computed once, in the
+    first; f with a side effect is not cut."""
+    import jax
+    import jax.numpy as jnp
+
+    from hinfnn.sim.integrate import split_aux
+
+    c = jnp.array([1.0, 2.0, 3.0])  # a closed-over constant
+
+    def f(t, y):
+        s = jnp.sin(y * c)
+        return {"y": s * jnp.cos(t * y)}, {"a": jnp.sum(jnp.exp(s)), "b": s}
+
+    t, y = 0.3, jnp.array([0.2, -0.7, 1.1])
+    first, second, aux0 = split_aux(f, t, y)
+    dy, res = first(t, y)
+    want_dy, want_aux = f(t, y)
+    np.testing.assert_array_equal(dy["y"], want_dy["y"])
+    aux = second(res)
+    np.testing.assert_array_equal(aux["a"], want_aux["a"])
+    np.testing.assert_array_equal(aux["b"], want_aux["b"])
+    assert aux0["a"].shape == () and aux0["b"].shape == (3,) and float(jnp.sum(aux0["b"])) == 0.0
+    prims = lambda fn, *a: [e.primitive.name for e in jax.make_jaxpr(fn)(*a).jaxpr.eqns]  # noqa: E731
+    p1, p2 = prims(lambda t, y: first(t, y), t, y), prims(second, res)
+    assert "exp" not in p1 and "reduce_sum" not in p1 and p1.count("sin") == 1 and "cos" in p1
+    assert "exp" in p2 and "reduce_sum" in p2 and "sin" not in p2 and "cos" not in p2
+
+    def g(t, y):
+        jax.debug.callback(lambda v: None, y)
+        return f(t, y)
+
+    assert split_aux(g, t, y) is None
 
 
 @pytest.fixture

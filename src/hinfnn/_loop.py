@@ -33,14 +33,23 @@ Outside a trace the defaults apply.
     with their columns computed once and kept (:func:`hinfnn._linalg.store`). The paper's 2-joint
     arm keeps its reductions (its numbers bit for bit).
 ``rolled_stages``
-    With RK4 rolled: 4 (default), all four stages a loop (the record computed at every stage and
-    the first one kept); 3, stage 1 (the one that gives the record) written out and stages 2–4 a
+    With RK4 rolled: 4 (default), all four stages a loop (the record computed at the first stage,
+    ``record_once``); 3, stage 1 (the one that gives the record) written out and stages 2–4 a
     loop (the record computed once per step, but the plant and the controller twice in the
     program). XLA's CPU runtime pays for each kernel it launches more the more distinct kernels a
     loop holds (``benchmarks/run.py --cases launch_floor``), so the program with fewer distinct
     kernels runs faster although it launches more: UR5 1,641 launches of 546 distinct kernels per
     RK4 step against 1,219 of 687, 114 against 131 µs per step, and it compiles in about half the
     time (docs/performance.md).
+``record_once``
+    With RK4's four stages one loop: the step's function cut in two
+    (:func:`hinfnn.sim.integrate.split_aux`), the operations only the record needs (the plant's
+    and the controller's recorded signals, the fault measures) under a ``lax.cond`` taken at the
+    first stage, the rest at every stage. The program still holds the plant and the controller
+    once; the record is computed once per step instead of four times. UR5 77.0 → 63.2 µs per
+    step, Panda 323.8 → 256.0 µs (docs/performance.md); the numbers to rounding (2.8e-14
+    relative), not bit for bit, since XLA fuses the operations otherwise. False: the record
+    computed at every stage and the first kept.
 ``fusion_emitters``
     For arms of at least :data:`ROLL_FROM_JOINTS` joints (``None``, the default), the simulation's
     programs are compiled with XLA's older CPU loop emitters (the compile option
@@ -81,6 +90,7 @@ class LoopOptions:
     arm_kernels: bool | None = None
     rolled_stages: int = 4
     fusion_emitters: bool | None = None
+    record_once: bool = True
 
     def __post_init__(self):
         if not (isinstance(self.batch_group, int) and self.batch_group >= 0):

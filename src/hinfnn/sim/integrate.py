@@ -4,13 +4,65 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from jax.extend import core as jcore
+
+
+def _needed(eqns, outs):
+    """The equations of ``eqns`` (in order) that the variables ``outs`` depend on."""
+    live = {v for v in outs if isinstance(v, jcore.Var)}
+    keep = []
+    for e in reversed(eqns):
+        if e.effects or any(v in live for v in e.outvars if not isinstance(v, jcore.DropVar)):
+            keep.append(e)
+            live.update(v for v in e.invars if isinstance(v, jcore.Var))
+    return keep[::-1]
+
+
+def split_aux(f, *args):
+    """``f(*args) = (dy, aux)`` traced once and cut in two: ``(first, second, aux0)`` with
+    ``first(*args) = (dy, residuals)``, the equations ``dy`` needs, and ``second(residuals) = aux``,
+    the equations only ``aux`` needs (``residuals``: the values of the first that they read);
+    ``aux0`` zeros of the shapes of ``aux``. The same operations as ``f``, so a stage that does not
+    keep its ``aux`` runs ``first`` alone, and XLA does not compute what no one reads. None when
+    ``f`` has side effects (it is then not cut)."""
+    closed, shapes = jax.make_jaxpr(f, return_shape=True)(*args)
+    jaxpr = closed.jaxpr
+    if jaxpr.effects:
+        return None
+    dy_tree, aux_tree = jax.tree.structure(shapes[0]), jax.tree.structure(shapes[1])
+    n_dy = dy_tree.num_leaves
+    dy_out, aux_out = list(jaxpr.outvars[:n_dy]), list(jaxpr.outvars[n_dy:])
+    dy_eqns = _needed(jaxpr.eqns, dy_out)
+    known = {*jaxpr.invars, *jaxpr.constvars, *(v for e in dy_eqns for v in e.outvars)}
+    aux_eqns = [e for e in _needed(jaxpr.eqns, aux_out)
+                if not all(v in known for v in e.outvars if not isinstance(v, jcore.DropVar))]
+    made = {v for e in aux_eqns for v in e.outvars}
+    res = list(dict.fromkeys(v for v in [*(v for e in aux_eqns for v in e.invars), *aux_out]
+                             if isinstance(v, jcore.Var) and v not in made))
+    def info(part, n_in, n_out):
+        return jcore.DebugInfo(f"split_aux ({part})", jaxpr.debug_info.func_src_info, ("",) * n_in, ("",) * n_out)
+
+    first = jcore.jaxpr_as_fun(jcore.ClosedJaxpr(
+        jcore.Jaxpr(jaxpr.constvars, jaxpr.invars, dy_out + res, dy_eqns,
+                    debug_info=info("derivative", len(jaxpr.invars), n_dy + len(res))), closed.consts))
+    second = jcore.jaxpr_as_fun(jcore.ClosedJaxpr(
+        jcore.Jaxpr([], res, aux_out, aux_eqns, debug_info=info("aux", len(res), len(aux_out))), []))
+
+    def run_first(*a):
+        out = first(*jax.tree.leaves(a))
+        return jax.tree.unflatten(dy_tree, out[:n_dy]), tuple(out[n_dy:])
+
+    def run_second(residuals):
+        return jax.tree.unflatten(aux_tree, second(*residuals))
+
+    return run_first, run_second, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes[1])
 
 
 def _axpy(a, x, y):
     return jax.tree.map(lambda xi, yi: yi + a * xi, x, y)
 
 
-def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4):
+def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4, record_once: bool = True):
     """One RK4 step of ẏ = f(t, y); ``f`` returns ``(dy, aux)``. Returns ``(y_next, aux_1)``,
     aux_1 the auxiliary output of the first stage (the state at the start of the step).
 
@@ -19,7 +71,11 @@ def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4):
     :class:`hinfnn._loop.LoopOptions`). ``rolled_stages`` 4: the four stages a loop of four
     iterations (``f`` once in the program; its aux computed at every stage, the first kept);
     3: stage 1 written out with its aux, stages 2–4 a loop of three iterations whose aux is
-    unused and not computed (``f`` twice in the program, the record once per step)."""
+    unused and not computed (``f`` twice in the program, the record once per step).
+    ``record_once`` (with 4 rolled stages): ``f`` cut by :func:`split_aux`, the equations of its aux
+    alone under a ``lax.cond`` taken at stage 1 only, the others at every stage (``f``'s operations
+    once in the program, its aux once per step); False: the aux computed at every stage, the first
+    kept."""
     if rolled and rolled_stages == 3:
         f = jax.jit(f, inline=True)  # traced once: for stage 1 and for the loop's body
         k1, aux = f(t, y)  # stage 1 at (t, y), with the auxiliary output
@@ -32,6 +88,24 @@ def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4):
             return jax.tree.map(lambda a, kk: a + w * kk, acc, ki), ki  # k1 + 2 k2 + 2 k3 + k4
 
         acc, _ = jax.lax.fori_loop(1, 4, later, (k1, k1))
+        return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
+    cut = split_aux(f, t, y) if rolled and record_once else None
+    if cut is not None:
+        f_dy, f_aux, aux0 = cut
+
+        def stage(i, state):
+            acc, k, aux = state
+            first = i == 0
+            c = jnp.where(i == 3, 1.0, 0.5)  # stage 1 at (t, y); 2, 3 at t + dt/2 from k1, k2; 4 at t + dt
+            ki, res = f_dy(jnp.where(first, t, t + c * dt),
+                           jax.tree.map(lambda yi, kk: jnp.where(first, yi, yi + c * dt * kk), y, k))
+            w = jnp.where(i == 3, 1.0, 2.0)
+            acc = jax.tree.map(lambda a, kk: jnp.where(first, kk, a + w * kk), acc, ki)  # k1 + 2 k2 + 2 k3 + k4
+            aux = jax.lax.cond(first, lambda r, old: f_aux(r), lambda r, old: old, res, aux)  # stage 1's record
+            return acc, ki, aux
+
+        k0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(f_dy, t, y)[0])
+        acc, _, aux = jax.lax.fori_loop(0, 4, stage, (k0, k0, aux0))
         return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
     if rolled:
         f = jax.jit(f, inline=True)  # traced once: for the shapes below and for the loop's body

@@ -168,7 +168,8 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             acc = jax.tree.map(lambda a, r: a + dt * r, y.acc, rates)
             return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **book}
         y_new, aux = rk4_step(lambda tt, yy: rhs(plant, ctrl, ref, tt, yy, w, held, sampled), t, y, dt,
-                              rolled=rolled, rolled_stages=_loop.current().rolled_stages)
+                              rolled=rolled, rolled_stages=_loop.current().rolled_stages,
+                              record_once=_loop.current().record_once)
         return SimState(plant=y_new.plant, xc=ctrl.constrain(y_new.xc), acc=y_new.acc), aux
 
     def step(c: Carry, k, first):
