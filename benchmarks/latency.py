@@ -14,7 +14,9 @@ Entry points timed (``--variants`` also times the alternatives that were tried, 
 see :func:`compare_variants`):
 
 * ``loop``: ``tau = loop.update(t, period, q, qd, force)`` of a :class:`hinfnn.controllers.SampledLoop`
-  (``SampledController.update_packed`` on one packed buffer, τ returned as NumPy): the fast path;
+  (τ returned as NumPy): the fast path. For the paper's 2-joint arm ``SampledController.update_packed``
+  on one packed buffer; for arms of 3 joints or more ``SampledController.step_leaves`` on the packed
+  sample and the state's blocks kept on the device (no buffer above 512 bytes);
 * ``pytree``: ``tau, state = sc.update(t, period, state, Measurement(q, qd, force))`` followed by
   ``np.asarray(tau)``.
 
@@ -55,6 +57,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import hinfnn as H  # noqa: E402
+from hinfnn._loop import ROLL_FROM_JOINTS  # noqa: E402
 from hinfnn.protocols import Measurement  # noqa: E402
 
 H.configure()
@@ -172,7 +175,9 @@ def _caller(sc, path: str, meas: dict):
 def program_flops(sc, path: str = "loop") -> float:
     """XLA's cost estimate (flops) of the compiled update. With async dispatch on, XLA's CPU
     client runs a program inline on the calling thread only below 1000 flops."""
-    if path == "loop":
+    if path == "loop" and sc.n_joints >= ROLL_FROM_JOINTS:
+        lowered = jax.jit(sc.step_leaves).lower(np.zeros(sc.sample_size), *jax.tree.leaves(sc.init()))
+    elif path == "loop":
         lowered = jax.jit(sc.step_packed).lower(np.zeros(sc.packed_size))
     else:
         n = sc.n_joints

@@ -308,3 +308,73 @@ def test_projection_keeps_weights_in_ball():
     for k in range(300):
         free.update(k * PERIOD, PERIOD, meas.q, meas.qd, meas.force)
     assert np.linalg.norm(free.state.theta_f) > 2 * d_f
+
+
+# --- (e) an arm's robot loop: the state as its blocks, on the device -----------------------------------
+def test_an_arms_loop_keeps_its_state_in_blocks_and_equals_update():
+    """SampledLoop on the UR5 (ur5-table-stable, H∞ + NN) calls ``step_leaves``: τ and the state
+    equal ``update``'s over a changing measurement, to rounding; a NaN sample is rejected and leaves
+    the state where it was; ``reset`` restarts from ``init``; and no buffer of the compiled update
+    holds more than a block (64 values), the reason for this path (XLA's CPU runtime then runs the
+    kernels inline: median 141 → 68 µs per call, benchmarks/run.py ``ur5_latency_sync``). The packed
+    program of the same controller, for contrast, holds the 339-value packed state."""
+    import math
+    import re
+
+    from hinfnn.controllers.law import BLOCK
+
+    sc = H.load_scenario("ur5-table-stable", {"controller.kind": "hinf_nn"})
+    plant = sc.build_plant()
+    sampled = H.SampledController(sc.build_controller("hinf_nn"), sc.build_reference())
+    q0 = np.asarray(sc.initial_q(plant))
+    loop = sampled.loop()
+    assert not loop._packed
+    state = sampled.init()
+    for k in range(12):
+        q = q0 + 0.01 * np.sin(0.7 * k + np.arange(6))
+        qd = 0.2 * np.cos(0.3 * k + np.arange(6))
+        force = np.array([0.5 * k, -0.2, -20.0 + k])
+        meas = Measurement(q=q, qd=qd, force=force)
+        if k == 0:  # the force-rate filter starts at the first measurement (the loop does it itself)
+            state = sampled.start(0.0, state, meas)
+        tau, state = sampled.update(k * PERIOD, PERIOD, state, meas)
+        tau_l = loop.update(k * PERIOD, PERIOD, q, qd, force)
+        assert isinstance(tau_l, np.ndarray) and tau_l.shape == (6,)
+        np.testing.assert_allclose(tau_l, np.asarray(tau), rtol=1e-12, atol=1e-12)
+    want = sampled.state_vector(state)
+    assert np.max(np.abs(want)) > 1e-6  # the weights moved: the comparison is not between zeros
+    np.testing.assert_allclose(sampled.state_vector(loop.state), want, rtol=1e-12, atol=1e-300)
+    tau_bad = loop.update(12 * PERIOD, PERIOD, np.full(6, np.nan), qd, force)
+    assert np.all(np.isnan(tau_bad)) and loop.rejected == 1
+    np.testing.assert_allclose(sampled.state_vector(loop.state), want, rtol=1e-12, atol=1e-300)
+    loop.reset()
+    np.testing.assert_array_equal(sampled.state_vector(loop.state), sampled.state_vector(sampled.init()))
+
+    def largest_buffer(compiled):  # values in the largest array an instruction of ENTRY makes
+        text = compiled.as_text()
+        entry = text[text.index("\nENTRY"):]
+        sizes = [math.prod(int(d) for d in dims.split(",") if d)
+                 for line in entry[:entry.index("\n}")].splitlines()[1:]
+                 for m in [re.match(r"\s*(?:ROOT )?%\S+ = (\(.*?\)|\S+) ", line)] if m
+                 for dims in re.findall(r"\w+\[([\d,]*)\]", m.group(1))]
+        return max(sizes)
+
+    leaves = jax.tree.leaves(sampled.init())
+    assert largest_buffer(sampled._update_leaves.lower(np.zeros(sampled.sample_size), *leaves).compile()) <= BLOCK
+    assert largest_buffer(sampled._update_packed.lower(np.zeros(sampled.packed_size)).compile()) >= 339
+
+
+def test_configure_turns_async_dispatch_off_for_a_robot_process():
+    """``hinfnn.configure(async_dispatch=False)`` (what a robot process calls at start-up, the
+    SampledLoop docstring says so) turns JAX's CPU async dispatch off; by default it is left as JAX
+    sets it (on). A new process each, as the setting must come before the first computation."""
+    import subprocess
+    import sys
+
+    show = ("import jax, hinfnn; hinfnn.configure(cache=False{}); "
+            "print(jax.config.read('jax_cpu_enable_async_dispatch'))")
+    got = [subprocess.run([sys.executable, "-c", show.format(arg)], capture_output=True, text=True, timeout=300)
+           for arg in ("", ", async_dispatch=False")]
+    assert [g.returncode for g in got] == [0, 0], [g.stderr for g in got]
+    assert [g.stdout.split()[-1] for g in got] == ["True", "False"]
+    assert "async_dispatch=False" in H.SampledLoop.__doc__

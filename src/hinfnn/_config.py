@@ -9,16 +9,22 @@ used when JAX finds one), float64 and the persistent compilation cache are turne
 from __future__ import annotations
 
 
-def configure(*, x64: bool = True, cache: bool = True):
+def configure(*, x64: bool = True, cache: bool = True, async_dispatch: bool | None = None):
     """Set JAX up for hinfnn in this process: float64 (hinfnn's numbers are float64 throughout;
     ``x64=False`` leaves JAX's setting alone) and the persistent compilation cache in the folder
     the environment gives (``HINFNN_CACHE_DIR``, see :mod:`hinfnn._cache`; ``cache=False``
-    leaves it off). Call it once, before the first computation. Returns the cache folder in use,
-    or None."""
+    leaves it off). ``async_dispatch=False``: JAX's CPU async dispatch off, the setting of a
+    process that runs a robot loop (:class:`hinfnn.SampledLoop`): every compiled call then runs on
+    the calling thread, where with it on (JAX's default, ``None`` leaves it) a program above 1,000
+    flops is handed to a worker thread and back (the UR5's sampled update: median 187 against 68 µs
+    per call, docs/performance.md). Call it once, before the first computation. Returns the cache
+    folder in use, or None."""
     import jax
 
     if x64:
         jax.config.update("jax_enable_x64", True)
+    if async_dispatch is not None:
+        jax.config.update("jax_cpu_enable_async_dispatch", bool(async_dispatch))
     if cache:
         from . import _cache
 
