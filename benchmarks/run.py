@@ -949,6 +949,11 @@ def targets(c: dict) -> dict:
     if "median_us" in c.get("ur5_latency", {}):
         add("UR5 sampled update: median µs", c["ur5_latency"]["median_us"], "<=", TARGETS["ur5_latency_median_us"])
         add("UR5 sampled update: p99 µs", c["ur5_latency"]["p99_us"], "<=", TARGETS["ur5_latency_p99_us"])
+    if "median_us" in c.get("ur5_latency_sync", {}):
+        add("UR5 sampled update, async off: median µs", c["ur5_latency_sync"]["median_us"], "<=",
+            TARGETS["ur5_latency_median_us"])
+        add("UR5 sampled update, async off: p99 µs", c["ur5_latency_sync"]["p99_us"], "<=",
+            TARGETS["ur5_latency_p99_us"])
     if "warm" in c.get("ur5_whole", {}):
         add("UR5 whole process warm, s", c["ur5_whole"]["warm"]["wall_s"], "<=", TARGETS["ur5_whole_warm_s"])
     for name, label in (("latency", "async on"), ("latency_sync", "async off")):

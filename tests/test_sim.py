@@ -229,6 +229,27 @@ def test_fields_selects_what_is_stored(paper_plant, nominal_arm, nominal_surface
         H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.1, dt=1e-4, fields=("torque",))
 
 
+def test_stack_on_the_host_equals_jnp_stack_and_still_traces():
+    """simulate_batch stacks its members' pytrees with NumPy when they are values (jnp.stack of B
+    operands compiles a B-operand program per leaf shape: 126 s of a B = 4,096 UR5 batch's first
+    run) and with jnp.stack under a trace: the same values, dtypes and shapes either way."""
+    import importlib
+
+    import jax
+    import jax.numpy as jnp
+
+    S = importlib.import_module("hinfnn.sim.simulate")
+    items = [{"a": jnp.arange(3.0) * i, "b": np.int32(i), "c": (float(i), jnp.eye(2) + i)} for i in range(5)]
+    got = S.stack(items)
+    want = jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *items)
+    for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want)):
+        assert g.shape == w.shape and g.dtype == w.dtype
+        np.testing.assert_array_equal(np.asarray(g), np.asarray(w))
+    traced = jax.jit(lambda xs: S.stack(xs))(items)
+    for g, w in zip(jax.tree.leaves(traced), jax.tree.leaves(want)):
+        np.testing.assert_array_equal(np.asarray(g), np.asarray(w))
+
+
 def test_batch_of_one_equals_a_single_run(paper_plant, nominal_arm, nominal_surface, reference):
     ctrl = H.HinfNNController.design(nominal_arm, nominal_surface)
     b = H.simulate_batch([paper_plant], ctrl, reference, u1_0=U1_0, t_final=0.2, dt=1e-4)

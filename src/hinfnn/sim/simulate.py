@@ -528,7 +528,16 @@ def stack(items):
     if len(treedefs) != 1:
         raise ConfigError("batch members differ in structure (controller kind, network sizes or "
                           "model types); run them as separate batches")
-    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *items)
+    return jax.tree.map(_stack_leaves, *items)
+
+
+def _stack_leaves(*xs):
+    """One leaf of :func:`stack`: by NumPy on the host when every member's leaf is a value (one
+    copy to the device), else by ``jnp.stack``. ``jnp.stack`` of B values compiles a program of B
+    operands for each leaf shape: 33 s of a B = 2,048 UR5 batch's first run, 126 s at B = 4,096."""
+    if any(isinstance(x, jax.core.Tracer) for x in xs):
+        return jnp.stack([jnp.asarray(x) for x in xs])
+    return jnp.asarray(np.stack([np.asarray(x) for x in xs]))
 
 
 def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt: float = 1e-4,
