@@ -5,7 +5,7 @@ between two samples (a ``while``) → with RK4's stages rolled, the loop over st
 with a known trip count). Every ``fusion``, ``dot``, ``custom-call`` (a LAPACK or library call),
 ``reduce``-family instruction and ``copy`` left in a loop body is one kernel that XLA's CPU runtime
 launches on its own; a nested ``while`` counts its body times its trip count, a ``conditional``
-its largest branch. What is counted is the step loop's body (the steps after the first of each
+its largest branch (as if taken every time: an upper bound, with that part reported apart). What is counted is the step loop's body (the steps after the first of each
 sample), the steady state of a run.
 
 Used by ``benchmarks/run.py`` (``kernels/step`` columns) and usable on a dump
@@ -77,10 +77,12 @@ def kernels(comps: dict, name: str) -> int:
     return _walk(comps, name)[0]
 
 
-def _walk(comps: dict, name: str) -> tuple[int, int, dict]:
-    """(kernels, library calls, transcendental operations) one execution of computation ``name``
-    launches, nested loops expanded by their trip counts, a conditional by its largest branch."""
-    n, calls, ops = 0, 0, {}
+def _walk(comps: dict, name: str) -> tuple[int, int, dict, int]:
+    """(kernels, library calls, transcendental operations, kernels in conditionals) one execution of
+    computation ``name`` launches, nested loops expanded by their trip counts, a conditional by its
+    largest branch (an upper bound: the record's branch of RK4's rolled stages runs at one stage of
+    four, the sampled update's at one step of ``n_hold``); the last number is that branch part."""
+    n, calls, ops, in_cond = 0, 0, {}, 0
 
     def add(o, times=1):
         for k, v in o.items():
@@ -93,7 +95,7 @@ def _walk(comps: dict, name: str) -> tuple[int, int, dict]:
         if m:
             branches = [_walk(comps, b.strip().lstrip("%")) for b in m.group(1).split(",")]
             big = max(branches, key=lambda b: b[0])
-            n, calls = n + big[0], calls + big[1]
+            n, calls, in_cond = n + big[0], calls + big[1], in_cond + big[0]
             add(big[2])
         elif _KERNEL.search(line):
             n += 1
@@ -102,10 +104,10 @@ def _walk(comps: dict, name: str) -> tuple[int, int, dict]:
                 add(_ops(comps, callee))
     for cond, body, trip in whiles(comps.get(name, ())):
         for part in (body, cond):
-            k, c, o = _walk(comps, part)
-            n, calls = n + (trip or 1) * k, calls + (trip or 1) * c
+            k, c, o, b = _walk(comps, part)
+            n, calls, in_cond = n + (trip or 1) * k, calls + (trip or 1) * c, in_cond + (trip or 1) * b
             add(o, trip or 1)
-    return n, calls, ops
+    return n, calls, ops, in_cond
 
 
 def distinct(comps: dict, name: str) -> int:
@@ -131,12 +133,15 @@ def step_kernels(text: str) -> dict:
     steps between two samples, with its nested loops, RK4's rolled stages, expanded): the kernels
     XLA's CPU runtime launches, how many distinct kernels they come from (:func:`distinct`), how
     many of them are library calls (``custom-call``), and the transcendental operations (tanh, sin,
-    cos, divide, exp, sqrt: values computed)."""
+    cos, divide, exp, sqrt: values computed). Conditionals count by their largest branch as if taken
+    at every iteration; ``kernels_in_conditionals`` is that part (so ``kernels`` is an upper bound).
+    """
     comps, entry = computations(text)
     for _, body, _ in whiles(comps.get(entry, ())):
         inner = list(whiles(comps[body]))
         if inner:
-            k, c, o = _walk(comps, inner[0][1])
+            k, c, o, b = _walk(comps, inner[0][1])
             return dict(kernels=k, distinct_kernels=distinct(comps, inner[0][1]), custom_calls=c,
-                        elementwise_per_step=o)
-    return dict(kernels=None, distinct_kernels=None, custom_calls=None, elementwise_per_step={})
+                        elementwise_per_step=o, kernels_in_conditionals=b)
+    return dict(kernels=None, distinct_kernels=None, custom_calls=None, elementwise_per_step={},
+                kernels_in_conditionals=None)

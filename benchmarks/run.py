@@ -768,9 +768,13 @@ def _print_ur5(c: dict) -> None:
                   f"{fmt(ops.get('distinct_kernels'), 'd'):>9}{fmt(ops.get('custom_calls'), 'd'):>10}{r['status']:>7}")
             if foot and ops.get("kernels") and ops.get("distinct_kernels"):
                 near = min(foot, key=lambda f: abs(f["distinct"] - ops["distinct_kernels"]))
-                print(f"{'':<16}(launching its kernels: about {near['us_per_launch'] * ops['kernels']:.0f} µs of the "
-                      f"{r['us_per_step']:.0f} µs per step, at {near['us_per_launch']:.3f} µs per launch in a loop "
-                      f"of {near['distinct']} distinct kernels, launch_floor)")
+                per, branch = near["us_per_launch"], ops.get("kernels_in_conditionals") or 0
+                span = (f"{per * (ops['kernels'] - branch):.0f}–{per * ops['kernels']:.0f} µs" if branch
+                        else f"about {per * ops['kernels']:.0f} µs")
+                print(f"{'':<16}(launching its kernels: {span} of the {r['us_per_step']:.0f} µs per step, at "
+                      f"{per:.3f} µs per launch in a loop of {near['distinct']} distinct kernels, launch_floor"
+                      + (f"; {branch} of the {ops['kernels']} kernels counted are in conditionals, counted as if "
+                         "taken at every iteration" if branch else "") + ")")
     if "ur5_batch" in c and "error" not in c["ur5_batch"]:
         hdr = (f"{'batch B':<16}{'1st run s':>10}{'wall s':>9}{'traj-steps/s':>14}{'µs/member-step':>16}"
                f"{'× anchor':>9}{'peak GB':>8}{'failed':>7}")
