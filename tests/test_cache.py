@@ -116,7 +116,7 @@ def test_second_process_reuses_programs_and_an_unusable_folder_does_not_fail(tmp
         cold = _run(tmp_path / "cold", env)
         assert cold.returncode == 0, cold.stderr
         written = _entries(cache)
-        # the run's chunk program kept traced and lowered (hinfnn.sim.programs), and its compiled code
+        # the run's chunk program kept traced and lowered (hinfnn._programs), and its compiled code
         assert any(name.startswith("hinfnn-program-chunk-") and name.endswith("-export") for name in written), \
             sorted(written)
         assert any(name.startswith("jit_call-") for name in written), sorted(written)
@@ -131,6 +131,9 @@ def test_second_process_reuses_programs_and_an_unusable_folder_does_not_fail(tmp
         info = _first_chunk(warm.stderr)
         assert info["programs"] > 0 and info["cache_hits"] == info["programs"], info
         assert "chunk" in _first_chunk(cold.stderr)["traced"] and "chunk" not in info["traced"], info
+        # nor were the setup programs kept the same way (hinfnn._programs.kept): the start's check
+        for name in ("nominal_jacobian_det",):
+            assert name in _first_chunk(cold.stderr)["traced"] and name not in info["traced"], (name, info)
         assert "CacheWarning" not in cold.stderr + warm.stderr and not list(cache.glob(".tmp-*"))
         # and the loaded programs compute exactly what the compiled ones did
         m_cold = json.loads((tmp_path / "cold" / "metrics.json").read_text())["runs"]
@@ -344,3 +347,35 @@ def test_a_run_of_many_chunks_compiles_its_kept_program_once(tmp_path, cache_sta
     sc.simulate("fl")
     assert entry[0]._cache_size() == 1
     S._compiled.cache_clear()
+
+
+def test_a_kept_function_is_traced_once_across_instances(tmp_path, cache_state):
+    """hinfnn._programs.KeptFunction (the setup programs: start pose, path checks, final state):
+    the first call exports the lowered program to the cache folder; another instance (what a new
+    process has) loads it and calls it without tracing the Python function, with the same numbers,
+    for a pytree argument and a dict result; under another trace it is an ordinary jit; with the
+    cache off it traces as usual."""
+    import jax
+    import jax.numpy as jnp
+
+    from hinfnn._programs import PREFIX, KeptFunction
+
+    traces = []
+
+    def fn(p, x):
+        traces.append(1)
+        return {"y": jnp.sin(p["a"] * x), "n": jnp.sum(x) + p["b"]}
+
+    _cache.enable_cache(tmp_path / "c")
+    p, x = {"a": jnp.asarray(2.0), "b": 1.5}, jnp.arange(3.0)
+    first = KeptFunction(fn, "test_kept")(p, x)
+    assert len(traces) == 1 and len(list((tmp_path / "c").glob(f"{PREFIX}test_kept-*"))) == 1
+    again = KeptFunction(fn, "test_kept")(p, x)
+    assert len(traces) == 1
+    for k in ("y", "n"):
+        np.testing.assert_array_equal(np.asarray(again[k]), np.asarray(first[k]))
+    inside = jax.jit(lambda x: KeptFunction(fn, "test_kept")(p, x)["n"])(x)
+    assert len(traces) == 2 and float(inside) == float(first["n"])
+    _cache.enable_cache(None)
+    KeptFunction(fn, "test_kept")(p, jnp.arange(4.0))  # a new shape: traced (JAX's own trace cache aside)
+    assert len(traces) == 3 and len(list((tmp_path / "c").glob(f"{PREFIX}test_kept-*"))) == 1

@@ -259,8 +259,8 @@ def _reach(graph, start) -> set[str]:
 #: The layers of src/hinfnn, lowest first: a module imports modules of its own layer and of the
 #: layers below, never above (the package root, which names everything lazily, excepted).
 LAYERS = [
-    ("hinfnn._pytree", "hinfnn._config", "hinfnn._cache", "hinfnn._signals", "hinfnn._startup", "hinfnn._loop",
-     "hinfnn._linalg", "hinfnn.errors", "hinfnn.status", "hinfnn.fields", "hinfnn.protocols", "hinfnn.reference"),
+    ("hinfnn._pytree", "hinfnn._config", "hinfnn._cache", "hinfnn._programs", "hinfnn._signals", "hinfnn._startup",
+     "hinfnn._loop", "hinfnn._linalg", "hinfnn.errors", "hinfnn.status", "hinfnn.fields", "hinfnn.protocols", "hinfnn.reference"),
     ("hinfnn.model",),
     ("hinfnn.controllers",),
     ("hinfnn.plant",),

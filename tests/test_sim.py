@@ -431,7 +431,7 @@ def test_a_single_run_s_memory_plan_is_the_trace_its_run_uses(paper_plant, nomin
     exported-program cache is off here, so that the trace this test counts happens.)"""
     import functools
 
-    from hinfnn.sim import programs
+    from hinfnn import _programs as programs
 
     S = sim_module
     monkeypatch.setattr(programs.ExportedProgram, "_path", lambda self, key: None)

@@ -65,7 +65,7 @@ class StartupTrace:
     ``lower`` (jaxpr → StableHLO, outside compile) and ``trace`` (Python → jaxpr, outside both),
     with the number of programs (``programs``) and persistent cache hits, the names of the
     functions traced (``traced``: the run's chunk program is not among them when it was kept,
-    :mod:`hinfnn.sim.programs`), and the CPU time of
+    :mod:`hinfnn._programs`), and the CPU time of
     the process so far, all threads (``cpu``: tells a slow start from a busy machine). ``done`` adds
     ``chunk`` (wall time of the second chunk alone: what running a chunk costs once compiled), the
     points marked after the first chunk (``simulated``, ``files_written``, ``figures_written``:

@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _linalg as la
+from .._programs import kept
 from .._pytree import pytree_dataclass
 from ..model.geometry import Geometry
 from ..protocols import ContinuousPlant, Measurement, PlantRecord
@@ -205,7 +206,7 @@ class RigidBodyPlant(ContinuousPlant):
         return _effective_mass(self, jnp.asarray(q, dtype=float))
 
 
-@jax.jit
+@kept("effective_mass")
 def _effective_mass(plant, q):
     if plant.cartesian:
         t = plant.arm.plant_terms(q, jnp.zeros_like(q))
@@ -216,7 +217,7 @@ def _effective_mass(plant, q):
     return 1.0 / la.mm(Jn, jnp.linalg.solve(t.M, Jn))
 
 
-@jax.jit
+@kept("initial_q_cartesian")
 def _initial_q_cartesian(plant, u1, q, lo, hi):
     """Damped Newton (Levenberg–Marquardt) on r(q) = (h(q)[:m] − u1, d(p(q))) = 0, projected onto
     the joint limits [lo, hi]: the guess is clipped into them, a joint at a limit that the step

@@ -199,7 +199,9 @@ def _path_joints_program():
     import jax
     import jax.numpy as jnp
 
-    @jax.jit
+    from .._programs import kept
+
+    @kept("path_joints")
     def run(arm, surf, ref, t, q0):
         def one(q, ti):
             u1 = ref(ti).u1_d

@@ -54,7 +54,7 @@ from ..protocols import check as check_protocols
 from ..status import RunStatus, status_of
 from .integrate import rk4_step
 from .plan import SINGLE_RECORDS, StepPlan
-from .programs import ExportedProgram
+from .._programs import ExportedProgram, KeptFunction
 from .recorder import STEP_MAXES, STEP_SUMS, Accumulators, bookkeeping, pick, select
 from .trajectory import RunInfo, Trajectory
 
@@ -348,7 +348,7 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
     Horizon, dt, the hold period, the steps between samples and the samples a chunk takes are
     traced arguments, so a new t_final, dt or output interval reuses the compiled program (see
     :meth:`~hinfnn.sim.plan.StepPlan.chunk`). The chunk program is also kept traced and lowered
-    between processes (:class:`~hinfnn.sim.programs.ExportedProgram`)."""
+    between processes (:class:`~hinfnn._programs.ExportedProgram`)."""
     options = loop.compiler_options(n_joints)
     loop = loop.for_joints(n_joints)
     chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields)
@@ -359,9 +359,9 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
         final = jax.vmap(final, in_axes=(p, c, r, 0))
         init = jax.vmap(_init_carry, in_axes=(c, 0, None))
     chunk = ExportedProgram(_with_options(chunk, loop), "chunk", (in_axes, n_records, sampled, fields, loop),
-                            carry_arg=4, compiler_options=options)  # kept lowered on disk (hinfnn.sim.programs)
-    return (chunk, jax.jit(_with_options(final, loop), compiler_options=options),
-            jax.jit(_with_options(init, loop), static_argnums=2))
+                            carry_arg=4, compiler_options=options)  # kept lowered on disk (hinfnn._programs)
+    final = KeptFunction(_with_options(final, loop), "final", (in_axes, loop), compiler_options=options)
+    return chunk, final, jax.jit(_with_options(init, loop), static_argnums=2)
 
 
 def release_programs() -> None:
