@@ -1,4 +1,4 @@
-"""Compiled simulation programs kept traced and lowered on disk, so that a new process skips both.
+"""Compiled programs kept traced and lowered on disk, so that a new process skips both.
 
 A run's chunk program (:mod:`hinfnn.sim.simulate`) is traced (Python walks the plant, the
 controller and RK4: seconds for a 6-DOF arm) and lowered to StableHLO in every process that runs it,
@@ -15,7 +15,9 @@ folder (:func:`hinfnn.cache_dir`), keyed by everything that decides it:
 
 A later process with the same key loads it and calls it (``Exported.call``: nothing of hinfnn is
 traced; XLA's compilation is then found in the persistent cache), with the same numbers bit for bit
-(tests/test_cache.py). Programs that cannot be exported (a plant stepped by a host callback, such
+(tests/test_cache.py). :class:`KeptFunction` does the same for any function of pytrees whose result
+is arrays in plain containers (the start pose's solve, the scenario's path check, the final state:
+``kept``); :class:`ExportedProgram` is its form for a chunk. Programs that cannot be exported (a plant stepped by a host callback, such
 as MuJoCo) are traced as usual, and remembered as such. With the cache off
 (``HINFNN_CACHE_DIR=off``) everything is traced as usual.
 """

@@ -39,6 +39,7 @@ def split_aux(f, *args):
     made = {v for e in aux_eqns for v in e.outvars}
     res = list(dict.fromkeys(v for v in [*(v for e in aux_eqns for v in e.invars), *aux_out]
                              if isinstance(v, jcore.Var) and v not in made))
+
     def info(part, n_in, n_out):
         return jcore.DebugInfo(f"split_aux ({part})", jaxpr.debug_info.func_src_info, ("",) * n_in, ("",) * n_out)
 

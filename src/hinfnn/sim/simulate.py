@@ -48,13 +48,13 @@ import numpy as np
 
 from .. import _loop
 from .._loop import LoopOptions
+from .._programs import ExportedProgram, KeptFunction
 from .._pytree import all_finite, pytree_dataclass, structure_key
 from ..errors import ConfigError, SimulationError
 from ..protocols import check as check_protocols
 from ..status import RunStatus, status_of
 from .integrate import rk4_step
 from .plan import SINGLE_RECORDS, StepPlan
-from .._programs import ExportedProgram, KeptFunction
 from .recorder import STEP_MAXES, STEP_SUMS, Accumulators, bookkeeping, pick, select
 from .trajectory import RunInfo, Trajectory
 
