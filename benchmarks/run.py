@@ -776,13 +776,16 @@ def _print_ur5(c: dict) -> None:
                       + (f"; {branch} of the {ops['kernels']} kernels counted are in conditionals, counted as if "
                          "taken at every iteration" if branch else "") + ")")
     if "ur5_batch" in c and "error" not in c["ur5_batch"]:
-        hdr = (f"{'batch B':<16}{'1st run s':>10}{'wall s':>9}{'traj-steps/s':>14}{'µs/member-step':>16}"
+        hdr = (f"{'batch B':<16}{'1st run s':>10}{'wall s':>9}{'compile s':>10}{'traj-steps/s':>14}{'µs/member-step':>16}"
                f"{'× anchor':>9}{'peak GB':>8}{'failed':>7}")
         print(hdr + "\n" + "-" * len(hdr))
+        print("(compile s: the first run's time less the second's, the same horizon: what the first run paid "
+              "beyond running)")
         for B, r in c["ur5_batch"].items():
             if not isinstance(r, dict):
                 continue
-            print(f"{B:<16}{r['compile_s']:>10.1f}{r['wall_s']:>9.2f}{r['traj_steps_per_s']:>14,.0f}"
+            print(f"{B:<16}{r['compile_s']:>10.1f}{r['wall_s']:>9.2f}{r['compile_s'] - r['wall_s']:>10.1f}"
+                  f"{r['traj_steps_per_s']:>14,.0f}"
                   f"{r['us_per_member_step']:>16.1f}{ratio(r['us_per_member_step']):>9}"
                   f"{r.get('peak_rss_gb', float('nan')):>8.2f}{r['failed']:>7}")
     for name, label in (("ur5_latency", "async dispatch on"), ("ur5_latency_sync", "async dispatch off")):
@@ -949,7 +952,8 @@ def targets(c: dict) -> dict:
     for B, r in c.get("ur5_batch", {}).items():
         if isinstance(r, dict) and int(B) >= 256:
             add(f"UR5 B={B}: traj-steps/s", r["traj_steps_per_s"], ">=", TARGETS["ur5_batch_traj_steps_per_s"])
-            add(f"UR5 B={B}: first run (compile) s", r["compile_s"], "<=", TARGETS["ur5_batch_compile_s"])
+            add(f"UR5 B={B}: compile s (1st run - 2nd)", r["compile_s"] - r["wall_s"], "<=",
+                TARGETS["ur5_batch_compile_s"])
     if "median_us" in c.get("ur5_latency", {}):
         add("UR5 sampled update: median µs", c["ur5_latency"]["median_us"], "<=", TARGETS["ur5_latency_median_us"])
         add("UR5 sampled update: p99 µs", c["ur5_latency"]["p99_us"], "<=", TARGETS["ur5_latency_p99_us"])
