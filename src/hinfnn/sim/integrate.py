@@ -90,38 +90,31 @@ def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4, recor
 
         acc, _ = jax.lax.fori_loop(1, 4, later, (k1, k1))
         return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
-    cut = split_aux(f, t, y) if rolled and record_once else None
-    if cut is not None:
-        f_dy, f_aux, aux0 = cut
+    if rolled:
+        cut = split_aux(f, t, y) if record_once else None
+        if cut is not None:
+            f_dy, f_aux, aux0 = cut
+
+            def keep(first, res, old):  # stage 1's record, computed at stage 1 only
+                return jax.lax.cond(first, lambda r, o: f_aux(r), lambda r, o: o, res, old)
+        else:
+            f_dy = jax.jit(f, inline=True)  # traced once: for the shapes below and for the loop's body
+            aux0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(f_dy, t, y)[1])
+
+            def keep(first, new, old):  # every stage's aux computed, the first kept
+                return jax.tree.map(lambda a, b: jnp.where(first, a, b), new, old)
 
         def stage(i, state):
             acc, k, aux = state
             first = i == 0
             c = jnp.where(i == 3, 1.0, 0.5)  # stage 1 at (t, y); 2, 3 at t + dt/2 from k1, k2; 4 at t + dt
-            ki, res = f_dy(jnp.where(first, t, t + c * dt),
-                           jax.tree.map(lambda yi, kk: jnp.where(first, yi, yi + c * dt * kk), y, k))
+            ki, extra = f_dy(jnp.where(first, t, t + c * dt),
+                             jax.tree.map(lambda yi, kk: jnp.where(first, yi, yi + c * dt * kk), y, k))
             w = jnp.where(i == 3, 1.0, 2.0)
             acc = jax.tree.map(lambda a, kk: jnp.where(first, kk, a + w * kk), acc, ki)  # k1 + 2 k2 + 2 k3 + k4
-            aux = jax.lax.cond(first, lambda r, old: f_aux(r), lambda r, old: old, res, aux)  # stage 1's record
-            return acc, ki, aux
+            return acc, ki, keep(first, extra, aux)
 
         k0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(f_dy, t, y)[0])
-        acc, _, aux = jax.lax.fori_loop(0, 4, stage, (k0, k0, aux0))
-        return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
-    if rolled:
-        f = jax.jit(f, inline=True)  # traced once: for the shapes below and for the loop's body
-
-        def stage(i, state):
-            acc, k, aux = state
-            first = i == 0
-            c = jnp.where(i == 3, 1.0, 0.5)  # stage 1 at (t, y); 2, 3 at t + dt/2 from k1, k2; 4 at t + dt
-            ki, aux_i = f(jnp.where(first, t, t + c * dt),
-                          jax.tree.map(lambda yi, kk: jnp.where(first, yi, yi + c * dt * kk), y, k))
-            w = jnp.where(i == 3, 1.0, 2.0)
-            acc = jax.tree.map(lambda a, kk: jnp.where(first, kk, a + w * kk), acc, ki)  # k1 + 2 k2 + 2 k3 + k4
-            return acc, ki, jax.tree.map(lambda new, old: jnp.where(first, new, old), aux_i, aux)
-
-        k0, aux0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(f, t, y))
         acc, _, aux = jax.lax.fori_loop(0, 4, stage, (k0, k0, aux0))
         return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
     k1, aux = f(t, y)
