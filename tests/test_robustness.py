@@ -689,12 +689,14 @@ class _StderrReader:
 @pytest.mark.parametrize("phase", ["compiling", "simulating"])
 @pytest.mark.parametrize("sig,expected", [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"])
 def test_signal_during_run_leaves_no_output(tmp_path, sig, expected, phase):
-    """`hinfnn run paper --set simulation.t_final=20` interrupted while JAX compiles the run (2 s
+    """`hinfnn run paper --set simulation.t_final=60` interrupted while JAX compiles the run (2 s
     after the temporary folder appears) or while it simulates (after its first progress line):
     exit 130 (SIGINT) / 143 (SIGTERM), the message says nothing was written, and the parent
     folder is left empty (no output folder, no .partial-/.old- leftovers)."""
     out = tmp_path / "long"
-    proc = _popen(["run", "paper", "--set", "simulation.t_final=20", "--out", out], tmp_path)
+    # 60 s simulated: about 7 s of simulation, past the 3 s after which a pipe gets its first progress
+    # line (a 20-s run, once its setup programs were kept between processes, could end before it)
+    proc = _popen(["run", "paper", "--set", "simulation.t_final=60", "--out", out], tmp_path)
     reader = _StderrReader(proc)
     try:
         _wait_for(lambda: _partials(tmp_path, "long"), 60, "the temporary output folder")
