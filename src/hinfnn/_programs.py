@@ -93,10 +93,10 @@ class KeptFunction:
 
     # --- calling -------------------------------------------------------------------------------------
     def __call__(self, *args):
-        leaves = jax.tree.leaves(args)
+        leaves, treedef = jax.tree.flatten(args)
         if any(isinstance(x, jax.core.Tracer) for x in leaves):
             return self.jitted(*args)
-        entry = self._entry(args)
+        entry = self._entry(leaves, treedef)
         if entry is None:
             return self.jitted(*args)
         return self._output(args, entry, entry[0](*[_committed(x) for x in leaves]))
@@ -113,9 +113,8 @@ class KeptFunction:
 
         return flat
 
-    def _entry(self, args):
+    def _entry(self, leaves, treedef):
         """(the compiled call on flat leaves, the kept metadata, the output avals), or None to trace."""
-        leaves, treedef = jax.tree.flatten(args)
         key = self._key(treedef, leaves)
         if key in self._entries:
             return self._entries[key]
@@ -182,7 +181,7 @@ class ExportedProgram(KeptFunction):
 
     def eval_shape(self, *args):
         """The shapes of what a call returns (from the kept program, else by tracing)."""
-        entry = self._entry(args)
+        entry = self._entry(*jax.tree.flatten(args))
         if entry is None:
             return jax.eval_shape(self.jitted, *args)
         structs = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in entry[2]]
