@@ -288,11 +288,17 @@ def case_whole(args) -> dict:
     return whole.measure_whole(repeats=args.repeats)
 
 
-def case_latency(args, sync: bool = False) -> dict:
-    if sync:  # a robot process's setting: before JAX's first computation in this worker
-        import jax
+def _sync_dispatch() -> None:
+    """JAX's CPU async dispatch off, a robot process's setting (before JAX's first computation in
+    this worker)."""
+    import jax
 
-        jax.config.update("jax_cpu_enable_async_dispatch", False)
+    jax.config.update("jax_cpu_enable_async_dispatch", False)
+
+
+def case_latency(args, sync: bool = False) -> dict:
+    if sync:
+        _sync_dispatch()
     sys.path.insert(0, str(HERE))
     import latency
 
@@ -618,10 +624,8 @@ def case_ur5_latency(args, sync: bool = False) -> dict:
     """The UR5's sampled update (ur5-table-stable, H∞ + NN, 1 kHz) called from a Python loop as a
     robot's loop calls it (benchmarks/latency.py), JAX's CPU async dispatch on (the default) or,
     ``sync``, off (a robot process's setting, as in ``latency_sync``)."""
-    if sync:  # before JAX's first computation in this worker
-        import jax
-
-        jax.config.update("jax_cpu_enable_async_dispatch", False)
+    if sync:
+        _sync_dispatch()
     sys.path.insert(0, str(HERE))
     import latency
 

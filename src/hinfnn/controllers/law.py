@@ -19,7 +19,6 @@ Nothing here imports :mod:`hinfnn.plant`.
 from __future__ import annotations
 
 import dataclasses
-
 from typing import ClassVar
 
 import jax
@@ -183,10 +182,10 @@ class ReducedOrderController(Controller, Dissipative):
         return t.network if t is not None else None
 
     # --- the compiled loop's layout ---------------------------------------------------------------
-    def _blocks(self, A, kept):
-        """The m × m blocks of P_p or Q_p: those :meth:`prepared` kept, else cut here (None when
+    def _blocks(self, A, held):
+        """The m × m blocks of P_p or Q_p: those :meth:`prepared` holds, else cut here (None when
         the matrix is used whole)."""
-        return kept if kept is not None else split_blocks(A, self.m, self.block)
+        return held if held is not None else split_blocks(A, self.m, self.block)
 
     def prepared(self) -> "ReducedOrderController":
         """This controller as a compiled loop holds it: P_p, Q_p and the networks' centres also

@@ -21,7 +21,6 @@ are compositions of the terms below (:mod:`hinfnn.controllers.kinds`).
 from __future__ import annotations
 
 import dataclasses
-
 from typing import ClassVar
 
 import jax
