@@ -171,7 +171,10 @@ def _log_scale_jvp(primals, tangents):
         / jnp.where(small, c**3, 1.0)
     exact = (c / r - g) / (2.0 * jnp.where(small, 1.0, s2))
     g_s2 = jnp.where(small, series, exact)
-    return g, g_s2 * ds2 - dc / r
+    # g, ∂g/∂s2 and 1/r computed together, once (la.stored: one kernel in a compiled arm loop,
+    # where each division read twice would otherwise be a kernel of its own)
+    g, g_s2, r_inv = la.stored(jnp.stack([g, g_s2, 1.0 / r]))
+    return g, g_s2 * ds2 - dc * r_inv
 
 
 def so3_log(R):
@@ -182,9 +185,10 @@ def so3_log(R):
     every derivative (jacfwd, jvp, grad) are exact and finite at r = 0 (∂r = vee of the
     skew part of ∂R there). Singular at θ = π, where sin θ = 0 but θ / sin θ is unbounded.
     """
-    w = 0.5 * jnp.stack([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    w = (0.5 * (R[2, 1] - R[1, 2]), 0.5 * (R[0, 2] - R[2, 0]), 0.5 * (R[1, 0] - R[0, 1]))
     c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
-    return _log_scale(jnp.sum(w * w), c) * w
+    g = _log_scale(w[0] * w[0] + w[1] * w[1] + w[2] * w[2], c)  # elementwise: no reduction kernel
+    return jnp.stack([g * w[0], g * w[1], g * w[2]])
 
 
 def so3_exp(r):
@@ -333,7 +337,7 @@ class FittedTaskMap:
         F = self.geometry.frame(s)
         if self.space_dim == 3:
             Rd = F if self.R_off is None else la.mm(F, self.R_off)
-            return so3_log(la.mm(Rd.T, R))
+            return so3_log(la.stored(la.mm(Rd.T, R)))  # read by every entry of the log: computed once
         a, b = self.space_rows
         k = _AXES[self.tool_axis]
         v = jnp.stack([R[a, k], R[b, k]])
