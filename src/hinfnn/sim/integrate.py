@@ -105,17 +105,20 @@ def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4, recor
                 return jax.tree.map(lambda a, b: jnp.where(first, a, b), new, old)
 
         def stage(i, state):
-            acc, k, aux = state
+            # ys: this stage's state (stage 1 at (t, y); 2, 3 at t + dt/2 from k1, k2; 4 at t + dt
+            # from k3), made at the end of the stage before: the loop carries it, not k
+            acc, ys, aux = state
             first = i == 0
-            c = jnp.where(i == 3, 1.0, 0.5)  # stage 1 at (t, y); 2, 3 at t + dt/2 from k1, k2; 4 at t + dt
-            ki, extra = f_dy(jnp.where(first, t, t + c * dt),
-                             jax.tree.map(lambda yi, kk: jnp.where(first, yi, yi + c * dt * kk), y, k))
+            c = jnp.where(i == 3, 1.0, 0.5)
+            ki, extra = f_dy(jnp.where(first, t, t + c * dt), ys)
             w = jnp.where(i == 3, 1.0, 2.0)
             acc = jax.tree.map(lambda a, kk: jnp.where(first, kk, a + w * kk), acc, ki)  # k1 + 2 k2 + 2 k3 + k4
-            return acc, ki, keep(first, extra, aux)
+            c_next = jnp.where(i == 2, 1.0, 0.5)
+            ys = jax.tree.map(lambda yi, kk: yi + c_next * dt * kk, y, ki)
+            return acc, ys, keep(first, extra, aux)
 
         k0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(f_dy, t, y)[0])
-        acc, _, aux = jax.lax.fori_loop(0, 4, stage, (k0, k0, aux0))
+        acc, _, aux = jax.lax.fori_loop(0, 4, stage, (k0, y, aux0))
         return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
     k1, aux = f(t, y)
     k2, _ = f(t + 0.5 * dt, _axpy(0.5 * dt, k1, y))
