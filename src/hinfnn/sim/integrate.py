@@ -18,13 +18,15 @@ def _needed(eqns, outs):
     return keep[::-1]
 
 
-def split_aux(f, *args):
-    """``f(*args) = (dy, aux)`` traced once and cut in two: ``(first, second, aux0)`` with
+def split_aux(f, *args, every=()):
+    """``f(*args) = (dy, aux)`` traced once and cut in two: ``(first, second, aux0, partial)`` with
     ``first(*args) = (dy, residuals)``, the equations ``dy`` needs, and ``second(residuals) = aux``,
     the equations only ``aux`` needs (``residuals``: the values of the first that they read);
     ``aux0`` zeros of the shapes of ``aux``. The same operations as ``f``, so a stage that does not
-    keep its ``aux`` runs ``first`` alone, and XLA does not compute what no one reads. None when
-    ``f`` has side effects (it is then not cut)."""
+    keep its ``aux`` runs ``first`` alone, and XLA does not compute what no one reads.
+    ``partial(residuals, old)``: ``old`` (an aux) with the entries named in ``every`` (keys of a
+    dict aux) computed, by the equations those entries need alone. None when ``f`` has side
+    effects (it is then not cut)."""
     closed, shapes = jax.make_jaxpr(f, return_shape=True)(*args)
     jaxpr = closed.jaxpr
     if jaxpr.effects:
@@ -56,14 +58,28 @@ def split_aux(f, *args):
     def run_second(residuals):
         return jax.tree.unflatten(aux_tree, second(*residuals))
 
-    return run_first, run_second, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes[1])
+    paths = [p for p, _ in jax.tree_util.tree_flatten_with_path(shapes[1])[0]]
+    picked = [i for i, p in enumerate(paths) if p and getattr(p[0], "key", None) in set(every)]
+    part_out = [aux_out[i] for i in picked]
+    part = jcore.jaxpr_as_fun(jcore.ClosedJaxpr(
+        jcore.Jaxpr([], res, part_out, _needed(aux_eqns, part_out),
+                    debug_info=info("aux, every step", len(res), len(part_out))), []))
+
+    def run_partial(residuals, old):
+        leaves = list(jax.tree.leaves(old))
+        for i, v in zip(picked, part(*residuals)):
+            leaves[i] = v
+        return jax.tree.unflatten(aux_tree, leaves)
+
+    return run_first, run_second, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes[1]), run_partial
 
 
 def _axpy(a, x, y):
     return jax.tree.map(lambda xi, yi: yi + a * xi, x, y)
 
 
-def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4, record_once: bool = True):
+def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4, record_once: bool = True,
+             take=None, every=()):
     """One RK4 step of ẏ = f(t, y); ``f`` returns ``(dy, aux)``. Returns ``(y_next, aux_1)``,
     aux_1 the auxiliary output of the first stage (the state at the start of the step).
 
@@ -76,7 +92,9 @@ def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4, recor
     ``record_once`` (with 4 rolled stages): ``f`` cut by :func:`split_aux`, the equations of its aux
     alone under a ``lax.cond`` taken at stage 1 only, the others at every stage (``f``'s operations
     once in the program, its aux once per step); False: the aux computed at every stage, the first
-    kept."""
+    kept. ``take`` (with ``record_once``; a traced bool, or None: always): whether the whole aux is
+    wanted at this step; when not, only its entries named in ``every`` are computed and the others
+    are zeros (a simulation records every few steps, but checks τ and the contact at every step)."""
     if rolled and rolled_stages == 3:
         f = jax.jit(f, inline=True)  # traced once: for stage 1 and for the loop's body
         k1, aux = f(t, y)  # stage 1 at (t, y), with the auxiliary output
@@ -91,12 +109,15 @@ def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4, recor
         acc, _ = jax.lax.fori_loop(1, 4, later, (k1, k1))
         return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
     if rolled:
-        cut = split_aux(f, t, y) if record_once else None
+        cut = split_aux(f, t, y, every=every) if record_once else None
         if cut is not None:
-            f_dy, f_aux, aux0 = cut
+            f_dy, f_aux, aux0, f_part = cut
 
             def keep(first, res, old):  # stage 1's record, computed at stage 1 only
-                return jax.lax.cond(first, lambda r, o: f_aux(r), lambda r, o: o, res, old)
+                if take is None:
+                    return jax.lax.cond(first, lambda r, o: f_aux(r), lambda r, o: o, res, old)
+                which = jnp.where(first, jnp.where(take, 2, 1), 0)
+                return jax.lax.switch(which, (lambda r, o: o, f_part, lambda r, o: f_aux(r)), res, old)
         else:
             f_dy = jax.jit(f, inline=True)  # traced once: for the shapes below and for the loop's body
             aux0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(f_dy, t, y)[1])

@@ -131,6 +131,12 @@ class Carry:
     maxes: dict
 
 
+#: The record's entries a step reads at every step (its checks and the step summaries); the others
+#: are computed only at the steps that take a record.
+EVERY_STEP = ("tau", "penetration", "e_u1", "e_lam", "_cfault", "_cfault_value", "_pfault", "_pfault_value",
+              "_pfault_index")
+
+
 def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rolled=None):
     """(sample, step): the sampled-mode controller update at step k, and one step k -> k + 1
     with failure detection (a no-op for k ≥ n_steps) that also returns the record at step k.
@@ -159,8 +165,9 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
 
         return jax.lax.cond(due, update, lambda c: c, c)
 
-    def advance(t, y, w, held):
-        """(state after one step, the record at the step's start)."""
+    def advance(t, y, w, held, take=None):
+        """(state after one step, the record at the step's start; with ``take`` False, only its
+        entries every step reads: :data:`EVERY_STEP`)."""
         if discrete:
             meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, True)
             new_plant, qdd = plant.step(t, y.plant, held, dt)
@@ -169,7 +176,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **book}
         y_new, aux = rk4_step(lambda tt, yy: rhs(plant, ctrl, ref, tt, yy, w, held, sampled), t, y, dt,
                               rolled=rolled, rolled_stages=_loop.current().rolled_stages,
-                              record_once=_loop.current().record_once)
+                              record_once=_loop.current().record_once, take=take, every=EVERY_STEP)
         return SimState(plant=y_new.plant, xc=ctrl.constrain(y_new.xc), acc=y_new.acc), aux
 
     def step(c: Carry, k, first):
@@ -181,7 +188,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         t = k * dt
         c = sample(c, k, skip=first)
         y_in = c.y
-        y_new, aux = advance(t, y_in, plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt), c.held)
+        y_new, aux = advance(t, y_in, plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt), c.held, take=first)
         tau = aux["tau"]
         rec = dict(aux, tau_abs_max=jnp.maximum(c.tau_peak, jnp.abs(tau)),
                    tau_variation=c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev)),
@@ -277,7 +284,8 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
         def body(i, state):
             cc, rec = state
             cc, new = step(cc, k + i, jnp.asarray(i == 0, dtype=bool))
-            return cc, jax.tree.map(lambda a, b: jnp.where(i == 0, a, b), new, rec)
+            # the step's record kept at the first step only (a branch: no select per field at the others)
+            return cc, jax.lax.cond(i == 0, lambda a, b: a, lambda a, b: b, new, rec)
 
         c, rec = jax.lax.fori_loop(0, n_inner, body, (c, rec0))
         return c, _derived(ctrl, rec, fields)
