@@ -327,6 +327,37 @@ def test_split_aux_cuts_the_aux_alone_out_of_the_derivative():
     p1, p2 = prims(lambda t, y: first(t, y), t, y), prims(second, res)
     assert "exp" not in p1 and "reduce_sum" not in p1 and p1.count("sin") == 1 and "cos" in p1
     assert "exp" in p2 and "reduce_sum" in p2 and "sin" not in p2 and "cos" not in p2
+    # the partial cut (a step that takes no record): the entries named in `every` computed, bit
+    # for bit, the others left as they were, and none of the operations only the others need
+    *_, partial = split_aux(f, t, y, every=("b",))
+    old = {"a": jnp.asarray(7.0), "b": jnp.zeros(3)}
+    got = partial(res, old)
+    assert float(got["a"]) == 7.0
+    np.testing.assert_array_equal(got["b"], want_aux["b"])
+    p3 = prims(lambda r: partial(r, old), res)
+    assert "exp" not in p3 and "reduce_sum" not in p3
+
+
+def test_rk4_step_takes_the_whole_aux_only_when_asked():
+    """rk4_step's ``take`` (rolled stages, record_once): the state is the same whether the step
+    takes its aux or not, the entries in ``every`` are the first stage's either way, the others
+    zeros when not taken."""
+    import jax
+    import jax.numpy as jnp
+
+    from hinfnn.sim.integrate import rk4_step
+
+    def f(t, y):
+        return {"y": -y["y"] + jnp.sin(t)}, {"every": 2.0 * y["y"], "rest": jnp.exp(y["y"])}
+
+    y0 = {"y": jnp.array([0.3, -1.0])}
+    step = jax.jit(lambda y, take: rk4_step(f, 0.1, y, 0.01, rolled=True, take=take, every=("every",)))
+    (ya, aux_a), (yb, aux_b) = step(y0, True), step(y0, False)
+    np.testing.assert_array_equal(ya["y"], yb["y"])
+    np.testing.assert_array_equal(aux_a["every"], 2.0 * y0["y"])
+    np.testing.assert_array_equal(aux_b["every"], aux_a["every"])
+    np.testing.assert_allclose(aux_a["rest"], np.exp(y0["y"]), rtol=1e-15)  # XLA's exp and NumPy's: 1 ulp
+    assert not np.any(np.asarray(aux_b["rest"]))
 
     def g(t, y):
         jax.debug.callback(lambda v: None, y)
