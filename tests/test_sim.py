@@ -327,6 +327,13 @@ def test_split_aux_cuts_the_aux_alone_out_of_the_derivative():
     p1, p2 = prims(lambda t, y: first(t, y), t, y), prims(second, res)
     assert "exp" not in p1 and "reduce_sum" not in p1 and p1.count("sin") == 1 and "cos" in p1
     assert "exp" in p2 and "reduce_sum" in p2 and "sin" not in p2 and "cos" not in p2
+
+    def g(t, y):
+        jax.debug.callback(lambda v: None, y)
+        return f(t, y)
+
+    assert split_aux(g, t, y) is None
+
     # the partial cut (a step that takes no record): the entries named in `every` computed, bit
     # for bit, the others left as they were, and none of the operations only the others need
     *_, partial = split_aux(f, t, y, every=("b",))
@@ -358,12 +365,6 @@ def test_rk4_step_takes_the_whole_aux_only_when_asked():
     np.testing.assert_array_equal(aux_b["every"], aux_a["every"])
     np.testing.assert_allclose(aux_a["rest"], np.exp(y0["y"]), rtol=1e-15)  # XLA's exp and NumPy's: 1 ulp
     assert not np.any(np.asarray(aux_b["rest"]))
-
-    def g(t, y):
-        jax.debug.callback(lambda v: None, y)
-        return f(t, y)
-
-    assert split_aux(g, t, y) is None
 
 
 @pytest.fixture
