@@ -119,6 +119,16 @@ def test_run_figures(tmp_path, study):
                                  "weights.png"])
 
 
+def test_every_run_figure_can_be_asked_for_by_name():
+    """RUN_FIGURES (what ``hinfnn plot --figures`` accepts) names every figure run_figures writes:
+    errors.png, an arm's, was once refused by ``--figures errors``."""
+    import inspect
+    import re
+
+    written = set(re.findall(r'emit\("(\w+)\.png"', inspect.getsource(F.run_figures)))
+    assert written == set(F.RUN_FIGURES), written ^ set(F.RUN_FIGURES)
+
+
 def test_run_figures_without_weights_and_short_run(tmp_path):
     runs = {"hinf": make_run("hinf", t_final=0.05),
             "my $run": make_run("fl", t_final=0.05, damping=200.0, scaling="unit")}

@@ -589,7 +589,7 @@ def _t_end(runs: list[_Run]) -> float:
 MIN_SAMPLES_PER_PERIOD = 50
 
 #: Names of the figures each function can draw (``only=``).
-RUN_FIGURES = ("u1", "lambda", "tau", "J", "contact", "weights")
+RUN_FIGURES = ("u1", "errors", "lambda", "tau", "J", "contact", "weights")
 PAPER_FIGURES = ("fig3_u1_fl", "fig4_lambda_fl", "fig5_u1", "fig6_lambda", "fig7_tau1", "fig8_tau2", "fig9_J")
 
 
@@ -761,10 +761,11 @@ def run_figures(runs: dict[str, Trajectory], out_dir, *,
                 only: Sequence[str] | None = None) -> list[Path]:
     """Write the figures of ``hinfnn run`` for one or several named runs; return the paths.
 
-    ``u1.png`` (u1 and u1d), ``lambda.png`` (λ, λd, with zooms), ``tau.png`` (τ1, τ2, with
+    ``u1.png`` (u1 and u1d), ``errors.png`` (e_u1 per coordinate and e_λ; arms other than the
+    paper's), ``lambda.png`` (λ, λd, with zooms), ``tau.png`` (τ1, τ2, with
     zooms), ``J.png`` (eq. (34), log scale), ``contact.png`` (normal force in N, penetration
     in mm, with zooms) and ``weights.png`` (‖Θ̂p‖, ‖Θ̂f‖) when some run has nonzero
-    weights. Run names other than the controller kind are shown beside its description.
+    weights (:data:`RUN_FIGURES`, the names ``hinfnn plot --figures`` takes). Run names other than the controller kind are shown beside its description.
     ``only``: draw just these (names without ``.png``, e.g. ``["u1", "tau"]``).
     """
     out_dir = Path(out_dir)
