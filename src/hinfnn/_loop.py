@@ -51,8 +51,11 @@ Outside a trace the defaults apply.
     first stage, the rest at every stage. The program still holds the plant and the controller
     once; the record is computed once per step instead of four times. UR5 77.0 → 63.2 µs per
     step, Panda 323.8 → 256.0 µs (docs/performance.md); the numbers to rounding (2.8e-14
-    relative), not bit for bit, since XLA fuses the operations otherwise. False: the record
-    computed at every stage and the first kept.
+    relative), not bit for bit, since XLA fuses the operations otherwise. At the steps that store
+    no sample only the record's entries every step reads are computed
+    (:data:`hinfnn.sim.simulate.EVERY_STEP`, the ``take`` of
+    :func:`~hinfnn.sim.integrate.rk4_step`). False: the record computed at every stage and the
+    first kept.
 ``fusion_emitters``
     For arms of at least :data:`ROLL_FROM_JOINTS` joints (``None``, the default), the simulation's
     programs are compiled with XLA's older CPU loop emitters (the compile option

@@ -765,7 +765,8 @@ def run_figures(runs: dict[str, Trajectory], out_dir, *,
     paper's), ``lambda.png`` (λ, λd, with zooms), ``tau.png`` (τ1, τ2, with
     zooms), ``J.png`` (eq. (34), log scale), ``contact.png`` (normal force in N, penetration
     in mm, with zooms) and ``weights.png`` (‖Θ̂p‖, ‖Θ̂f‖) when some run has nonzero
-    weights (:data:`RUN_FIGURES`, the names ``hinfnn plot --figures`` takes). Run names other than the controller kind are shown beside its description.
+    weights (:data:`RUN_FIGURES`, the names ``hinfnn plot --figures`` takes). Run names other
+    than the controller kind are shown beside its description.
     ``only``: draw just these (names without ``.png``, e.g. ``["u1", "tau"]``).
     """
     out_dir = Path(out_dir)
