@@ -175,14 +175,14 @@ def _caller(sc, path: str, meas: dict):
 def program_flops(sc, path: str = "loop") -> float:
     """XLA's cost estimate (flops) of the compiled update. With async dispatch on, XLA's CPU
     client runs a program inline on the calling thread only below 1000 flops."""
-    if path == "loop" and sc.n_joints >= ROLL_FROM_JOINTS:
-        lowered = jax.jit(sc.step_leaves).lower(np.zeros(sc.sample_size), *jax.tree.leaves(sc.init()))
+    if path == "loop" and sc.n_joints >= ROLL_FROM_JOINTS:  # the programs SampledController compiles
+        lowered = sc._update_leaves.lower(np.zeros(sc.sample_size), *jax.tree.leaves(sc.init()))
     elif path == "loop":
-        lowered = jax.jit(sc.step_packed).lower(np.zeros(sc.packed_size))
+        lowered = sc._update_packed.lower(np.zeros(sc.packed_size))
     else:
         n = sc.n_joints
         m = Measurement(q=np.zeros(n), qd=np.zeros(n), force=np.zeros(sc.force_size))
-        lowered = jax.jit(sc.step).lower(0.0, PERIOD, sc.init(), m)
+        lowered = sc._update.lower(0.0, PERIOD, sc.init(), m)
     cost = lowered.compile().cost_analysis()
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost
     return float(cost.get("flops", float("nan")))
