@@ -29,7 +29,7 @@ import hlo  # noqa: E402
 _ARITH = re.compile(r"= (?:f64|f32|pred|s32|s64)\[([\d,]*)\]\S* (add|subtract|multiply|divide|tanh|sine|cosine|"
                     r"sqrt|rsqrt|maximum|minimum|select|compare|negate|exponential|atan2|abs|power|log|and|or|"
                     r"not|clamp)\(")
-_CALLS = re.compile(r"(?:calls|to_apply)=%?([\w.\-]+)")
+_CALLS = hlo._CALLS  # the computations an instruction calls (fusions, reductions)
 #: Helpers of hinfnn's small algebra: a kernel is attributed to the first caller outside them.
 HELPERS = re.compile(r"^(mm|store|stored|_stored|chol|chol_solve|_stored_columns|cross|dot|add|sub|scale|matvec|"
                      r"matmul|crm|crf|inertia_apply|_masked_sum|prefix|suffix|assemble|sdot|keep|grid_stack|table|"

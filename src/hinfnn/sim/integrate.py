@@ -59,7 +59,8 @@ def split_aux(f, *args, every=()):
         return jax.tree.unflatten(aux_tree, second(*residuals))
 
     paths = [p for p, _ in jax.tree_util.tree_flatten_with_path(shapes[1])[0]]
-    picked = [i for i, p in enumerate(paths) if p and getattr(p[0], "key", None) in set(every)]
+    every = set(every)
+    picked = [i for i, p in enumerate(paths) if p and getattr(p[0], "key", None) in every]
     part_out = [aux_out[i] for i in picked]
     part = jcore.jaxpr_as_fun(jcore.ClosedJaxpr(
         jcore.Jaxpr([], res, part_out, _needed(aux_eqns, part_out),
