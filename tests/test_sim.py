@@ -150,6 +150,32 @@ def test_sampled_control_at_high_rate_approaches_continuous(true_arm, true_surfa
     assert np.abs(np.diff(blocks[:, 0], axis=0)).max() > 0
 
 
+def test_sampled_accumulators_converge_at_second_order_across_the_holds(true_arm, true_surface, nominal_arm,
+                                                                        nominal_surface, reference):
+    """Sampled control: the plant alone at RK4's stages, the accumulators (J, J_aug, the supply) by
+    the trapezoidal rule from one evaluation per step, the jump of their rates at each sample
+    instant taken (the left limit from the state before the update). Against a dt = P/64 run of
+    the same sampled-data loop, the error falls as dt² (smooth scenario: damped contact kept
+    closed, no disturbance). Without the left limits the supply, whose rate jumps with the held
+    τ, would fall as dt (one O(dt) error per sample; measured order 1.19)."""
+    plant = make_plant(true_arm, true_surface, damping=200.0, disturbance=False)
+    ctrl = H.HinfNNController.design(nominal_arm, nominal_surface)
+    q0 = _preloaded_q0(plant)
+    P, T = 1.6e-3, 0.4
+
+    def accumulators(dt):
+        tr = H.simulate(plant, ctrl, reference, t_final=T, dt=dt, q0=q0, control_period=P)
+        assert tr.normal_force.min() > 0  # contact never opens
+        return np.array([tr.final[k] for k in ("J", "J_aug", "supply")])
+
+    fine = accumulators(P / 64)
+    dts = np.array([P / 4, P / 8, P / 16])
+    errs = np.array([np.abs(accumulators(dt) - fine) / np.abs(fine) for dt in dts])
+    orders = [np.polyfit(np.log(dts), np.log(errs[:, i]), 1)[0] for i in range(3)]
+    assert all(1.8 < p < 2.3 for p in orders), (errs, orders)
+    assert errs[-1].max() < 5e-4, errs  # dt = 0.1 ms: J 1.2e-4, supply 3.6e-5 relative
+
+
 # --- storage: decimated records, exact step statistics, field selection ------------------------
 
 def test_default_storage_is_one_sample_per_ms_and_size_follows_the_decimation(paper_plant, nominal_arm,
@@ -574,3 +600,38 @@ def test_the_step_loop_reads_no_array_larger_than_a_block(case, paper_plant, nom
     step_loop = next(_whiles(scan.params["jaxpr"].jaxpr))
     sizes = sorted(math.prod(v.aval.shape) for v in step_loop.params["body_jaxpr"].jaxpr.invars)
     assert (sizes[-1] <= BLOCK) == (case != "paper-unprepared"), sizes[-5:]
+
+
+def test_records_are_taken_in_blocks_whose_stacks_the_runtime_runs_inline(paper_plant, nominal_arm,
+                                                                          nominal_surface, reference, sim_module):
+    """``record_blocks``: a single run's 200 record slots are taken as 8 blocks of an inner scan of
+    25 (the paper's arm records at most 2 values per field), so no array the inner scan stacks
+    holds more than 64 values and XLA runs its body inline (a stacked 200-sample record sent it
+    through the runtime's scheduler once per sample: 10 µs per sample on the paper's arm, 70 on
+    the UR5). The same run with one scan over the samples gives the same numbers."""
+    import math
+
+    import jax.numpy as jnp
+
+    from hinfnn._loop import SEQUENTIAL_VALUES, LoopOptions
+
+    S = sim_module
+    ctrl = H.HinfNNController.design(nominal_arm, nominal_surface, H.Gains())
+    y0 = S.initial_state(paper_plant, ctrl, u1_0=U1_0)
+    carry = S._init_carry(ctrl, y0, paper_plant.n)
+    chunk = S._compiled.__wrapped__(None, S.SINGLE_RECORDS, False, S.select(None), LoopOptions(), paper_plant.n)[0]
+    traced = chunk.jitted.trace(paper_plant, ctrl, reference, S.Limits(), carry, jnp.asarray(0), jnp.asarray(6),
+                                jnp.asarray(1e-4), jnp.asarray(1), jnp.asarray(2), jnp.asarray(3))
+    blocks = next(e for e in traced.jaxpr.jaxpr.eqns if e.primitive.name == "scan")
+    inner = next(e for e in blocks.params["jaxpr"].jaxpr.eqns if e.primitive.name == "scan")
+    assert blocks.params["length"] * inner.params["length"] == S.SINGLE_RECORDS
+    n_carry = inner.params["num_carry"]
+    stacked = [math.prod(v.aval.shape) for v in inner.outvars[n_carry:]]  # (length, *field)
+    assert inner.params["length"] > 1 and max(stacked) <= SEQUENTIAL_VALUES, stacked
+
+    kw = dict(u1_0=U1_0, t_final=0.05, dt=1e-4, save_every=1)
+    one = H.simulate(paper_plant, ctrl, reference, loop=LoopOptions(record_blocks=False), **kw)
+    blocked = H.simulate(paper_plant, ctrl, reference, **kw)
+    assert one.arrays.keys() == blocked.arrays.keys()
+    for k in one.arrays:
+        np.testing.assert_allclose(blocked.arrays[k], one.arrays[k], rtol=1e-12, atol=1e-300, err_msg=k)

@@ -63,6 +63,15 @@ Outside a trace the defaults apply.
     the arm's rigid-body algorithms written out for fusion (:mod:`hinfnn.model.rbd`) make large
     fused kernels, which XLA's default emitters compile several times slower. ``True``: XLA's
     defaults for every arm. The paper's 2-joint arm keeps XLA's defaults.
+``record_blocks``
+    The stored samples of a chunk taken by a scan over blocks of samples, each block an inner
+    scan of as many samples as keep every array the inner loop stacks within
+    :data:`SEQUENTIAL_VALUES` values. XLA's CPU runtime runs a loop body's kernels one after the
+    other only when no kernel touches a larger buffer; the body that writes one sample into the
+    chunk's stacked records (200 × 6 values for a UR5's τ) otherwise sends its kernels (the sample
+    update of sampled control, σ_min's SVD, the record's copies) through its dataflow scheduler and
+    its thread pool, once per sample: about 70 µs per stored sample for the UR5, 10 µs for the
+    paper's arm (2026-12-03, sixth pass). False: one scan over the samples.
 ``batch_group``
     A batch of more than this many members runs as equal groups of at most that many, one after
     the other, through one compiled program (the last group padded with copies of its first
@@ -82,6 +91,11 @@ import dataclasses
 
 #: Arms with at least this many joints integrate with RK4's stages rolled (``rolled_rk4=None``).
 ROLL_FROM_JOINTS = 3
+#: XLA's CPU runtime runs a loop body's kernels one after the other, in the calling thread, only
+#: when no buffer they touch holds more than this many float64 values (512 bytes,
+#: ``execute_sequential_buffer_threshold`` in XLA's CPU executable); else through its dataflow
+#: scheduler and thread pool.
+SEQUENTIAL_VALUES = 64
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,6 +111,7 @@ class LoopOptions:
     rolled_stages: int = 4
     fusion_emitters: bool | None = None
     record_once: bool = True
+    record_blocks: bool = True
 
     def __post_init__(self):
         if not (isinstance(self.batch_group, int) and self.batch_group >= 0):
@@ -157,4 +172,4 @@ def active(options: LoopOptions):
         _ACTIVE.reset(token)
 
 
-__all__ = ["LoopOptions", "ROLL_FROM_JOINTS", "current", "active"]
+__all__ = ["LoopOptions", "ROLL_FROM_JOINTS", "SEQUENTIAL_VALUES", "current", "active"]

@@ -53,7 +53,7 @@ from .._pytree import all_finite, pytree_dataclass, structure_key
 from ..errors import ConfigError, SimulationError
 from ..protocols import check as check_protocols
 from ..status import RunStatus, status_of
-from .integrate import rk4_step
+from .integrate import rk4_step, rk4_step_first
 from .plan import SINGLE_RECORDS, StepPlan
 from .recorder import STEP_MAXES, STEP_SUMS, Accumulators, bookkeeping, pick, select
 from .trajectory import RunInfo, Trajectory
@@ -129,6 +129,10 @@ class Carry:
     tau_prev: jax.Array
     sums: dict
     maxes: dict
+    # sampled mode (continuous plant): the accumulators' rates at the previous step's start and,
+    # set by a sample update, at this step's start before it (NaN: none); the trapezoidal rule's ends
+    rate_prev: Accumulators
+    rate_minus: Accumulators
 
 
 #: The record's entries a step reads at every step (its checks and the step summaries); the others
@@ -142,7 +146,25 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
     with failure detection (a no-op for k ≥ n_steps) that also returns the record at step k.
     ``rolled``: RK4's stages as a loop (default: the active loop options' choice)."""
     discrete = plant.discrete
+    held_stages = sampled and not discrete  # the plant alone at RK4's stages, the record once per step
     rolled = _loop.current().rolled(plant.n) if rolled is None else rolled
+
+    def first_stage(y: SimState, w, held):
+        """Sampled mode at a step's start: a function of the plant's state giving ((its derivative
+        under the held torque, the accumulators' rates), the record)."""
+        def f1(tt, yp):
+            yy = SimState(plant=yp, xc=y.xc, acc=y.acc)
+            meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, tt, yy, w, held, True)
+            dplant, qdd = plant.derivative(tt, yp, tau, w, cache)
+            rates, book = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
+            return (dplant, rates), {**record, **book}
+        return f1
+
+    def plant_stage(w, held):
+        def f(tt, yp):
+            _, cache = plant.sense(tt, yp)
+            return plant.derivative(tt, yp, held, w, cache)[0]
+        return f
 
     def sample(c: Carry, k, skip=False):
         """At a sample instant: τ held from now on, controller state advanced by the controller's
@@ -156,12 +178,19 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         def update(c):
             t = k * dt
             y = c.y
-            meas, _ = plant.sense(t, y.plant)
-            tau_s, xc_s = ctrl.sample(t, n_hold * dt, y.xc, meas, ref)
+            meas, cache = plant.sense(t, y.plant)
+            out = ctrl.evaluate(t, y.xc, meas, ref)
+            tau_s, xc_s = ctrl.sample(t, n_hold * dt, y.xc, meas, ref, out=out)
             running = c.status == 0
             held = jnp.where(running, tau_s, c.held)
             xc = jax.tree.map(lambda new, old: jnp.where(running, new, old), xc_s, y.xc)
-            return dataclasses.replace(c, y=SimState(plant=y.plant, xc=xc, acc=y.acc), held=held)
+            new = dataclasses.replace(c, y=SimState(plant=y.plant, xc=xc, acc=y.acc), held=held)
+            if held_stages:  # the accumulators' rates just before the update: the left end of a jump
+                w = plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt)
+                _, qdd = plant.derivative(t, y.plant, c.held, w, cache)
+                rates, _ = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
+                new = dataclasses.replace(new, rate_minus=rates)
+            return new
 
         return jax.lax.cond(due, update, lambda c: c, c)
 
@@ -174,6 +203,11 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             rates, book = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
             acc = jax.tree.map(lambda a, r: a + dt * r, y.acc, rates)
             return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **book}
+        if held_stages:
+            yp, rates, aux = rk4_step_first(first_stage(y, w, held), plant_stage(w, held), t, y.plant, dt,
+                                            rolled=rolled, take=take if _loop.current().record_once else None,
+                                            every=EVERY_STEP)
+            return SimState(plant=yp, xc=y.xc, acc=y.acc), {**aux, "_rates": rates}
         y_new, aux = rk4_step(lambda tt, yy: rhs(plant, ctrl, ref, tt, yy, w, held, sampled), t, y, dt,
                               rolled=rolled, rolled_stages=_loop.current().rolled_stages,
                               record_once=_loop.current().record_once, take=take, every=EVERY_STEP)
@@ -189,6 +223,17 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         c = sample(c, k, skip=first)
         y_in = c.y
         y_new, aux = advance(t, y_in, plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt), c.held, take=first)
+        rate_prev, rate_minus = c.rate_prev, c.rate_minus
+        if held_stages:  # ∫ by the trapezoidal rule over step k − 1, from its start's rates to this start's
+            aux = dict(aux)
+            r_plus = aux.pop("_rates")
+            ends = jax.tree.map(lambda m, p: jnp.where(jnp.isnan(m), p, m), c.rate_minus, r_plus)
+            go = (c.status == 0) & ~jnp.isnan(c.rate_prev.J)
+            acc = jax.tree.map(lambda a, p, e: jnp.where(go, a + (0.5 * dt) * (p + e), a), y_in.acc, c.rate_prev, ends)
+            y_in, y_new = SimState(y_in.plant, y_in.xc, acc), SimState(y_new.plant, y_new.xc, acc)
+            if "J" in aux:
+                aux.update(J=acc.J, J_aug=acc.J_aug, supply=acc.supply)
+            rate_prev, rate_minus = r_plus, _no_rates()
         tau = aux["tau"]
         rec = dict(aux, tau_abs_max=jnp.maximum(c.tau_peak, jnp.abs(tau)),
                    tau_variation=c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev)),
@@ -227,7 +272,8 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             tau_tv=stat(c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
             tau_prev=jnp.where(count | first, tau, c.tau_prev),
             sums={name: stat(rec[name], c.sums[name]) for name in STEP_SUMS},
-            maxes={name: stat(rec[name], c.maxes[name]) for name in STEP_MAXES}), _stored(rec, fields)
+            maxes={name: stat(rec[name], c.maxes[name]) for name in STEP_MAXES},
+            rate_prev=rate_prev, rate_minus=rate_minus), _stored(rec, fields)
 
     return sample, step
 
@@ -290,7 +336,28 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
         c, rec = jax.lax.fori_loop(0, n_inner, body, (c, rec0))
         return c, _derived(ctrl, rec, fields)
 
-    return jax.lax.scan(one_record, carry, jnp.arange(n_records))
+    return _record_scan(one_record, carry, n_records)
+
+
+def _record_scan(one_record, carry, n_records):
+    """``lax.scan(one_record, carry, arange(n_records))``, by blocks when the loop options ask for it
+    (``record_blocks``): a scan over blocks of an inner scan over b samples, b the largest divisor
+    of ``n_records`` whose b samples of the largest recorded array (one member's, under ``vmap``)
+    hold at most :data:`hinfnn._loop.SEQUENTIAL_VALUES` values. The inner loop's body then touches
+    no larger buffer, and XLA runs its kernels inline; only the block loop writes the chunk's
+    stacked records. The same samples, in the same order."""
+    shapes = jax.eval_shape(one_record, carry, jnp.zeros((), jnp.int64))[1]
+    per = max([math.prod(x.shape) for x in jax.tree.leaves(shapes)] + [1])
+    fits = [b for b in range(2, n_records + 1) if n_records % b == 0 and b * per <= _loop.SEQUENTIAL_VALUES]
+    if not (_loop.current().record_blocks and fits):
+        return jax.lax.scan(one_record, carry, jnp.arange(n_records))
+    b = max(fits)
+
+    def block(c, i):
+        return jax.lax.scan(one_record, c, i * b + jnp.arange(b))
+
+    carry, recs = jax.lax.scan(block, carry, jnp.arange(n_records // b))
+    return carry, jax.tree.map(lambda x: x.reshape(n_records, *x.shape[2:]), recs)
 
 
 def _final(plant, ctrl, ref, carry):
@@ -328,7 +395,13 @@ def _init_carry(ctrl, y0, n):
                  tau_peak=jnp.zeros(n, f64), tau_tv=jnp.zeros(n, f64),
                  tau_prev=jnp.full(n, jnp.nan, f64),
                  sums={k: jnp.zeros(sizes.get(k, ()), f64) for k in STEP_SUMS},
-                 maxes={k: jnp.zeros((), f64) for k in STEP_MAXES})
+                 maxes={k: jnp.zeros((), f64) for k in STEP_MAXES},
+                 rate_prev=_no_rates(), rate_minus=_no_rates())
+
+
+def _no_rates() -> Accumulators:
+    nan = jnp.array(jnp.nan, dtype=jnp.float64)
+    return Accumulators(J=nan, J_aug=nan, supply=nan)
 
 
 def _with_options(fn, loop: LoopOptions):
