@@ -8,7 +8,13 @@ once, by :func:`hinfnn.protocols.check`, before anything is traced):
   evaluated at every stage from that stage's measurement (the paper's continuous-time control),
   or held by a zero-order hold between samples (``control_period``: τ computed at each sample
   instant by the controller's ``sample`` method, its state advanced by forward Euler over the
-  period);
+  period). Under a hold, RK4's stages integrate the plant alone
+  (:func:`~hinfnn.sim.integrate.rk4_step_first`); the controller is evaluated once per step, at
+  its start, for the record and the accumulators' rates, and the accumulators advance by the
+  trapezoidal rule, the jump of their rates at a sample instant taken (the rate just before the
+  update, from the sample's own evaluation): second order in dt (J about 1e-4 relative at
+  dt = 0.1 ms on a fast transient, 2e-7 on ``ur5-table-stable``), where RK4 at every stage was
+  fourth order at four evaluations per step;
 * a *discrete* plant (:class:`~hinfnn.protocols.DiscretePlant`, a physics engine) advances itself by
   ``plant.step`` every ``dt`` with the held torque; it always runs in the sampled-data mode, and
   the accumulators advance by the rectangle rule.
