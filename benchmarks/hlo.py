@@ -1,8 +1,9 @@
 """Kernels per RK4 step, read off the text of a compiled simulation chunk (XLA's optimised HLO).
 
-A chunk program is ENTRY → the scan over stored samples (a ``while``) → the loop over the steps
-between two samples (a ``while``) → with RK4's stages rolled, the loop over stages 2–4 (a ``while``
-with a known trip count). Every ``fusion``, ``dot``, ``custom-call`` (a LAPACK or library call),
+A chunk program is ENTRY → the scan over stored samples (a ``while`` with a known trip count; with
+the ``record_blocks`` loop option, a scan over blocks of an inner scan over samples, two) → the loop
+over the steps between two samples (a ``while`` whose trip count is traced) → with RK4's stages
+rolled, the loop over the stages (a ``while`` with a known trip count). Every ``fusion``, ``dot``, ``custom-call`` (a LAPACK or library call),
 ``reduce``-family instruction and ``copy`` left in a loop body is one kernel that XLA's CPU runtime
 launches on its own; a nested ``while`` counts its body times its trip count, a ``conditional``
 its largest branch (as if taken every time: an upper bound, with that part reported apart). What
@@ -129,20 +130,33 @@ def distinct(comps: dict, name: str) -> int:
     return n
 
 
+def step_loop(comps: dict, entry: str) -> str | None:
+    """The body of the loop over the steps between two samples: the first ``while`` below ENTRY,
+    through the scans over stored samples (known trip counts), whose trip count is traced."""
+    name = entry
+    while True:
+        loops = list(whiles(comps.get(name, ())))
+        if not loops:
+            return None
+        _, body, trip = loops[0]
+        if trip is None:
+            return body
+        name = body
+
+
 def step_kernels(text: str) -> dict:
-    """Per RK4 step of a compiled chunk (the body of the loop nested two deep from ENTRY: the
-    steps between two samples, with its nested loops, RK4's rolled stages, expanded): the kernels
+    """Per RK4 step of a compiled chunk (the body of :func:`step_loop`: the steps between two
+    samples, with its nested loops, RK4's rolled stages, expanded): the kernels
     XLA's CPU runtime launches, how many distinct kernels they come from (:func:`distinct`), how
     many of them are library calls (``custom-call``), and the transcendental operations (tanh, sin,
     cos, divide, exp, sqrt: values computed). Conditionals count by their largest branch as if taken
     at every iteration; ``kernels_in_conditionals`` is that part (so ``kernels`` is an upper bound).
     """
     comps, entry = computations(text)
-    for _, body, _ in whiles(comps.get(entry, ())):
-        inner = list(whiles(comps[body]))
-        if inner:
-            k, c, o, b = _walk(comps, inner[0][1])
-            return dict(kernels=k, distinct_kernels=distinct(comps, inner[0][1]), custom_calls=c,
-                        elementwise_per_step=o, kernels_in_conditionals=b)
+    body = step_loop(comps, entry)
+    if body is not None:
+        k, c, o, b = _walk(comps, body)
+        return dict(kernels=k, distinct_kernels=distinct(comps, body), custom_calls=c,
+                    elementwise_per_step=o, kernels_in_conditionals=b)
     return dict(kernels=None, distinct_kernels=None, custom_calls=None, elementwise_per_step={},
                 kernels_in_conditionals=None)

@@ -100,8 +100,7 @@ def kernel_table(text: str, loop: str = "stage") -> list:
             memo[name] = n
         return memo[name]
 
-    (_, body, _), = list(hlo.whiles(comps[entry]))
-    (_, body, _), = list(hlo.whiles(comps[body]))
+    body = hlo.step_loop(comps, entry)
     if loop == "stage":
         inner = list(hlo.whiles(comps[body]))
         if not inner:
