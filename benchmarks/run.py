@@ -775,8 +775,9 @@ def _print_ur5(c: dict) -> None:
                 per, branch = near["us_per_launch"], ops.get("kernels_in_conditionals") or 0
                 span = (f"{per * (ops['kernels'] - branch):.0f}–{per * ops['kernels']:.0f} µs" if branch
                         else f"about {per * ops['kernels']:.0f} µs")
-                print(f"{'':<16}(launching its kernels: {span} of the {r['us_per_step']:.0f} µs per step, at "
-                      f"{per:.3f} µs per launch in a loop of {near['distinct']} distinct kernels, launch_floor"
+                print(f"{'':<16}(its kernels at launch_floor's cost, a launch and a 6 × 6 product's work each: {span} "
+                      f"of the {r['us_per_step']:.0f} µs per step, at {per:.3f} µs per kernel in a loop of "
+                      f"{near['distinct']} distinct kernels"
                       + (f"; {branch} of the {ops['kernels']} kernels counted are in conditionals, counted as if "
                          "taken at every iteration" if branch else "") + ")")
     if "ur5_batch" in c and "error" not in c["ur5_batch"]:
