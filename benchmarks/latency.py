@@ -15,7 +15,7 @@ see :func:`compare_variants`):
 
 * ``loop``: ``tau = loop.update(t, period, q, qd, force)`` of a :class:`hinfnn.controllers.SampledLoop`
   (τ returned as NumPy): the fast path. For the paper's 2-joint arm ``SampledController.update_packed``
-  on one packed buffer; for arms of 3 joints or more ``SampledController.step_leaves`` on the packed
+  on one packed buffer; for arms of 3 joints or more ``SampledController.step_leaves_kept`` on the packed
   sample and the state's blocks kept on the device (no buffer above 512 bytes);
 * ``pytree``: ``tau, state = sc.update(t, period, state, Measurement(q, qd, force))`` followed by
   ``np.asarray(tau)``.
@@ -176,7 +176,7 @@ def program_flops(sc, path: str = "loop") -> float:
     """XLA's cost estimate (flops) of the compiled update. With async dispatch on, XLA's CPU
     client runs a program inline on the calling thread only below 1000 flops."""
     if path == "loop" and sc.n_joints >= ROLL_FROM_JOINTS:  # the programs SampledController compiles
-        lowered = sc._update_leaves.lower(np.zeros(sc.sample_size), *jax.tree.leaves(sc.init()))
+        lowered = sc._update_kept.lower(np.zeros(sc.sample_size), *jax.tree.leaves(sc.init()))
     elif path == "loop":
         lowered = sc._update_packed.lower(np.zeros(sc.packed_size))
     else:

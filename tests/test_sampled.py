@@ -312,9 +312,10 @@ def test_projection_keeps_weights_in_ball():
 
 # --- (e) an arm's robot loop: the state as its blocks, on the device -----------------------------------
 def test_an_arms_loop_keeps_its_state_in_blocks_and_equals_update():
-    """SampledLoop on the UR5 (ur5-table-stable, H∞ + NN) calls ``step_leaves``: τ and the state
-    equal ``update``'s over a changing measurement, to rounding; a NaN sample is rejected and leaves
-    the state where it was; ``reset`` restarts from ``init``; and no buffer of the compiled update
+    """SampledLoop on the UR5 (ur5-table-stable, H∞ + NN) calls ``step_leaves_kept`` (its state's
+    buffers donated): τ and the state equal ``update``'s over a changing measurement, to rounding; a
+    NaN sample is rejected and leaves the state where it was (the program keeps it); a state the
+    caller hands to a loop is not consumed by the donation; ``reset`` restarts from ``init``; and no buffer of the compiled update
     holds more than a block (64 values), the reason for this path (XLA's CPU runtime then runs the
     kernels inline: median 141 → 68 µs per call, benchmarks/run.py ``ur5_latency_sync``). The packed
     program of the same controller, for contrast, holds the 339-value packed state."""
@@ -349,6 +350,13 @@ def test_an_arms_loop_keeps_its_state_in_blocks_and_equals_update():
     np.testing.assert_allclose(sampled.state_vector(loop.state), want, rtol=1e-12, atol=1e-300)
     loop.reset()
     np.testing.assert_array_equal(sampled.state_vector(loop.state), sampled.state_vector(sampled.init()))
+    # the update donates the loop's state buffers: a state the caller passed in stays readable
+    mine = sampled.update(0.0, PERIOD, sampled.init(), Measurement(q=q0, qd=qd, force=force))[1]
+    kept = sampled.state_vector(mine)
+    other = sampled.loop(mine)
+    for k in range(3):
+        other.update(k * PERIOD, PERIOD, q0, qd, force)
+    np.testing.assert_array_equal(sampled.state_vector(mine), kept)
 
     def largest_buffer(compiled):  # values in the largest array an instruction of ENTRY makes
         text = compiled.as_text()
@@ -361,6 +369,7 @@ def test_an_arms_loop_keeps_its_state_in_blocks_and_equals_update():
 
     leaves = jax.tree.leaves(sampled.init())
     assert largest_buffer(sampled._update_leaves.lower(np.zeros(sampled.sample_size), *leaves).compile()) <= BLOCK
+    assert largest_buffer(sampled._update_kept.lower(np.zeros(sampled.sample_size), *leaves).compile()) <= BLOCK
     assert largest_buffer(sampled._update_packed.lower(np.zeros(sampled.packed_size)).compile()) >= 339
 
 

@@ -47,8 +47,8 @@ Entry points:
   and the state's leaves (blocks of at most 64 values), returning ``(τ, *new leaves)``: no buffer of
   the compiled program is larger than a block, so XLA runs its kernels inline. Pure.
 * :class:`SampledLoop` (``sc.loop()``) — the fast path for a robot loop: a small stateful
-  shell around ``step_leaves`` (arms of 3 joints or more; the state kept inside, on the device, as
-  its leaves) or ``update_packed`` (the paper's 2-joint arm; the state kept in the packed buffer)
+  shell around ``step_leaves_kept`` (arms of 3 joints or more; the state kept inside, on the
+  device, as its leaves, whose buffers each call donates to its outputs) or ``update_packed`` (the paper's 2-joint arm; the state kept in the packed buffer)
   with ``tau = loop.update(t, h, q, q̇, force)`` (NumPy τ).
 * :meth:`SampledController.update_checked` — validates its inputs in Python and raises
   :class:`MeasurementError` instead of returning NaN.
@@ -257,6 +257,15 @@ class SampledController:
         tau, new = self.step(x[0], x[1], jax.tree.unflatten(self._treedef, leaves), meas)
         return (tau, *jax.tree.leaves(new))
 
+    def step_leaves_kept(self, x, *leaves):
+        """:meth:`step_leaves` with the state kept: ``(τ, *leaves)`` where τ is all NaN (the sample
+        unusable), ``(τ, *new leaves)`` otherwise. What :class:`SampledLoop` calls on arms, with the
+        state's buffers donated: the outputs are written into the inputs' buffers, and the state
+        the loop holds is always the program's output (no buffer of a rejected sample to keep)."""
+        tau, *new = self.step_leaves(x, *leaves)
+        ok = tau[0] == tau[0]
+        return (tau, *(jnp.where(ok, a, b) for a, b in zip(new, leaves)))
+
     def torque_and_signals_fn(self, t, state: ControllerState, measurement: Measurement):
         """Traceable ``(τ, signals)`` at one instant (eqs. (24)–(33)); no state update."""
         out = self.controller.evaluate(jnp.asarray(t, dtype=float), state, _as_meas(measurement), self.reference)
@@ -272,12 +281,13 @@ class SampledController:
             raise TypeError("SampledController.reference must be a reference callable on t "
                             f"(e.g. hinfnn.CosineReference), got {type(self.reference).__name__}")
 
-    def _jit(self, fn):
+    def _jit(self, fn, **jit_kwargs):
         """``jax.jit(fn)``, traced with the loop options the simulator traces this arm with
         (:meth:`hinfnn._loop.LoopOptions.for_joints`: on arms of 3 or more joints the written-out
-        factorisations and the products computed once, ``arm_kernels``). UR5 update, async
-        dispatch off: median 59.3 → 46.0 µs (docs/performance.md, fifth pass); the paper's arm
-        is traced as before."""
+        factorisations and the products computed once, ``arm_kernels``) and compiled with its
+        compile options (XLA's older loop emitters on arms, as the simulator's programs). UR5
+        update, async dispatch off: median 59.3 → 46.0 µs (docs/performance.md, fifth pass); the
+        paper's arm is traced and compiled as before."""
         self._check_parts()
         opts = _loop.LoopOptions().for_joints(self.n_joints)
 
@@ -285,7 +295,7 @@ class SampledController:
         def traced(*args):
             with _loop.active(opts):
                 return fn(*args)
-        return jax.jit(traced)
+        return jax.jit(traced, compiler_options=opts.compiler_options(self.n_joints), **jit_kwargs)
 
     @functools.cached_property
     def _update(self):
@@ -298,6 +308,11 @@ class SampledController:
     @functools.cached_property
     def _update_leaves(self):
         return self._jit(self.step_leaves)
+
+    @functools.cached_property
+    def _update_kept(self):
+        n_leaves = len(jax.tree.leaves(self.init()))
+        return self._jit(self.step_leaves_kept, donate_argnums=tuple(range(1, 1 + n_leaves)))
 
     @functools.cached_property
     def _start(self):
@@ -414,8 +429,10 @@ class SampledLoop:
     A thin stateful shell (at the edge, like I/O) around a pure compiled update: it keeps the
     sample buffer ``[t, h, q, q̇, force]``, fills it in place, calls the update and returns τ as a
     NumPy array. Arms of at least :data:`hinfnn._loop.ROLL_FROM_JOINTS` joints call
-    :meth:`SampledController.step_leaves` with the controller state's leaves, kept on the device
-    between calls (UR5: median 141 → 68 µs per call with JAX's CPU async dispatch off); the
+    :meth:`SampledController.step_leaves_kept` with the controller state's leaves, kept on the
+    device between calls (UR5: median 141 → 68 µs per call with JAX's CPU async dispatch off), their
+    buffers donated to the outputs and the program compiled as the simulator's (about 43 → 36 µs,
+    p99 94–103 → 79–85 µs: docs/performance.md, sixth pass); the
     paper's 2-joint arm calls :meth:`SampledController.update_packed` with the state in the same
     packed buffer (one buffer in and one out: 20 µs against 26 µs with the leaves). q, q̇
     are NumPy-convertible vectors of shape (n,), force of shape (d,): the contact force the tool
@@ -453,15 +470,15 @@ class SampledLoop:
         self._buf = np.zeros(controller.packed_size if self._packed else self._ns)
         self._leaves = ()
         self._set_state(state)
-        self._fn = controller._update_packed if self._packed else controller._update_leaves
+        self._fn = controller._update_packed if self._packed else controller._update_kept
         self.rejected = 0
         self._pending_start = start and controller.controller.needs_start
 
     def _set_state(self, state: ControllerState) -> None:
         if self._packed:
             self._buf[self._ns:] = self.controller.state_vector(state)
-        else:
-            self._leaves = tuple(jnp.asarray(leaf, dtype=float) for leaf in jax.tree.leaves(state))
+        else:  # the loop's own buffers: the update donates them (its outputs take their place)
+            self._leaves = tuple(jnp.array(leaf, dtype=float, copy=True) for leaf in jax.tree.leaves(state))
 
     def update(self, t, period, q, qd, force) -> np.ndarray:
         """τ (NumPy, shape (n,), N·m) of eq. (24) for this sample; the state advances by forward
@@ -495,11 +512,10 @@ class SampledLoop:
             else:
                 self.rejected += 1
             return tau
-        out = self._fn(b, *self._leaves)
+        out = self._fn(b, *self._leaves)  # the state kept by the program itself when τ is NaN
+        self._leaves = out[1:]
         tau = np.asarray(out[0])
-        if tau[0] == tau[0]:
-            self._leaves = out[1:]
-        else:
+        if tau[0] != tau[0]:
             self.rejected += 1
         return tau
 
