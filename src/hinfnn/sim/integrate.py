@@ -79,43 +79,6 @@ def _axpy(a, x, y):
     return jax.tree.map(lambda xi, yi: yi + a * xi, x, y)
 
 
-def rk4_step_first(f1, f, t, y, dt, *, rolled: bool = False, take=None, every=()):
-    """One RK4 step of ẏ = f(t, y) whose first stage is ``f1(t, y) = ((dy, side), aux)``: the same
-    derivative, with values the step returns (``side``) and an auxiliary output, which the other
-    three stages do not compute (the sampled-data simulator: at the step's start the accumulators'
-    rates and the record, from the controller's evaluation; the plant's derivative alone at every
-    stage). Returns ``(y_next, side, aux)``, the same operations as :func:`rk4_step`.
-    ``rolled``: stages 2–4 a loop of three iterations. ``take``/``every`` as there: with ``take``
-    False (a traced bool), only ``aux``'s entries named in ``every`` are computed
-    (:func:`split_aux`: the equations ``dy`` and ``side`` need at every step, those of ``aux``
-    alone under a ``lax.cond``), the others zeros."""
-    cut = split_aux(f1, t, y, every=every) if take is not None else None
-    if cut is None:
-        (k1, side), aux = f1(t, y)
-    else:
-        f_dy, f_aux, aux0, f_part = cut
-        (k1, side), res = f_dy(t, y)
-        aux = jax.lax.cond(take, lambda r: f_aux(r), lambda r: f_part(r, aux0), res)
-    if rolled:  # stages 2–4 a loop of three iterations (the same operations in the same order)
-        def later(i, state):
-            acc, ys = state
-            c = jnp.where(i == 3, 1.0, 0.5)
-            ki = f(t + c * dt, ys)
-            w = jnp.where(i == 3, 1.0, 2.0)
-            c_next = jnp.where(i == 2, 1.0, 0.5)
-            return (jax.tree.map(lambda a, kk: a + w * kk, acc, ki),
-                    jax.tree.map(lambda yi, kk: yi + c_next * dt * kk, y, ki))
-
-        acc, _ = jax.lax.fori_loop(1, 4, later, (k1, _axpy(0.5 * dt, k1, y)))
-        return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), side, aux
-    k2 = f(t + 0.5 * dt, _axpy(0.5 * dt, k1, y))
-    k3 = f(t + 0.5 * dt, _axpy(0.5 * dt, k2, y))
-    k4 = f(t + dt, _axpy(dt, k3, y))
-    y_next = jax.tree.map(
-        lambda yi, a, b, c, d: yi + (dt / 6.0) * (a + 2.0 * b + 2.0 * c + d), y, k1, k2, k3, k4)
-    return y_next, side, aux
-
-
 def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4, record_once: bool = True,
              take=None, every=()):
     """One RK4 step of ẏ = f(t, y); ``f`` returns ``(dy, aux)``. Returns ``(y_next, aux_1)``,

@@ -8,13 +8,7 @@ once, by :func:`hinfnn.protocols.check`, before anything is traced):
   evaluated at every stage from that stage's measurement (the paper's continuous-time control),
   or held by a zero-order hold between samples (``control_period``: τ computed at each sample
   instant by the controller's ``sample`` method, its state advanced by forward Euler over the
-  period). Under a hold, RK4's stages integrate the plant alone
-  (:func:`~hinfnn.sim.integrate.rk4_step_first`); the controller is evaluated once per step, at
-  its start, for the record and the accumulators' rates, and the accumulators advance by the
-  trapezoidal rule, the jump of their rates at a sample instant taken (the rate just before the
-  update, from the sample's own evaluation): second order in dt (J about 1e-4 relative at
-  dt = 0.1 ms on a fast transient, 2e-7 on ``ur5-table-stable``), where RK4 at every stage was
-  fourth order at four evaluations per step;
+  period);
 * a *discrete* plant (:class:`~hinfnn.protocols.DiscretePlant`, a physics engine) advances itself by
   ``plant.step`` every ``dt`` with the held torque; it always runs in the sampled-data mode, and
   the accumulators advance by the rectangle rule.
@@ -59,7 +53,7 @@ from .._pytree import all_finite, pytree_dataclass, structure_key
 from ..errors import ConfigError, SimulationError
 from ..protocols import check as check_protocols
 from ..status import RunStatus, status_of
-from .integrate import rk4_step, rk4_step_first
+from .integrate import rk4_step
 from .plan import SINGLE_RECORDS, StepPlan
 from .recorder import STEP_MAXES, STEP_SUMS, Accumulators, bookkeeping, pick, select
 from .trajectory import RunInfo, Trajectory
@@ -135,10 +129,6 @@ class Carry:
     tau_prev: jax.Array
     sums: dict
     maxes: dict
-    # sampled mode (continuous plant): the accumulators' rates at the previous step's start and,
-    # set by a sample update, at this step's start before it (NaN: none); the trapezoidal rule's ends
-    rate_prev: Accumulators
-    rate_minus: Accumulators
 
 
 #: The record's entries a step reads at every step (its checks and the step summaries); the others
@@ -152,25 +142,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
     with failure detection (a no-op for k ≥ n_steps) that also returns the record at step k.
     ``rolled``: RK4's stages as a loop (default: the active loop options' choice)."""
     discrete = plant.discrete
-    held_stages = sampled and not discrete  # the plant alone at RK4's stages, the record once per step
     rolled = _loop.current().rolled(plant.n) if rolled is None else rolled
-
-    def first_stage(y: SimState, w, held):
-        """Sampled mode at a step's start: a function of the plant's state giving ((its derivative
-        under the held torque, the accumulators' rates), the record)."""
-        def f1(tt, yp):
-            yy = SimState(plant=yp, xc=y.xc, acc=y.acc)
-            meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, tt, yy, w, held, True)
-            dplant, qdd = plant.derivative(tt, yp, tau, w, cache)
-            rates, book = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
-            return (dplant, rates), {**record, **book}
-        return f1
-
-    def plant_stage(w, held):
-        def f(tt, yp):
-            _, cache = plant.sense(tt, yp)
-            return plant.derivative(tt, yp, held, w, cache)[0]
-        return f
 
     def sample(c: Carry, k, skip=False):
         """At a sample instant: τ held from now on, controller state advanced by the controller's
@@ -184,19 +156,12 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         def update(c):
             t = k * dt
             y = c.y
-            meas, cache = plant.sense(t, y.plant)
-            out = ctrl.evaluate(t, y.xc, meas, ref)
-            tau_s, xc_s = ctrl.sample(t, n_hold * dt, y.xc, meas, ref, out=out)
+            meas, _ = plant.sense(t, y.plant)
+            tau_s, xc_s = ctrl.sample(t, n_hold * dt, y.xc, meas, ref)
             running = c.status == 0
             held = jnp.where(running, tau_s, c.held)
             xc = jax.tree.map(lambda new, old: jnp.where(running, new, old), xc_s, y.xc)
-            new = dataclasses.replace(c, y=SimState(plant=y.plant, xc=xc, acc=y.acc), held=held)
-            if held_stages:  # the accumulators' rates just before the update: the left end of a jump
-                w = plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt)
-                _, qdd = plant.derivative(t, y.plant, c.held, w, cache)
-                rates, _ = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
-                new = dataclasses.replace(new, rate_minus=rates)
-            return new
+            return dataclasses.replace(c, y=SimState(plant=y.plant, xc=xc, acc=y.acc), held=held)
 
         return jax.lax.cond(due, update, lambda c: c, c)
 
@@ -209,11 +174,6 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             rates, book = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
             acc = jax.tree.map(lambda a, r: a + dt * r, y.acc, rates)
             return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **book}
-        if held_stages:
-            yp, rates, aux = rk4_step_first(first_stage(y, w, held), plant_stage(w, held), t, y.plant, dt,
-                                            rolled=rolled, take=take if _loop.current().record_once else None,
-                                            every=EVERY_STEP)
-            return SimState(plant=yp, xc=y.xc, acc=y.acc), {**aux, "_rates": rates}
         y_new, aux = rk4_step(lambda tt, yy: rhs(plant, ctrl, ref, tt, yy, w, held, sampled), t, y, dt,
                               rolled=rolled, rolled_stages=_loop.current().rolled_stages,
                               record_once=_loop.current().record_once, take=take, every=EVERY_STEP)
@@ -229,17 +189,6 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         c = sample(c, k, skip=first)
         y_in = c.y
         y_new, aux = advance(t, y_in, plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt), c.held, take=first)
-        rate_prev, rate_minus = c.rate_prev, c.rate_minus
-        if held_stages:  # ∫ by the trapezoidal rule over step k − 1, from its start's rates to this start's
-            aux = dict(aux)
-            r_plus = aux.pop("_rates")
-            ends = jax.tree.map(lambda m, p: jnp.where(jnp.isnan(m), p, m), c.rate_minus, r_plus)
-            go = (c.status == 0) & ~jnp.isnan(c.rate_prev.J)
-            acc = jax.tree.map(lambda a, p, e: jnp.where(go, a + (0.5 * dt) * (p + e), a), y_in.acc, c.rate_prev, ends)
-            y_in, y_new = SimState(y_in.plant, y_in.xc, acc), SimState(y_new.plant, y_new.xc, acc)
-            if "J" in aux:
-                aux.update(J=acc.J, J_aug=acc.J_aug, supply=acc.supply)
-            rate_prev, rate_minus = r_plus, _no_rates()
         tau = aux["tau"]
         rec = dict(aux, tau_abs_max=jnp.maximum(c.tau_peak, jnp.abs(tau)),
                    tau_variation=c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev)),
@@ -278,8 +227,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             tau_tv=stat(c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
             tau_prev=jnp.where(count | first, tau, c.tau_prev),
             sums={name: stat(rec[name], c.sums[name]) for name in STEP_SUMS},
-            maxes={name: stat(rec[name], c.maxes[name]) for name in STEP_MAXES},
-            rate_prev=rate_prev, rate_minus=rate_minus), _stored(rec, fields)
+            maxes={name: stat(rec[name], c.maxes[name]) for name in STEP_MAXES}), _stored(rec, fields)
 
     return sample, step
 
@@ -401,13 +349,7 @@ def _init_carry(ctrl, y0, n):
                  tau_peak=jnp.zeros(n, f64), tau_tv=jnp.zeros(n, f64),
                  tau_prev=jnp.full(n, jnp.nan, f64),
                  sums={k: jnp.zeros(sizes.get(k, ()), f64) for k in STEP_SUMS},
-                 maxes={k: jnp.zeros((), f64) for k in STEP_MAXES},
-                 rate_prev=_no_rates(), rate_minus=_no_rates())
-
-
-def _no_rates() -> Accumulators:
-    nan = jnp.array(jnp.nan, dtype=jnp.float64)
-    return Accumulators(J=nan, J_aug=nan, supply=nan)
+                 maxes={k: jnp.zeros((), f64) for k in STEP_MAXES})
 
 
 def _with_options(fn, loop: LoopOptions):
