@@ -3,12 +3,12 @@
 A chunk program is ENTRY → the scan over stored samples (a ``while`` with a known trip count; with
 the ``record_blocks`` loop option, a scan over blocks of an inner scan over samples, two) → the loop
 over the steps between two samples (a ``while`` whose trip count is traced) → with RK4's stages
-rolled, the loop over the stages (a ``while`` with a known trip count). Every ``fusion``, ``dot``, ``custom-call`` (a LAPACK or library call),
-``reduce``-family instruction and ``copy`` left in a loop body is one kernel that XLA's CPU runtime
-launches on its own; a nested ``while`` counts its body times its trip count, a ``conditional``
-its largest branch (as if taken every time: an upper bound, with that part reported apart). What
-is counted is the step loop's body (the steps after the first of each sample), the steady state of
-a run.
+rolled, the loop over the stages (a ``while`` with a known trip count). Every ``fusion``, ``dot``,
+``custom-call`` (a LAPACK or library call), ``reduce``-family instruction and ``copy`` left in a
+loop body is one kernel that XLA's CPU runtime launches on its own; a nested ``while`` counts its
+body times its trip count, a ``conditional`` its largest branch (as if taken every time: an upper
+bound, with that part reported apart). What is counted is the step loop's body (the steps after the
+first of each sample), the steady state of a run.
 
 Used by ``benchmarks/run.py`` (``kernels/step`` columns) and usable on a dump
 (``XLA_FLAGS=--xla_dump_to=DIR``, ``*.cpu_after_optimizations.txt``) of any version of hinfnn.

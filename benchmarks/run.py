@@ -337,7 +337,7 @@ def case_device_run(args) -> dict:
 #: The switches of ``--disable``: the loop options (hinfnn._loop.LoopOptions) and the controller's
 #: block layout (``blocks``).
 SWITCHES = ("blocks", "sincos", "small_mm", "rolled_rk4", "batch_groups", "arm_kernels", "rolled_stages",
-            "fusion_emitters", "record_once")
+            "fusion_emitters", "record_once", "record_blocks")
 
 
 def _loop_options(args):
@@ -352,7 +352,8 @@ def _loop_options(args):
               batch_group=0 if "batch_groups" in off else LoopOptions().batch_group)
     have = {f.name for f in dataclasses.fields(LoopOptions)}  # options of the hinfnn being measured
     extra = {"arm_kernels": ("arm_kernels", False), "rolled_stages": ("rolled_stages", 3),
-             "fusion_emitters": ("fusion_emitters", True), "record_once": ("record_once", False)}
+             "fusion_emitters": ("fusion_emitters", True), "record_once": ("record_once", False),
+             "record_blocks": ("record_blocks", False)}
     for switch, (name, value) in extra.items():
         if switch in off:
             if name not in have:

@@ -315,9 +315,10 @@ def test_an_arms_loop_keeps_its_state_in_blocks_and_equals_update():
     """SampledLoop on the UR5 (ur5-table-stable, H∞ + NN) calls ``step_leaves_kept`` (its state's
     buffers donated): τ and the state equal ``update``'s over a changing measurement, to rounding; a
     NaN sample is rejected and leaves the state where it was (the program keeps it); a state the
-    caller hands to a loop is not consumed by the donation; ``reset`` restarts from ``init``; and no buffer of the compiled update
-    holds more than a block (64 values), the reason for this path (XLA's CPU runtime then runs the
-    kernels inline: median 141 → 68 µs per call, benchmarks/run.py ``ur5_latency_sync``). The packed
+    caller hands to a loop is not consumed by the donation; ``reset`` restarts from ``init``; and
+    no buffer of the compiled update holds more than a block (64 values), the reason for this path
+    (XLA's CPU runtime then runs the kernels inline: median 141 → 68 µs per call, benchmarks/run.py
+    ``ur5_latency_sync``). The packed
     program of the same controller, for contrast, holds the 339-value packed state."""
     import math
     import re

@@ -48,8 +48,9 @@ Entry points:
   the compiled program is larger than a block, so XLA runs its kernels inline. Pure.
 * :class:`SampledLoop` (``sc.loop()``) — the fast path for a robot loop: a small stateful
   shell around ``step_leaves_kept`` (arms of 3 joints or more; the state kept inside, on the
-  device, as its leaves, whose buffers each call donates to its outputs) or ``update_packed`` (the paper's 2-joint arm; the state kept in the packed buffer)
-  with ``tau = loop.update(t, h, q, q̇, force)`` (NumPy τ).
+  device, as its leaves, whose buffers each call donates to its outputs) or ``update_packed``
+  (the paper's 2-joint arm; the state kept in the packed buffer) with
+  ``tau = loop.update(t, h, q, q̇, force)`` (NumPy τ).
 * :meth:`SampledController.update_checked` — validates its inputs in Python and raises
   :class:`MeasurementError` instead of returning NaN.
 * :meth:`SampledController.torque_and_signals` — τ and every named signal, for logging.
