@@ -307,10 +307,6 @@ class SampledController:
         return self._jit(self.step_packed)
 
     @functools.cached_property
-    def _update_leaves(self):
-        return self._jit(self.step_leaves)
-
-    @functools.cached_property
     def _update_kept(self):
         n_leaves = len(jax.tree.leaves(self.init()))
         return self._jit(self.step_leaves_kept, donate_argnums=tuple(range(1, 1 + n_leaves)))
