@@ -308,8 +308,7 @@ class SampledController:
 
     @functools.cached_property
     def _update_kept(self):
-        n_leaves = len(jax.tree.leaves(self.init()))
-        return self._jit(self.step_leaves_kept, donate_argnums=tuple(range(1, 1 + n_leaves)))
+        return self._jit(self.step_leaves_kept, donate_argnums=tuple(range(1, 1 + self._treedef.num_leaves)))
 
     @functools.cached_property
     def _start(self):
