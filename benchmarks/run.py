@@ -239,19 +239,6 @@ def draw_plants(B: int, seed: int = 0, spread: float = 0.2):
     return plants, q0s, B / tried
 
 
-def _threads(args) -> int:
-    """The threads simulate_batch runs a batch's groups on (``--threads``; default: the cores)."""
-    from hinfnn.sim.simulate import batch_threads
-
-    return batch_threads(args.threads)
-
-
-def _groups(B, args, loop=None):
-    from hinfnn._loop import LoopOptions
-
-    return (loop or LoopOptions()).groups(B, _threads(args))
-
-
 def case_batch(args) -> dict:
     import hinfnn as H
 
@@ -263,12 +250,11 @@ def case_batch(args) -> dict:
         rss0 = peak_rss_gb()
         t0 = time.perf_counter()
         # the same program as the timed run (what it stores is part of the program): compiled here
-        H.simulate_batch(plants, ctrl, ref, t_final=0.01, dt=DT, q0=q0s, fields=args.batch_fields, threads=args.threads)
+        H.simulate_batch(plants, ctrl, ref, t_final=0.01, dt=DT, q0=q0s, fields=args.batch_fields)
         compile_s = time.perf_counter() - t0
         horizon = args.batch_horizon
         t0 = time.perf_counter()
-        tr = H.simulate_batch(plants, ctrl, ref, t_final=horizon, dt=DT, q0=q0s, fields=args.batch_fields,
-                              threads=args.threads)
+        tr = H.simulate_batch(plants, ctrl, ref, t_final=horizon, dt=DT, q0=q0s, fields=args.batch_fields)
         wall = time.perf_counter() - t0
         stored = sum(v.nbytes for v in tr.arrays.values())
         metrics = [H.compute_metrics(tr.member(i)) for i in range(B)]  # what the study is for
@@ -277,7 +263,6 @@ def case_batch(args) -> dict:
                             traj_steps_per_s=B * round(horizon / DT) / wall,
                             s_per_1000_runs_of_10s=1000 * T_RUN / DT / (B * round(horizon / DT) / wall),
                             compile_s=compile_s, acceptance=acc, completed=int(tr.ok.sum()),
-                            threads=_threads(args), groups=len(_groups(B, args)),
                             fields=args.batch_fields, n_fields=len(tr.arrays),
                             median_rms_e_lam_last2s=statistics.median([m["rms_e_lam_last2s"] for m in done])
                             if done else None,
@@ -667,7 +652,7 @@ def case_ur5_batch(args) -> dict:
     q0 = sc.initial_q(plant)
     out = {}
     for B in args.arm_batches:
-        kw = dict(dt=DT, q0=[q0] * B, fields="metrics", loop=loop, threads=args.threads)
+        kw = dict(dt=DT, q0=[q0] * B, fields="metrics", loop=loop)
         t0 = time.perf_counter()  # the first run of the timed horizon: compiled (a batch's chunk size follows it)
         H.simulate_batch([plant] * B, ctrl, ref, t_final=args.arm_batch_horizon, **kw)
         compile_s = time.perf_counter() - t0
@@ -676,7 +661,6 @@ def case_ur5_batch(args) -> dict:
         wall = time.perf_counter() - t0
         rate = B * round(args.arm_batch_horizon / DT) / wall
         out[str(B)] = dict(compile_s=compile_s, wall_s=wall, traj_steps_per_s=rate, us_per_member_step=1e6 / rate,
-                           threads=_threads(args), groups=len(_groups(B, args, loop)),
                            failed=int((np.asarray(traj.status) != 0).sum()), peak_rss_gb=peak_rss_gb())
         print(f"ur5_batch B={B}: {json.dumps(out[str(B)])}", file=sys.stderr, flush=True)  # kept if killed
     return out
@@ -727,8 +711,6 @@ def run_worker(case: str, args) -> dict:
                "--arm-batches", *map(str, args.arm_batches)]
         if getattr(args, "disable", None):
             cmd += ["--disable", *args.disable]
-        if getattr(args, "threads", None) is not None:
-            cmd += ["--threads", str(args.threads)]
         # compile times are cold: a fresh, empty compilation cache for every worker (case 3
         # measures the cache itself)
         env = dict(os.environ, HINFNN_CACHE_DIR=str(Path(tmp) / "jax-cache"))
@@ -801,7 +783,7 @@ def _print_ur5(c: dict) -> None:
                          "taken at every iteration" if branch else "") + ")")
     if "ur5_batch" in c and "error" not in c["ur5_batch"]:
         hdr = (f"{'batch B':<16}{'1st run s':>10}{'wall s':>9}{'compile s':>10}{'traj-steps/s':>14}{'µs/member-step':>16}"
-               f"{'× anchor':>9}{'peak GB':>8}{'failed':>7}{'groups':>8}")
+               f"{'× anchor':>9}{'peak GB':>8}{'failed':>7}")
         print(hdr + "\n" + "-" * len(hdr))
         print("(compile s: the first run's time less the second's, the same horizon: what the first run paid "
               "beyond running)")
@@ -811,7 +793,7 @@ def _print_ur5(c: dict) -> None:
             print(f"{B:<16}{r['compile_s']:>10.1f}{r['wall_s']:>9.2f}{r['compile_s'] - r['wall_s']:>10.1f}"
                   f"{r['traj_steps_per_s']:>14,.0f}"
                   f"{r['us_per_member_step']:>16.1f}{ratio(r['us_per_member_step']):>9}"
-                  f"{r.get('peak_rss_gb', float('nan')):>8.2f}{r['failed']:>7}{_groups_text(r):>8}")
+                  f"{r.get('peak_rss_gb', float('nan')):>8.2f}{r['failed']:>7}")
     for name, label in (("ur5_latency", "async dispatch on"), ("ur5_latency_sync", "async dispatch off")):
         lat = c.get(name, {})
         if "median_us" in lat:
@@ -822,11 +804,6 @@ def _print_ur5(c: dict) -> None:
     if "cold" in w:
         print(f"`hinfnn run ur5-table --no-figures` (10 s) process: cold {w['cold']['wall_s']:.1f} s "
               f"(CPU {w['cold']['cpu_s']:.1f}), warm {w['warm']['wall_s']:.1f} s (CPU {w['warm']['cpu_s']:.1f})")
-
-
-def _groups_text(r: dict) -> str:
-    """'G on T': a batch run as G groups on T threads (results older than the threads: blank)."""
-    return f"{r['groups']} on {r['threads']}" if "groups" in r else ""
 
 
 def print_report(res: dict) -> None:
@@ -866,13 +843,13 @@ def print_report(res: dict) -> None:
         print(f"\n2. Adaptive controller, B parameter sets (±20 %) under vmap, storing "
               f"{first['n_fields']} fields ({first['fields']}) every 1 ms")
         hdr = (f"{'B':>6}{'horizon s':>10}{'wall s':>9}{'traj-steps/s':>14}{'1000×10 s runs, s':>19}"
-               f"{'compile s':>10}{'completed':>10}{'stored GB':>10}{'peak GB':>9}{'groups':>8}")
+               f"{'compile s':>10}{'completed':>10}{'stored GB':>10}{'peak GB':>9}")
         print(hdr)
         print("-" * len(hdr))
         for r in c["batch"]["rows"].values():
             print(f"{r['batch']:>6}{r['horizon_s']:>10.1f}{r['wall_s']:>9.2f}{r['traj_steps_per_s']:>14,.0f}"
                   f"{r['s_per_1000_runs_of_10s']:>19,.0f}{r['compile_s']:>10.1f}{r['completed']:>10}"
-                  f"{r['stored_gb']:>10.3f}{r['peak_rss_gb']:>9.2f}{_groups_text(r):>8}")
+                  f"{r['stored_gb']:>10.3f}{r['peak_rss_gb']:>9.2f}")
         acc = next(iter(c["batch"]["rows"].values()))["acceptance"]
         print(f"(draws with an unreachable start pose were redrawn: acceptance {acc:.0%})")
     if "startup" in c and "error" not in c["startup"]:
@@ -1013,8 +990,6 @@ def main(argv=None) -> int:
     ap.add_argument("--arm-batches", type=int, nargs="*", default=[64, 256, 1024, 4096], help="UR5 batch sizes")
     ap.add_argument("--arm-batch-horizon", type=float, default=0.05, help="simulated seconds per UR5 batch run")
     ap.add_argument("--arm-whole-horizon", type=float, default=10.0, help="simulated seconds of the UR5 process")
-    ap.add_argument("--threads", type=int, default=None,
-                    help="threads a batch's groups run on (simulate_batch's threads; default: the cores)")
     ap.add_argument("--batch-fields", default="metrics", help="what batch runs store: 'metrics' or 'all'")
     ap.add_argument("--numpy-horizon", type=float, default=1.0, help="NumPy oracle horizon (scaled to 10 s)")
     ap.add_argument("--calls", type=int, default=10_000, help="update() calls in the latency case")
