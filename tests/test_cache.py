@@ -379,39 +379,3 @@ def test_a_kept_function_is_traced_once_across_instances(tmp_path, cache_state):
     _cache.enable_cache(None)
     KeptFunction(fn, "test_kept")(p, jnp.arange(4.0))  # a new shape: traced (JAX's own trace cache aside)
     assert len(traces) == 3 and len(list((tmp_path / "c").glob(f"{PREFIX}test_kept-*"))) == 1
-
-
-@pytest.mark.parametrize("kept", [True, False])
-def test_threads_calling_a_kept_function_at_once_trace_it_once(tmp_path, cache_state, kept):
-    """KeptFunction's first call of a signature runs alone (simulate_batch runs a batch's groups on
-    threads): two threads calling a new program at the same moment trace, export or load, and
-    compile it once, and both get its result; with the cache on and off."""
-    import threading
-
-    import jax.numpy as jnp
-
-    from hinfnn._programs import KeptFunction
-
-    traces = []
-
-    def fn(x):
-        traces.append(1)
-        return {"y": jnp.cos(x) * 3.0}
-
-    _cache.enable_cache(tmp_path / "c" if kept else None)
-    f = KeptFunction(fn, "test_threads")
-    start = threading.Barrier(2)
-    out = [None, None]
-
-    def call(i):
-        start.wait()
-        out[i] = np.asarray(f(jnp.arange(5.0))["y"])
-
-    threads = [threading.Thread(target=call, args=(i,)) for i in range(2)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    assert len(traces) == 1
-    np.testing.assert_array_equal(out[0], out[1])
-    np.testing.assert_array_equal(out[0], np.cos(np.arange(5.0)) * 3.0)

@@ -125,66 +125,6 @@ def test_a_batch_in_groups_equals_the_batch_in_one(paper_plant, nominal_arm, nom
         np.testing.assert_array_equal(two.final[name], one.final[name], err_msg=name)
 
 
-def test_a_batch_on_threads_equals_the_batch_in_one(paper_plant, nominal_arm, nominal_surface, reference):
-    """``simulate_batch(threads=2)``: 17 members (one diverging) cut into two groups of 9 (the second
-    padded) run at once on two threads give the one-group batch's numbers to rounding (XLA's
-    vectorised loops round a few step sums differently at another batch size: 2 of 6,834 values of
-    τ² by 2e-16 relative), its statuses exactly; the progress, summed over the groups, never goes
-    back and ends at the whole batch."""
-    from hinfnn._loop import LoopOptions
-
-    assert [len(g) for g in LoopOptions().groups(17, 2)] == [9, 9]
-    assert [len(g) for g in LoopOptions().groups(15, 2)] == [15]  # fewer than 8 members a group: one
-    assert [len(g) for g in LoopOptions().groups(1000, 2)] == [500, 500]
-    assert [len(g) for g in LoopOptions().groups(1001, 2)] == [251] * 4  # 3 groups of ≤ 500, rounded up to 4
-    assert [len(g) for g in LoopOptions(batch_group=0).groups(64, 4)] == [16] * 4
-    gains = [H.Gains(K_p=10.0 + i) for i in range(17)]
-    gains[5] = H.Gains(K_p=1e7, K_v=1e3)
-    ctrls = [H.HinfController.design(nominal_arm, nominal_surface, g) for g in gains]
-    run = functools.partial(H.simulate_batch, paper_plant, ctrls, reference, u1_0=U1_0, t_final=0.2, dt=1e-4,
-                            save_every=10)
-    one = run(threads=1)
-    seen = []
-    two = run(threads=2, progress=lambda done, total, what: seen.append((done, total)))
-    assert seen[-1] == (2 * 2000, 2 * 2000) and [d for d, _ in seen] == sorted(d for d, _ in seen)
-    assert list(np.flatnonzero(one.status)) == [5]
-    np.testing.assert_array_equal(two.status, one.status)
-    np.testing.assert_array_equal(two.t_fail, one.t_fail)
-    assert set(two.arrays) == set(one.arrays) and set(two.final) == set(one.final)
-    for name in one.arrays:
-        np.testing.assert_allclose(two.arrays[name], one.arrays[name], rtol=1e-14, atol=0, err_msg=name)
-    for name in one.final:
-        np.testing.assert_allclose(two.final[name], one.final[name], rtol=1e-14, atol=0, err_msg=name)
-
-
-def test_a_failing_group_stops_the_others_and_is_raised(paper_plant, nominal_arm, nominal_surface, reference,
-                                                        monkeypatch):
-    """An error in one group of a threaded batch (here the second group's driver) is raised to the
-    caller, and the other group is told to stop at its next chunk; ``threads`` must be a whole number
-    >= 1."""
-    import importlib
-
-    S = importlib.import_module("hinfnn.sim.simulate")  # the module (hinfnn.sim.simulate is also the function)
-
-    ctrls = [H.HinfController.design(nominal_arm, nominal_surface, H.Gains(K_p=10.0 + i)) for i in range(16)]
-    real, stops = S._drive, []
-
-    def drive(*args, stop=None, **kwargs):
-        stops.append(stop)
-        if len(stops) == 2:
-            raise RuntimeError("group failed")
-        return real(*args, stop=stop, **kwargs)
-
-    monkeypatch.setattr(S, "_drive", drive)
-    with pytest.raises(RuntimeError, match="group failed"):
-        H.simulate_batch(paper_plant, ctrls, reference, u1_0=U1_0, t_final=0.01, dt=1e-4, threads=2)
-    assert len(stops) == 2 and stops[0] is stops[1] and stops[0].is_set()
-    for bad in (0, -1, 1.5, True, "2"):
-        with pytest.raises(H.ConfigError, match="threads") as err:
-            H.simulate_batch(paper_plant, ctrls, reference, u1_0=U1_0, t_final=0.01, dt=1e-4, threads=bad)
-        assert err.value.key == "threads"
-
-
 def test_penetration_limit_stops_a_run(paper_plant, nominal_arm, nominal_surface, reference):
     ctrl = H.HinfController.design(nominal_arm, nominal_surface)
     tr = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.2, dt=1e-4,

@@ -73,12 +73,10 @@ Outside a trace the defaults apply.
     its thread pool, once per sample: about 70 µs per stored sample for the UR5, 10 µs for the
     paper's arm (2026-12-03, sixth pass). False: one scan over the samples.
 ``batch_group``
-    A batch of more than this many members runs as equal groups of at most that many through one
-    compiled program (the last group padded with copies of its first member, whose results are
-    dropped); 0: one group. Past a few hundred members the vmapped step's arrays no longer stay in
-    the cache. The groups run one after the other, or several at once on threads
-    (:func:`hinfnn.simulate_batch`'s ``threads``, which is not a loop option: it does not change
-    the program).
+    A batch of more than this many members runs as equal groups of at most that many, one after
+    the other, through one compiled program (the last group padded with copies of its first
+    member, whose results are dropped); 0: one group. Past a few hundred members the vmapped
+    step's arrays no longer stay in the cache.
 
 The controller's own layout (the networks' weights carried in blocks of at most 64 values, so that
 XLA runs the loop's kernels inline) is the controller's business
@@ -98,9 +96,6 @@ ROLL_FROM_JOINTS = 3
 #: ``execute_sequential_buffer_threshold`` in XLA's CPU executable); else through its dataflow
 #: scheduler and thread pool.
 SEQUENTIAL_VALUES = 64
-#: A batch is cut into groups run on several threads at once only when every group gets at least
-#: this many members (fewer, and the step's fixed cost per kernel launch is most of a group's time).
-THREAD_GROUP_MIN = 8
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,25 +137,20 @@ class LoopOptions:
         (``fusion_emitters``): None for XLA's defaults."""
         return None if self.for_joints(n_joints).fusion_emitters else {"xla_cpu_use_fusion_emitters": False}
 
-    def groups(self, B: int, threads: int = 1) -> list:
-        """Member indices of the groups a batch of B runs in (NumPy index arrays of equal size,
-        the last padded with its first member): one group of all when B ≤ ``batch_group`` or
-        grouping is off, else the fewest groups of at most ``batch_group``; with ``threads`` > 1,
-        their number rounded up to a multiple of ``threads`` (so that every thread has a group),
-        when each group still gets :data:`THREAD_GROUP_MIN` members."""
+    def groups(self, B: int) -> list:
+        """Member indices of the groups a batch of B runs in: one group of all when B ≤
+        ``batch_group`` or grouping is off, else equal groups (NumPy index arrays, the last
+        padded with its first member)."""
         import numpy as np
 
-        n = 1 if not self.batch_group or B <= self.batch_group else -(-B // self.batch_group)
-        if threads > 1 and B >= threads * THREAD_GROUP_MIN:
-            n = -(-n // threads) * threads
-        if n == 1:
+        if not self.batch_group or B <= self.batch_group:
             return [np.arange(B)]
+        n = -(-B // self.batch_group)
         g = -(-B // n)
         groups = []
         for i in range(n):
             idx = np.arange(i * g, min((i + 1) * g, B))
-            if idx.size:
-                groups.append(np.concatenate([idx, np.full(g - idx.size, idx[0])]))
+            groups.append(np.concatenate([idx, np.full(g - idx.size, idx[0])]))
         return groups
 
 
@@ -182,4 +172,4 @@ def active(options: LoopOptions):
         _ACTIVE.reset(token)
 
 
-__all__ = ["LoopOptions", "ROLL_FROM_JOINTS", "SEQUENTIAL_VALUES", "THREAD_GROUP_MIN", "current", "active"]
+__all__ = ["LoopOptions", "ROLL_FROM_JOINTS", "SEQUENTIAL_VALUES", "current", "active"]

@@ -28,7 +28,6 @@ import functools
 import hashlib
 import json
 import os
-import threading
 from pathlib import Path
 
 import jax
@@ -70,9 +69,7 @@ class KeptFunction:
     final state), whose tracing took 3.4 of the 5.1 s of a warm UR5 ``hinfnn run`` before the chunk.
     ``settings``: what else decides the program (hashable, its repr part of the key);
     ``compiler_options``: XLA's compile options (None: XLA's defaults), part of the key. Called
-    inside another trace, it is ``jax.jit(fn)`` as usual. Threads may call it at once (a batch's
-    groups, :func:`hinfnn.simulate_batch`): the first call of each signature runs alone, so the
-    program is traced, loaded or compiled once."""
+    inside another trace, it is ``jax.jit(fn)`` as usual."""
 
     def __init__(self, fn, name: str, settings=None, compiler_options: dict | None = None):
         self.fn = fn
@@ -81,9 +78,6 @@ class KeptFunction:
         self.settings = (settings, sorted((self.compiler_options or {}).items()))
         self.jitted = jax.jit(fn, compiler_options=self.compiler_options)
         self._entries: dict = {}
-        self._called: set = set()  # the signatures called once (compiled) in this process
-        self._first: dict = {}  # a lock per signature, held by its first call
-        self._guard = threading.Lock()
         functools.update_wrapper(self, fn, updated=())
 
     # --- the key and the files ---------------------------------------------------------------------
@@ -102,18 +96,7 @@ class KeptFunction:
         leaves, treedef = jax.tree.flatten(args)
         if any(isinstance(x, jax.core.Tracer) for x in leaves):
             return self.jitted(*args)
-        key = self._key(treedef, leaves)
-        if key in self._called:
-            return self._call(args, leaves, treedef, key)
-        with self._guard:
-            first = self._first.setdefault(key, threading.Lock())
-        with first:  # a signature's first call traces or loads, and compiles; other threads wait for it
-            out = self._call(args, leaves, treedef, key)
-            self._called.add(key)
-        return out
-
-    def _call(self, args, leaves, treedef, key):
-        entry = self._entry(leaves, treedef, key)
+        entry = self._entry(leaves, treedef)
         if entry is None:
             return self.jitted(*args)
         return self._output(args, entry, entry[0](*[_committed(x) for x in leaves]))
@@ -130,9 +113,9 @@ class KeptFunction:
 
         return flat
 
-    def _entry(self, leaves, treedef, key: str | None = None):
+    def _entry(self, leaves, treedef):
         """(the compiled call on flat leaves, the kept metadata, the output avals), or None to trace."""
-        key = self._key(treedef, leaves) if key is None else key
+        key = self._key(treedef, leaves)
         if key in self._entries:
             return self._entries[key]
         path = self._path(key)

@@ -38,13 +38,9 @@ stacked parameter pytrees.
 
 from __future__ import annotations
 
-import concurrent.futures
-import contextvars
 import dataclasses
 import functools
 import math
-import os
-import threading
 
 import jax
 import jax.numpy as jnp
@@ -413,10 +409,8 @@ def release_programs() -> None:
 
 
 def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, fields, loop: LoopOptions,
-           progress=None, what: str = "", stop: threading.Event | None = None):
-    """Run the chunks from Python; returns (records, status, t_fail, details, final). ``stop``:
-    when set (by another group's error), the run ends before its next chunk with
-    :class:`concurrent.futures.CancelledError`.
+           progress=None, what: str = ""):
+    """Run the chunks from Python; returns (records, status, t_fail, details, final).
 
     The n_records + 1 records (t = 0, …, t_final) are copied chunk by chunk into arrays allocated
     once, so memory is what is stored, never proportional to the steps."""
@@ -448,8 +442,6 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, f
 
     pending = None  # the previous chunk's records, copied while the next chunk runs
     for c in range(n_chunks):
-        if stop is not None and stop.is_set():
-            raise concurrent.futures.CancelledError("another group of the batch failed")
         k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)  # typed as _chunk_scalars
         carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, n_steps_a, dt_a, hold_a, every_a, take_a)
         if pending is not None:
@@ -581,7 +573,7 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
                    q0=None, u1_0=None, save_every: int | None = None,
                    save_interval: float | None = None, fields=None,
                    control_period: float | None = None, limits=None, infos: list | None = None,
-                   progress=None, loop: LoopOptions | None = None, threads: int | None = None) -> Trajectory:
+                   progress=None, loop: LoopOptions | None = None) -> Trajectory:
     """Simulate B runs as ONE program (``jax.vmap`` of :func:`simulate`'s run).
 
     ``plants``, ``controllers``, ``references`` (and ``limits``): each either a list of B objects
@@ -589,23 +581,13 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     lists too. Members that fail are marked in ``status``/``t_fail`` and do not stop the others;
     nothing is raised for them. ``save_every``, ``save_interval``, ``fields`` and ``progress``
     as for :func:`simulate`; a batch of B runs stores B times what one run stores. More than
-    ``loop.batch_group`` members run as equal groups through the same compiled program
-    (:class:`~hinfnn._loop.LoopOptions`: faster, same numbers).
-
-    ``threads``: how many groups run at once, each on a thread of its own (XLA's CPU runtime runs
-    one batched program on about one core). None: on the CPU, the cores this process may use
-    (``os.sched_getaffinity``), elsewhere 1 (a GPU runs one batch at a time); 1: the groups one
-    after the other. A batch of at least ``threads`` × :data:`hinfnn._loop.THREAD_GROUP_MIN`
-    members is then cut into (a multiple of) ``threads`` groups. The numbers are the one-group
-    batch's to rounding: XLA's vectorised loops may round a member's arithmetic differently with
-    the size of its group (a few values by about 2e-16 relative, tested). ``threads=1`` gives the
-    one-group batch's numbers exactly.
+    ``loop.batch_group`` members run as equal groups, one after the other, through the same
+    compiled program (:class:`~hinfnn._loop.LoopOptions`: faster, same numbers).
     """
     from .._config import require_x64
 
     require_x64()
     loop = loop or LoopOptions()
-    threads = batch_threads(threads)
     listed = [x for x in (plants, controllers, references, limits) if isinstance(x, (list, tuple))]
     if not listed:
         raise ConfigError("simulate_batch needs at least one list of plants, controllers or references")
@@ -644,11 +626,16 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
                 axes.append(None)
         y0, axes = stack(y0s), tuple(axes)
     opts = dict(plan=plan, n_joints=plant0.n, fields=fields, loop=loop)
-    groups = loop.groups(B, threads) if B > 1 else [np.arange(1)]
+    groups = loop.groups(B)
     if len(groups) == 1:
         out = _drive(*args, y0, axes, progress=progress, **opts)
-    else:  # equal groups through one program (hinfnn._loop), `threads` at a time
-        parts = _run_groups(args, y0, axes, groups, min(threads, len(groups)), progress, opts)
+    else:  # a large batch as equal groups run one after the other (one program; hinfnn._loop)
+        parts = []
+        for i, idx in enumerate(groups):
+            take = functools.partial(_take, idx=idx)
+            sub_args = [x if ax is None else take(x) for x, ax in zip(args, axes)]
+            report = None if progress is None else functools.partial(_group_progress, progress, i, len(groups))
+            parts.append(_drive(*sub_args, take(y0), axes, progress=report, **opts))
         out = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:B], *parts)
     if B == 1:
         out = jax.tree.map(lambda a: np.expand_dims(np.asarray(a), 0), out)
@@ -660,61 +647,8 @@ def _take(tree, idx):
     return jax.tree.map(lambda a: jnp.asarray(a)[idx], tree)
 
 
-def batch_threads(threads: int | None = None) -> int:
-    """The threads :func:`simulate_batch` runs a batch's groups on (see there): ``threads``, or
-    with None the cores this process may use when JAX's default backend is the CPU, else 1."""
-    if threads is None:
-        if jax.default_backend() != "cpu":
-            return 1
-        try:
-            return max(1, len(os.sched_getaffinity(0)))
-        except AttributeError:  # no affinity on this platform (macOS, Windows)
-            return max(1, os.cpu_count() or 1)
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-        raise ConfigError(f"must be a whole number >= 1 (or None: the cores this process may use), got {threads!r}",
-                          key="threads")
-    return int(threads)
-
-
-def _run_groups(args, y0, axes, groups, threads, progress, opts):
-    """Each group's :func:`_drive`, ``threads`` groups at once (one after the other with 1); returns
-    their results in the groups' order. A thread runs in a copy of the caller's context (the loop
-    options being traced with are a context variable); the first call of a program compiles it
-    once for all of them (:class:`~hinfnn._programs.KeptFunction`). Progress is summed over the
-    groups and reported under a lock. An error in one group stops the others at their next chunk
-    and is raised."""
-    n = len(groups)
-    lock = threading.Lock()
-    done = [0] * n
-    stop = threading.Event()
-
-    def one(i):
-        take = functools.partial(_take, idx=groups[i])
-        sub_args = [x if ax is None else take(x) for x, ax in zip(args, axes)]
-
-        def report(d, total, what=""):
-            with lock:
-                done[i] = d
-                if progress is not None:
-                    progress(sum(done), n * total, what)
-
-        return _drive(*sub_args, take(y0), axes, progress=report, stop=stop, **opts)
-
-    if threads <= 1:
-        return [one(i) for i in range(n)]
-    pool = concurrent.futures.ThreadPoolExecutor(max_workers=threads, thread_name_prefix="hinfnn-batch")
-    try:
-        futures = [pool.submit(contextvars.copy_context().run, one, i) for i in range(n)]
-        concurrent.futures.wait(futures, return_when=concurrent.futures.FIRST_EXCEPTION)
-        failed = [f.exception() for f in futures if f.done() and not f.cancelled() and f.exception() is not None]
-        if failed:
-            raise failed[0]
-        return [f.result() for f in futures]
-    except BaseException:
-        stop.set()  # the groups still running stop at their next chunk
-        raise
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+def _group_progress(progress, i, n_groups, done, total, what=""):
+    progress(i * total + done, n_groups * total, what)
 
 
 def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,

@@ -75,7 +75,7 @@ def _run_task(job, reporter=None):
             last[0] = fraction
             reporter.set.remote(job.batch.id, fraction)
 
-    return execute_batch(job, progress=progress, threads=1)  # a task has one CPU (num_cpus=1)
+    return execute_batch(job, progress=progress)
 
 
 class _Reporter:

@@ -229,13 +229,11 @@ def _members(job: BatchJob) -> list:
     return plants, q0s, [r.controller for r in runs], [r.reference for r in runs], [r.limits for r in runs], run0
 
 
-def execute_batch(job: BatchJob, progress: Callable[[float], None] | None = None, threads: int | None = None) -> dict:
+def execute_batch(job: BatchJob, progress: Callable[[float], None] | None = None) -> dict:
     """Run one batch as one :func:`hinfnn.simulate_batch` call and return ``{"batch", "rows",
     "wall_s", "cpu_s", "host", "pid", "members", "size"}``; ``rows`` has one dict per member
     (padding dropped); ``cpu_s`` is the CPU time of the whole process meanwhile (all its threads).
-    ``progress(fraction)`` is called after each compiled chunk. ``threads``: as
-    :func:`hinfnn.simulate_batch`'s (None: every core of the process; a backend that runs batches
-    side by side gives each its share)."""
+    ``progress(fraction)`` is called after each compiled chunk."""
     from ..sim import simulate_batch
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -251,7 +249,7 @@ def execute_batch(job: BatchJob, progress: Callable[[float], None] | None = None
 
     traj = simulate_batch(plants, controllers, references, q0=q0s, t_final=first.t_final, dt=first.dt,
                           save_interval=first.save_interval, fields="metrics", control_period=first.control_period,
-                          limits=limits, progress=report, threads=threads)
+                          limits=limits, progress=report)
     rows = [member_row(r, traj.member(j), job.max_out_of_contact) for j, r in enumerate(job.members)]
     return {"batch": job.batch.id, "rows": rows, "wall_s": time.perf_counter() - t0,
             "cpu_s": time.process_time() - c0, "host": socket.gethostname(), "pid": os.getpid(), "members": n_real,
