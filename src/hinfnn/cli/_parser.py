@@ -239,8 +239,12 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("spec", nargs="?", help="shipped sweep spec name (see --list) or path to a .toml file")
     sw.add_argument("--out", type=Path, default=None, help="output folder (default: results/<spec name>)")
     sw.add_argument("--backend", choices=("local", "ray"), default="local",
-                    help="local: batches one after the other in this process (default); ray: batches as Ray "
-                         "tasks, one per CPU (pip install 'hinfnn[ray]')")
+                    help="local: on this machine, batches side by side in worker processes, one per core "
+                         "(default; see --workers); ray: batches as Ray tasks, one per CPU (pip install 'hinfnn[ray]')")
+    sw.add_argument("--workers", type=int, default=None, metavar="N",
+                    help="with the local backend: worker processes (default: one per core when the simulation "
+                         "would take a minute or more in one process, else none; 1: the batches one after the "
+                         "other in this process)")
     sw.add_argument("--address", default=None, metavar="ADDR",
                     help="with --backend ray: the cluster to join, 'auto' (the cluster this machine belongs to) or "
                          "'ray://HEAD:10001' (default: start a local Ray instance)")

@@ -27,6 +27,11 @@ def main(args) -> int:
         raise ConfigError(f"must be a whole number >= 1, got {args.batch_size}", key="--batch-size")
     if args.address is not None and args.backend != "ray":
         raise ConfigError("--address is for --backend ray", key="--address")
+    if args.workers is not None:
+        if args.backend != "local":
+            raise ConfigError("--workers is for the local backend (Ray runs one task per CPU)", key="--workers")
+        if args.workers < 1:
+            raise ConfigError(f"must be a whole number >= 1, got {args.workers}", key="--workers")
     from ..sweep.run import prepare_output, run_sweep
 
     spec = load_spec(args.spec, samples=args.samples, overrides=args.overrides)
@@ -42,7 +47,7 @@ def main(args) -> int:
     try:
         res = run_sweep(spec, output.work, backend=args.backend, address=args.address, resume=output.resume,
                         max_batch=args.batch_size, progress=progress, log=log, command=command_line(args),
-                        replaces=output.target if output.replacing else None)
+                        replaces=output.target if output.replacing else None, workers=args.workers)
     except BaseException as err:
         progress.close()
         if isinstance(err, (KeyboardInterrupt, _signals.Terminated)):
@@ -81,6 +86,7 @@ def _resume_note(args, output) -> str:
     again += [a for o in args.overrides for a in ("--set", o)]
     again += ["--samples", str(args.samples)] if args.samples else []
     again += ["--backend", args.backend] if args.backend != "local" else []
+    again += ["--workers", str(args.workers)] if args.workers is not None else []
     kept = f"; {output.target} is as it was" if output.replacing else ""
     return f"{saved}{kept}; continue with: hinfnn {' '.join(shlex.quote(a) for a in again)}"
 

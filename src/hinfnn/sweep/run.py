@@ -16,7 +16,7 @@ from typing import Callable
 
 from ..errors import ConfigError, LoadError
 from . import store
-from .backends import make_backend
+from .backends import auto_workers, make_backend
 from .sampling import runs as all_runs
 from .spec import SweepSpec
 from .worker import CHECK_CHUNK, DEFAULT_MAX_BATCH, Batch, BatchJob, invalid_row, plan_batches
@@ -122,7 +122,7 @@ def _interrupted_start(folder: Path, spec: SweepSpec) -> bool:
 def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str | None = None, resume: bool = False,
               max_batch: int | None = None, progress=None, log=None, command: str = "",
               report: bool = True, on_part: Callable[[int], None] | None = None,
-              replaces: Path | None = None) -> SweepResult:
+              replaces: Path | None = None, workers: int | None = None) -> SweepResult:
     """Run (or with ``resume``, continue) the sweep ``spec`` into ``folder``.
 
     The folder must be new or empty unless ``resume``; resuming checks that the folder holds the
@@ -134,7 +134,10 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
     within a batch); ``log(message)`` for one-line notes; ``on_part(batch_id)`` after each part is
     written. Returns a :class:`SweepResult`; the table is :func:`hinfnn.load_sweep` of the folder.
     ``max_batch``: cap on the batch size (default :data:`~hinfnn.sweep.worker.DEFAULT_MAX_BATCH`;
-    ignored when resuming: the stored plan decides).
+    ignored when resuming: the stored plan decides). ``workers``: with the local backend, how many
+    batches run side by side in worker processes (None: one per core this process may use when one
+    process would simulate for a minute or more, :func:`~hinfnn.sweep.backends.auto_workers`, else
+    this process; 1: one after the other in this process, :class:`~hinfnn.sweep.backends.LocalBackend`).
     """
     from .._config import require_x64
     from ..io import FolderLock
@@ -156,7 +159,8 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
                                   + (f" (pid {owner})" if owner > 0 else "") + "; wait for it to finish or stop it first",
                                   key="--out")
         result = _run(spec, folder, backend=backend, address=address, resume=resume, max_batch=max_batch,
-                      progress=progress, log=log, command=command, report=report, on_part=on_part, t_start=t_start)
+                      progress=progress, log=log, command=command, report=report, on_part=on_part, t_start=t_start,
+                      workers=workers)
         if replaces is not None:
             store.replace_folder(folder, replaces)
             result.folder = Path(replaces)
@@ -167,7 +171,7 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
 
 
 def _run(spec, folder, *, backend, address, resume, max_batch, progress, log, command, report, on_part,
-         t_start) -> SweepResult:
+         t_start, workers=None) -> SweepResult:
     from .. import __version__
 
     runs = all_runs(spec)
@@ -187,7 +191,10 @@ def _run(spec, folder, *, backend, address, resume, max_batch, progress, log, co
         if not (resume and _interrupted_start(folder, spec)):
             raise ConfigError(f"{folder} exists and is not empty; choose another --out (or --force to replace it)",
                               key="--out")
-    be = make_backend(backend, address)  # before writing anything: a missing Ray leaves no folder behind
+    if backend == "local" and workers is None:  # worker processes when the simulation is worth their start
+        sim = spec.base.simulation
+        workers = auto_workers(len(runs), round(sim.t_final / sim.dt), n_joints)
+    be = make_backend(backend, address, workers)  # before writing anything: a missing Ray leaves no folder behind
     ready: dict = {}
     try:
         store.prepare_folder(folder)
@@ -255,7 +262,7 @@ def _plan(spec, runs, by_id, folder, be, n_joints, fingerprint, max_batch, progr
     ready = {c["run"]: c.pop("ready") for c in checked if c["ok"]}
     invalid = [invalid_row(by_id[c["run"]], c) for c in checked if not c["ok"]]
     store.write_table(folder / store.PARTS / store.INVALID_PART, store.rows_table(invalid, spec, n_joints))
-    batches = plan_batches(checked, max_batch)
+    batches = plan_batches(checked, max_batch, parallel=getattr(be, "parallel", 1))
     log(f"checked {len(runs)} runs in {time.perf_counter() - t0:.1f} s: {len(invalid)} invalid, "
         f"{len(runs) - len(invalid)} to simulate in {len(batches)} batches "
         f"({len({b.group for b in batches})} compiled programs)")

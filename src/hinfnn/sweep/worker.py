@@ -169,8 +169,21 @@ def batch_cap(samples: int, n_joints: int, max_batch: int = DEFAULT_MAX_BATCH, m
     return max(1, min(int(max_batch), int(MEMORY_FRACTION * memory // bytes_per_member(samples, n_joints))))
 
 
-def plan_batches(checked: list[dict], max_batch: int, memory: int | None = None) -> list[Batch]:
-    """Batches of equal size per compiled group, in run order (see the module docstring)."""
+#: A group is cut into more batches than memory and ``max_batch`` ask for, so that every batch that
+#: runs side by side (the local backend's worker processes) has one, only down to this many runs.
+MIN_SPLIT = 8
+
+
+def plan_batches(checked: list[dict], max_batch: int, memory: int | None = None, parallel: int = 1) -> list[Batch]:
+    """Batches of equal size per compiled group, in run order (see the module docstring).
+    ``parallel``: how many batches run at once: each gets that share of the memory, and a group
+    is cut into at least that many batches while each keeps :data:`MIN_SPLIT` runs."""
+    if parallel > 1:
+        if memory is None:
+            from ..resources import available_memory
+
+            memory = available_memory() or 4 * 2**30
+        memory = memory // parallel
     groups: dict = collections.OrderedDict()
     info, shared = {}, {}
     for c in sorted(checked, key=lambda c: c["run"]):
@@ -181,7 +194,7 @@ def plan_batches(checked: list[dict], max_batch: int, memory: int | None = None)
     batches = []
     for group, ids in groups.items():
         cap = batch_cap(*info[group], max_batch=max_batch, memory=memory)
-        k = -(-len(ids) // cap)
+        k = max(-(-len(ids) // cap), min(parallel, len(ids) // MIN_SPLIT))
         size = -(-len(ids) // k)
         for i in range(k):
             chunk = tuple(ids[i * size:(i + 1) * size])
