@@ -391,6 +391,72 @@ def test_killed_sweep_resumes_to_the_same_table(tmp_path, cache):
     pd.testing.assert_frame_equal(H.load_sweep(out), H.load_sweep(whole), check_exact=True)
 
 
+# --- the local backend's worker processes ------------------------------------------------------------------
+
+
+def test_local_worker_processes_give_the_same_table(small, tmp_path, monkeypatch, cache):
+    """``workers=2``: the checks and the batches run in two spawned worker processes (not this one),
+    the table equals the in-process sweep's bit for bit, and the progress never passes the total
+    and ends at it."""
+    spec, _, whole = small
+    monkeypatch.setenv("HINFNN_CACHE_DIR", str(cache))  # the workers' compilation cache
+    seen = []
+    res = run_sweep(spec, tmp_path / "w2", max_batch=2, workers=2, report=False,
+                    progress=lambda done, total, what="": seen.append((what, done, total)))
+    assert res.simulated_now == 4
+    pd.testing.assert_frame_equal(H.load_sweep(tmp_path / "w2"), whole, check_exact=True)
+    manifest = json.loads((tmp_path / "w2" / "manifest.json").read_text())
+    assert "2 worker processes" in manifest["sessions"][0]["backend"]
+    assert os.getpid() not in {d["pid"] for d in manifest["done"].values()}
+    sim = [(d, t) for what, d, t in seen if what == "simulating"]
+    assert all(d <= t + 1e-9 for d, t in sim) and sim[-1][0] == sim[-1][1] == 4
+
+
+def test_a_worker_that_dies_stops_the_sweep_and_resume_finishes_it(small, tmp_path, monkeypatch, cache):
+    """A worker process killed in the middle of a batch (here it kills itself: the fault injection
+    the Ray test uses) stops the sweep with an error that says so, instead of waiting for it
+    forever; ``--resume`` then gives the uninterrupted table."""
+    spec, _, whole = small
+    marker = tmp_path / "fault-once"
+    monkeypatch.setenv("HINFNN_SWEEP_FAULT_ONCE", str(marker))
+    monkeypatch.setenv("HINFNN_CACHE_DIR", str(cache))
+    with pytest.raises(RuntimeError, match="worker process of the local backend died"):
+        run_sweep(spec, tmp_path / "died", max_batch=2, workers=2, report=False)
+    assert marker.exists()
+    res = run_sweep(spec, tmp_path / "died", max_batch=2, workers=2, resume=True, report=False)
+    assert res.simulated_now + res.already_done == 4
+    pd.testing.assert_frame_equal(H.load_sweep(tmp_path / "died"), whole, check_exact=True)
+
+
+def test_worker_processes_are_started_only_when_worth_their_start(monkeypatch):
+    """The local backend left to choose starts one worker per core when one process would simulate
+    for a minute or more (a 1,000-draw UR5 sweep of 10-s runs), not for a quick trial; a plan for
+    batches side by side gives each a share of the memory and cuts a group into at least as many
+    batches while each keeps 8 runs; --workers is checked."""
+    from hinfnn.sweep import backends
+
+    monkeypatch.setattr(backends, "available_cores", lambda: 4)
+    assert backends.auto_workers(1000, 100_000, 6) == 4
+    assert backends.auto_workers(48, 2_000, 2) == 1
+    assert backends.auto_workers(1000, 100_000, 2) == 4  # 250 s of the paper's arm
+    monkeypatch.setattr(backends, "available_cores", lambda: 1)
+    assert backends.auto_workers(1000, 100_000, 6) == 1
+    checked = [{"run": i, "ok": True, "group": "a", "samples": 101, "n_joints": 2} for i in range(40)]
+    assert [len(b.runs) for b in plan_batches(checked, max_batch=256, memory=2**34, parallel=2)] == [20, 20]
+    assert [len(b.runs) for b in plan_batches(checked[:12], max_batch=256, memory=2**34, parallel=2)] == [12]
+    assert [len(b.runs) for b in plan_batches(checked, max_batch=256, memory=2**34)] == [40]
+    from hinfnn.sweep.worker import MEMORY_FRACTION, bytes_per_member
+
+    memory = int(20 * bytes_per_member(101, 2) / MEMORY_FRACTION) + 1  # 20 members' records fit
+    assert [len(b.runs) for b in plan_batches(checked, max_batch=256, memory=memory)] == [20, 20]
+    assert [len(b.runs) for b in plan_batches(checked, max_batch=256, memory=memory, parallel=2)] == [10] * 4
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ConfigError, match="--workers"):
+            backends.LocalBackend(bad)
+    with pytest.raises(ConfigError, match="--workers"):
+        backends.make_backend("ray", workers=2)
+
+
 # --- Ray ---------------------------------------------------------------------------------------------------
 
 

@@ -12,12 +12,14 @@ one process deadlocked in XLA's runtime (tried: threads), so the cores are used 
 
 from __future__ import annotations
 
+import concurrent.futures
+import concurrent.futures.process
 import multiprocessing
 import os
 import queue as queue_module
 
 from ..errors import ConfigError
-from .worker import check_runs, execute_batch
+from .worker import check_runs, execute_batch, fault_once
 
 #: Seconds between the driver's looks at the workers' progress.
 POLL_S = 0.5
@@ -97,6 +99,7 @@ def _check_in_worker(chunk):
 
 
 def _run_in_worker(job):
+    fault_once()
     last = [-1.0]
 
     def progress(fraction):
@@ -137,7 +140,8 @@ class LocalBackend:
         if self._pool is None:
             ctx = multiprocessing.get_context("spawn")  # JAX's threads make fork unsafe
             self._queue = ctx.Queue()
-            self._pool = ctx.Pool(self.workers, initializer=_init_worker, initargs=(self._queue, os.getpid()))
+            self._pool = concurrent.futures.ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
+                                                                initargs=(self._queue, os.getpid()))
         return self._pool
 
     def check(self, chunks, on_done):
@@ -146,7 +150,7 @@ class LocalBackend:
                 on_done(check_runs(*chunk))
             return
         pool = self._start()
-        self._gather([pool.apply_async(_check_in_worker, (chunk,)) for chunk in chunks], on_done)
+        self._gather([pool.submit(_check_in_worker, chunk) for chunk in chunks], on_done)
 
     def run(self, jobs, on_done, progress):
         if self.workers == 1 or len(jobs) == 1:
@@ -170,39 +174,47 @@ class LocalBackend:
                 if batch in by_id and batch not in finished:
                     progress(by_id[batch], fraction)
 
-        self._gather([pool.apply_async(_run_in_worker, (job,)) for job in jobs], done, poll)
+        self._gather([pool.submit(_run_in_worker, job) for job in jobs], done, poll)
 
     def _gather(self, pending, on_done, poll=None):
-        """``on_done`` with each result as it arrives (in the driver); an error in a worker, or an
-        interrupt of the driver, stops the workers and is raised (the batches in flight are lost,
-        as with a killed sweep: ``--resume`` runs them)."""
+        """``on_done`` with each result as it arrives (in the driver, in the order they finish);
+        an error in a worker, a worker that died (killed, out of memory) or an interrupt of the
+        driver stops the workers and is raised: the batches in flight are lost, as with a killed
+        sweep (``--resume`` runs them)."""
         try:
+            pending = set(pending)
             while pending:
-                left = []
-                for res in pending:
-                    if res.ready():
-                        on_done(res.get())  # raises the worker's error
-                    else:
-                        left.append(res)
-                pending = left
+                ready, pending = concurrent.futures.wait(pending, timeout=POLL_S,
+                                                         return_when=concurrent.futures.FIRST_COMPLETED)
+                for fut in ready:
+                    try:
+                        res = fut.result()  # raises the worker's error
+                    except concurrent.futures.process.BrokenProcessPool as err:
+                        raise RuntimeError("a worker process of the local backend died while running a batch "
+                                           "(killed, or out of memory?); the finished batches are saved and "
+                                           "--resume runs the others") from err
+                    on_done(res)
                 if poll is not None:
                     poll()
-                if pending:
-                    pending[0].wait(POLL_S)
         except BaseException:
             self._stop()
             raise
 
     def _stop(self):
+        """End the workers now (an error or an interrupt): the executor has no public way to end
+        running tasks, so its processes are terminated."""
         if self._pool is not None:
-            self._pool.terminate()
-            self._pool.join()
+            processes = list(getattr(self._pool, "_processes", {}).values())
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            for proc in processes:
+                proc.terminate()
+            for proc in processes:
+                proc.join(10)
             self._pool = None
 
     def close(self):
         if self._pool is not None:
-            self._pool.close()
-            self._pool.join()
+            self._pool.shutdown(wait=True)
             self._pool = None
 
 

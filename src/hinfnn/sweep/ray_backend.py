@@ -21,6 +21,7 @@ import os
 import warnings
 
 from ..errors import ConfigError
+from .worker import fault_once
 
 #: Retries of a task whose worker died (Ray's ``max_retries``).
 MAX_RETRIES = 3
@@ -47,26 +48,10 @@ def _check_task(chunk):
     return check_runs(*chunk)
 
 
-#: Fault injection for the tests: with this variable naming a file that does not exist, the
-#: first task to start creates it and kills its own worker process (Ray then retries the task).
-FAULT_ONCE_ENV = "HINFNN_SWEEP_FAULT_ONCE"
-
-
-def _fault_once():
-    path = os.environ.get(FAULT_ONCE_ENV)
-    if path:
-        try:
-            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-        except FileExistsError:
-            return
-        os.close(fd)
-        os._exit(1)
-
-
 def _run_task(job, reporter=None):
     from .worker import execute_batch
 
-    _fault_once()
+    fault_once()
     _configure_worker()
     last = [-1.0]
 

@@ -242,6 +242,22 @@ def _members(job: BatchJob) -> list:
     return plants, q0s, [r.controller for r in runs], [r.reference for r in runs], [r.limits for r in runs], run0
 
 
+#: Fault injection for the tests: with this variable naming a file that does not exist, the first
+#: batch to start (in a Ray task or a local worker process) creates it and kills its own process.
+FAULT_ONCE_ENV = "HINFNN_SWEEP_FAULT_ONCE"
+
+
+def fault_once() -> None:
+    path = os.environ.get(FAULT_ONCE_ENV)
+    if path:
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            return
+        os.close(fd)
+        os._exit(1)
+
+
 def execute_batch(job: BatchJob, progress: Callable[[float], None] | None = None) -> dict:
     """Run one batch as one :func:`hinfnn.simulate_batch` call and return ``{"batch", "rows",
     "wall_s", "cpu_s", "host", "pid", "members", "size"}``; ``rows`` has one dict per member
