@@ -215,6 +215,9 @@ def test_cli_options_are_checked(tmp_path, capsys):
     assert cli.main(["sweep", str(path), "--resume", "--force"]) == 2
     assert cli.main(["sweep", str(path), "--address", "auto"]) == 2
     assert "--address" in capsys.readouterr().err
+    for bad in (["--workers", "0"], ["--workers", "2", "--backend", "ray"]):
+        assert cli.main(["sweep", str(path), *bad]) == 2
+        assert "--workers" in capsys.readouterr().err
     assert cli.main(["sweep", "paper-uncertanty"]) == 2
     assert "did you mean 'paper-uncertainty'" in capsys.readouterr().err
     assert cli.main(["sweep", "--list"]) == 0
@@ -224,6 +227,7 @@ def test_cli_options_are_checked(tmp_path, capsys):
     assert ex.value.code == 0
     text = capsys.readouterr().out
     assert "examples:" in text and "--resume" in text and "--address" in text and "docs/sweeps.md" in text
+    assert "--workers" in text
     (tmp_path / "afile").write_text("x")
     assert cli.main(["sweep", str(path), "--out", str(tmp_path / "afile")]) == 2
     assert "not a folder" in capsys.readouterr().err

@@ -138,6 +138,8 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
     batches run side by side in worker processes (None: one per core this process may use when one
     process would simulate for a minute or more, :func:`~hinfnn.sweep.backends.auto_workers`, else
     this process; 1: one after the other in this process, :class:`~hinfnn.sweep.backends.LocalBackend`).
+    The workers are started with ``spawn``: as with any multiprocessing code, a script that calls
+    this guards its entry point (``if __name__ == "__main__":``).
     """
     from .._config import require_x64
     from ..io import FolderLock
