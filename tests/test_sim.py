@@ -113,6 +113,11 @@ def test_a_batch_in_groups_equals_the_batch_in_one(paper_plant, nominal_arm, nom
     grouped = LoopOptions(batch_group=2)
     assert [list(g) for g in grouped.groups(3)] == [[0, 1], [2, 2]]
     assert [list(g) for g in LoopOptions(batch_group=0).groups(3)] == [[0, 1, 2]]
+    # by default by the arm: groups of at most 100 for the two-link arm, 4,096 for larger arms
+    assert [len(g) for g in LoopOptions().groups(1000, 2)] == [100] * 10
+    assert [len(g) for g in LoopOptions().groups(1000, 6)] == [1000]
+    assert [len(g) for g in LoopOptions().groups(5000, 7)] == [2500, 2500]
+    assert LoopOptions().for_joints(2).batch_group == 100 and LoopOptions(batch_group=7).for_joints(6).batch_group == 7
     seen = []
     two = run(progress=lambda done, total, what: seen.append((done, total)), loop=grouped)
     assert seen[-1] == (2 * 3000, 2 * 3000) and [d for d, _ in seen] == sorted(d for d, _ in seen)

@@ -75,8 +75,14 @@ Outside a trace the defaults apply.
 ``batch_group``
     A batch of more than this many members runs as equal groups of at most that many, one after
     the other, through one compiled program (the last group padded with copies of its first
-    member, whose results are dropped); 0: one group. Past a few hundred members the vmapped
-    step's arrays no longer stay in the cache.
+    member, whose results are dropped); 0: one group. ``None`` (the default): chosen by the arm,
+    :data:`BATCH_GROUP_PLANAR` members for 2 joints, :data:`BATCH_GROUP_ARM` from
+    :data:`ROLL_FROM_JOINTS` joints. The two-link arm's step is a few hundred kernels of little
+    arithmetic, and past about a hundred members its vmapped arrays leave the cache (B = 1,000 in
+    groups of 64–125: 474,000–490,000 trajectory-steps/s, of 500: 428,000–440,000, 2026-12-04);
+    a 6-DOF arm's step launches about a thousand kernels, each with a fixed cost in XLA's runtime
+    that the members share, so larger groups run faster (UR5, one core: 38,000 at 128 members,
+    50,000 at 512, 58,000 at 1,024, 63,000 at 2,048 and 4,096).
 
 The controller's own layout (the networks' weights carried in blocks of at most 64 values, so that
 XLA runs the loop's kernels inline) is the controller's business
@@ -96,6 +102,9 @@ ROLL_FROM_JOINTS = 3
 #: ``execute_sequential_buffer_threshold`` in XLA's CPU executable); else through its dataflow
 #: scheduler and thread pool.
 SEQUENTIAL_VALUES = 64
+#: ``batch_group`` by the arm (``None``): the two-link arm's groups, and those of larger arms.
+BATCH_GROUP_PLANAR = 100
+BATCH_GROUP_ARM = 4096
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,7 +115,7 @@ class LoopOptions:
     sincos: bool = True
     small_mm: bool = True
     rolled_rk4: bool | None = None
-    batch_group: int = 500
+    batch_group: int | None = None
     arm_kernels: bool | None = None
     rolled_stages: int = 4
     fusion_emitters: bool | None = None
@@ -114,8 +123,9 @@ class LoopOptions:
     record_blocks: bool = True
 
     def __post_init__(self):
-        if not (isinstance(self.batch_group, int) and self.batch_group >= 0):
-            raise ValueError(f"batch_group must be a whole number >= 0 (0: off), got {self.batch_group!r}")
+        if self.batch_group is not None and not (isinstance(self.batch_group, int) and self.batch_group >= 0):
+            raise ValueError(f"batch_group must be a whole number >= 0 (0: off) or None (by the arm), "
+                             f"got {self.batch_group!r}")
         if self.rolled_stages not in (3, 4):
             raise ValueError(f"rolled_stages must be 3 or 4, got {self.rolled_stages!r}")
 
@@ -127,7 +137,8 @@ class LoopOptions:
         """These options with the choices left to the arm (``None``) made for ``n_joints`` joints:
         what the simulator traces a plant of that size with."""
         big = n_joints >= ROLL_FROM_JOINTS
-        return dataclasses.replace(self, rolled_rk4=self.rolled(n_joints),
+        group = (BATCH_GROUP_ARM if big else BATCH_GROUP_PLANAR) if self.batch_group is None else self.batch_group
+        return dataclasses.replace(self, rolled_rk4=self.rolled(n_joints), batch_group=group,
                                    arm_kernels=big if self.arm_kernels is None else bool(self.arm_kernels),
                                    fusion_emitters=(not big) if self.fusion_emitters is None
                                    else bool(self.fusion_emitters))
@@ -137,15 +148,16 @@ class LoopOptions:
         (``fusion_emitters``): None for XLA's defaults."""
         return None if self.for_joints(n_joints).fusion_emitters else {"xla_cpu_use_fusion_emitters": False}
 
-    def groups(self, B: int) -> list:
-        """Member indices of the groups a batch of B runs in: one group of all when B ≤
-        ``batch_group`` or grouping is off, else equal groups (NumPy index arrays, the last
-        padded with its first member)."""
+    def groups(self, B: int, n_joints: int = 2) -> list:
+        """Member indices of the groups a batch of B members of an arm of ``n_joints`` joints runs
+        in: one group of all when B ≤ ``batch_group`` (:meth:`for_joints`) or grouping is off, else
+        equal groups (NumPy index arrays, the last padded with its first member)."""
         import numpy as np
 
-        if not self.batch_group or B <= self.batch_group:
+        group = self.for_joints(n_joints).batch_group
+        if not group or B <= group:
             return [np.arange(B)]
-        n = -(-B // self.batch_group)
+        n = -(-B // group)
         g = -(-B // n)
         groups = []
         for i in range(n):
@@ -172,4 +184,5 @@ def active(options: LoopOptions):
         _ACTIVE.reset(token)
 
 
-__all__ = ["LoopOptions", "ROLL_FROM_JOINTS", "SEQUENTIAL_VALUES", "current", "active"]
+__all__ = ["BATCH_GROUP_ARM", "BATCH_GROUP_PLANAR", "LoopOptions", "ROLL_FROM_JOINTS", "SEQUENTIAL_VALUES", "current",
+           "active"]

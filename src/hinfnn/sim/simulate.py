@@ -581,8 +581,9 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     lists too. Members that fail are marked in ``status``/``t_fail`` and do not stop the others;
     nothing is raised for them. ``save_every``, ``save_interval``, ``fields`` and ``progress``
     as for :func:`simulate`; a batch of B runs stores B times what one run stores. More than
-    ``loop.batch_group`` members run as equal groups, one after the other, through the same
-    compiled program (:class:`~hinfnn._loop.LoopOptions`: faster, same numbers).
+    ``loop.batch_group`` members (by default 100 for the two-link arm, 4,096 for larger arms) run
+    as equal groups, one after the other, through the same compiled program
+    (:class:`~hinfnn._loop.LoopOptions`: faster; the numbers to rounding, as any other batch size).
     """
     from .._config import require_x64
 
@@ -626,7 +627,7 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
                 axes.append(None)
         y0, axes = stack(y0s), tuple(axes)
     opts = dict(plan=plan, n_joints=plant0.n, fields=fields, loop=loop)
-    groups = loop.groups(B)
+    groups = loop.groups(B, plant0.n)
     if len(groups) == 1:
         out = _drive(*args, y0, axes, progress=progress, **opts)
     else:  # a large batch as equal groups run one after the other (one program; hinfnn._loop)

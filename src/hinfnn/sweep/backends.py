@@ -128,8 +128,11 @@ class LocalBackend:
 
     @property
     def parallel(self) -> int:
-        """How many batches run at once (the plan keeps that many in memory)."""
+        """How many batches run at once, all in this machine's memory (the plan's ``parallel`` and
+        ``share``)."""
         return self.workers
+
+    share = parallel
 
     def describe(self) -> str:
         if self.workers == 1:

@@ -115,6 +115,17 @@ class RayBackend:
     def cpus(self) -> int:
         return int(self.ray.cluster_resources().get("CPU", 0))
 
+    @property
+    def parallel(self) -> int:
+        """How many batches run at once: one task per CPU (the plan cuts a group into that many)."""
+        return max(1, self.cpus())
+
+    @property
+    def share(self) -> int:
+        """How many batches share the driver machine's memory: all, on a local instance; on a
+        cluster the nodes' memory is Ray's to place (the plan's cap is the driver's memory)."""
+        return self.parallel if self.address == "local" else 1
+
     def describe(self) -> str:
         where = "local instance" if self.address == "local" else f"cluster {self.address}"
         return f"ray ({where}, {self.cpus()} CPUs)"
