@@ -454,9 +454,6 @@ def test_worker_processes_are_started_only_when_worth_their_start(monkeypatch):
     memory = int(20 * bytes_per_member(101, 2) / MEMORY_FRACTION) + 1  # 20 members' records fit
     assert [len(b.runs) for b in plan_batches(checked, max_batch=256, memory=memory)] == [20, 20]
     assert [len(b.runs) for b in plan_batches(checked, max_batch=256, memory=memory, parallel=2)] == [10] * 4
-    from hinfnn.sweep.worker import default_max_batch
-
-    assert default_max_batch(2) == 256 and default_max_batch(6) == 1024  # arms' batches run faster larger
     for bad in (0, -1, 1.5, True):
         with pytest.raises(ConfigError, match="--workers"):
             backends.LocalBackend(bad)

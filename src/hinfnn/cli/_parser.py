@@ -253,8 +253,7 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--samples", type=int, default=None, metavar="N",
                     help="number of random draws instead of the spec's (quick trials)")
     sw.add_argument("--batch-size", type=int, default=None, metavar="B",
-                    help="largest vmap batch (default 256 runs for the two-link arm, 1,024 for larger arms; fewer "
-                         "if memory is short)")
+                    help="largest vmap batch (default 256, fewer if memory is short)")
     sw.add_argument("--list", action="store_true", help="list the shipped sweep specs and exit")
     common(sw)
     ca = sub.add_parser(

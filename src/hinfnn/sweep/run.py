@@ -19,7 +19,7 @@ from . import store
 from .backends import auto_workers, make_backend
 from .sampling import runs as all_runs
 from .spec import SweepSpec
-from .worker import CHECK_CHUNK, Batch, BatchJob, default_max_batch, invalid_row, plan_batches
+from .worker import CHECK_CHUNK, DEFAULT_MAX_BATCH, Batch, BatchJob, invalid_row, plan_batches
 
 #: What the progress callback is told a sweep is doing.
 CHECKING, SIMULATING = "checking draws", "simulating"
@@ -133,9 +133,8 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
     what)`` (``what`` "checking draws": draws checked; "simulating": runs simulated, fractional
     within a batch); ``log(message)`` for one-line notes; ``on_part(batch_id)`` after each part is
     written. Returns a :class:`SweepResult`; the table is :func:`hinfnn.load_sweep` of the folder.
-    ``max_batch``: cap on the batch size (default :func:`~hinfnn.sweep.worker.default_max_batch`:
-    256 runs for the two-link arm, 1,024 for larger arms; ignored when resuming: the stored plan
-    decides). ``workers``: with the local backend, how many
+    ``max_batch``: cap on the batch size (default :data:`~hinfnn.sweep.worker.DEFAULT_MAX_BATCH`;
+    ignored when resuming: the stored plan decides). ``workers``: with the local backend, how many
     batches run side by side in worker processes (None: one per core this process may use when one
     process would simulate for a minute or more, :func:`~hinfnn.sweep.backends.auto_workers`, else
     this process; 1: one after the other in this process, :class:`~hinfnn.sweep.backends.LocalBackend`).
@@ -207,7 +206,7 @@ def _run(spec, folder, *, backend, address, resume, max_batch, progress, log, co
             atomic_write_text(folder / "sweep.toml", spec.to_toml(resolved=True))
             atomic_write_text(folder / "scenario.toml", spec.base.to_toml())
             manifest, ready = _plan(spec, runs, by_id, folder, be, n_joints, fingerprint,
-                                    max_batch or default_max_batch(n_joints), progress, log, command, __version__)
+                                    max_batch or DEFAULT_MAX_BATCH, progress, log, command, __version__)
         elif max_batch is not None and max_batch != manifest.get("max_batch"):
             log(f"resuming with the stored plan (batches of at most {manifest.get('max_batch')} runs); "
                 "--batch-size is ignored")

@@ -36,19 +36,12 @@ from ..status import RunStatus
 from .sampling import RunSpec
 from .spec import PER_COORDINATE_METRICS
 
-#: Largest batch by default for the two-link arm: past a few hundred members the throughput gains
-#: little (docs/performance.md) and a killed sweep loses at most one batch per worker.
+#: Largest batch by default: past a few hundred members the throughput gains little on one core
+#: (docs/performance.md: a UR5 batch pinned to one core at 42,000 trajectory-steps/s in groups of
+#: 256, 38,800 in one of 1,024; larger batches gain only where XLA spreads their kernels over the
+#: cores that the local backend's workers already use) and a killed sweep loses at most one batch
+#: per worker.
 DEFAULT_MAX_BATCH = 256
-#: The same for arms of 3 or more joints: their batches run faster per member up to about 2,000
-#: members (XLA's fixed cost per kernel launch shared by more members: a UR5 batch on one core at
-#: 38,000 trajectory-steps/s with 256 members, 58,000 with 1,024), at the price of more work lost
-#: by a killed sweep.
-DEFAULT_MAX_BATCH_ARM = 1024
-
-
-def default_max_batch(n_joints: int) -> int:
-    """The largest batch a sweep plans by default for an arm of ``n_joints`` joints."""
-    return DEFAULT_MAX_BATCH if n_joints <= 2 else DEFAULT_MAX_BATCH_ARM
 #: Fraction of the available memory a batch may hold.
 MEMORY_FRACTION = 0.5
 #: Draws checked per task (ray backend) or per progress update.
@@ -330,6 +323,6 @@ def invalid_row(r: RunSpec, checked: dict) -> dict:
     return row
 
 
-__all__ = ["DEFAULT_MAX_BATCH", "DEFAULT_MAX_BATCH_ARM", "default_max_batch", "MEMORY_FRACTION", "CHECK_CHUNK", "INVALID_ERRORS", "scenario_of", "compile_key",
+__all__ = ["DEFAULT_MAX_BATCH", "MEMORY_FRACTION", "CHECK_CHUNK", "INVALID_ERRORS", "scenario_of", "compile_key",
            "shared_key", "stored_samples", "check_runs", "Batch", "bytes_per_member", "batch_cap", "plan_batches",
            "BatchJob", "execute_batch", "member_row", "id_row", "invalid_row"]
