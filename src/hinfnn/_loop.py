@@ -80,9 +80,10 @@ Outside a trace the defaults apply.
     :data:`ROLL_FROM_JOINTS` joints. The two-link arm's step is a few hundred kernels of little
     arithmetic, and past about a hundred members its vmapped arrays leave the cache (B = 1,000 in
     groups of 64–125: 474,000–490,000 trajectory-steps/s, of 500: 428,000–440,000, 2026-12-04);
-    a 6-DOF arm's step launches about a thousand kernels, each with a fixed cost in XLA's runtime
-    that the members share, so larger groups run faster (UR5, one core: 38,000 at 128 members,
-    50,000 at 512, 58,000 at 1,024, 63,000 at 2,048 and 4,096).
+    a 6-DOF arm's batch runs faster in larger groups, because XLA spreads a kernel over the cores
+    once its arrays are large enough (UR5 on this project's 2-core machine: 38,000 at 128 members,
+    50,000 at 512, 58,000 at 1,024, 63,000 at 2,048 and 4,096; pinned to one core, 42,000 in groups
+    of 256 against 38,800 in one of 1,024).
 
 The controller's own layout (the networks' weights carried in blocks of at most 64 values, so that
 XLA runs the loop's kernels inline) is the controller's business
