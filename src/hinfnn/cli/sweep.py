@@ -25,14 +25,10 @@ def main(args) -> int:
         raise ConfigError("give a sweep spec: a shipped name (hinfnn sweep --list) or a .toml file", key="SPEC")
     if args.batch_size is not None and args.batch_size < 1:
         raise ConfigError(f"must be a whole number >= 1, got {args.batch_size}", key="--batch-size")
-    if args.address is not None and args.backend != "ray":
-        raise ConfigError("--address is for --backend ray", key="--address")
-    if args.workers is not None:
-        if args.backend != "local":
-            raise ConfigError("--workers is for the local backend (Ray runs one task per CPU)", key="--workers")
-        if args.workers < 1:
-            raise ConfigError(f"must be a whole number >= 1, got {args.workers}", key="--workers")
+    from ..sweep.backends import check_options
     from ..sweep.run import prepare_output, run_sweep
+
+    check_options(args.backend, args.address, args.workers)
 
     spec = load_spec(args.spec, samples=args.samples, overrides=args.overrides)
     output = prepare_output(args.out, spec, resume=args.resume, force=args.force)

@@ -221,18 +221,26 @@ class LocalBackend:
             self._pool = None
 
 
+def check_options(name: str, address: str | None = None, workers: int | None = None) -> None:
+    """The backend's options, checked before anything starts (the CLI calls it before it touches
+    the output folder; :func:`make_backend` before it builds the backend)."""
+    if name not in ("local", "ray"):
+        raise ConfigError(f"must be 'local' or 'ray', got {name!r}", key="--backend")
+    if address is not None and name != "ray":
+        raise ConfigError("only with --backend ray (the Ray cluster to join)", key="--address")
+    if workers is not None:
+        if name != "local":
+            raise ConfigError("only with the local backend (Ray runs one task per CPU)", key="--workers")
+        check_workers(workers)
+
+
 def make_backend(name: str, address: str | None = None, workers: int | None = None):
+    check_options(name, address, workers)
     if name == "local":
-        if address is not None:
-            raise ConfigError("--address is for the ray backend", key="--address")
         return LocalBackend(workers)
-    if name == "ray":
-        if workers is not None:
-            raise ConfigError("--workers is for the local backend (Ray runs one task per CPU)", key="--workers")
-        from .ray_backend import RayBackend
+    from .ray_backend import RayBackend
 
-        return RayBackend(address=address)
-    raise ConfigError(f"must be 'local' or 'ray', got {name!r}", key="--backend")
+    return RayBackend(address=address)
 
 
-__all__ = ["LocalBackend", "auto_workers", "available_cores", "make_backend"]
+__all__ = ["LocalBackend", "auto_workers", "available_cores", "check_options", "make_backend"]
