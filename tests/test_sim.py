@@ -130,6 +130,51 @@ def test_a_batch_in_groups_equals_the_batch_in_one(paper_plant, nominal_arm, nom
         np.testing.assert_array_equal(two.final[name], one.final[name], err_msg=name)
 
 
+def test_an_arm_batch_laid_out_member_minor_is_its_single_runs():
+    """A batch of a 3-joint URDF arm (the ``member_minor`` loop option, on by default for arms of
+    3 or more joints in a batch: the stored values laid out with the member axis minor) gives each
+    member's single run to rounding, over two chunks (the carry handed from one program call to the
+    next); the compiled batch really is laid out so, and only with the option."""
+    import re
+
+    import jax
+    import jax.numpy as jnp
+
+    from hinfnn._loop import LoopOptions, active
+    from hinfnn.model.reduced import reduced_model
+
+    assert LoopOptions().for_joints(3, batched=True).member_minor
+    assert not LoopOptions().for_joints(3).member_minor and not LoopOptions().for_joints(2, batched=True).member_minor
+    assert not LoopOptions(member_minor=False).for_joints(6, batched=True).member_minor
+    scs = [H.load_scenario("planar3-drum", {"controller.kind": "hinf_nn", "plant.arm.masses": m})
+           for m in ([2.3, 1.35, 1.2], [1.8, 1.6, 0.9])]
+    plants = [sc.build_plant() for sc in scs]
+    ctrl, ref = scs[0].build_controller("hinf_nn"), scs[0].build_reference()
+    q0s = [sc.initial_q(p) for sc, p in zip(scs, plants)]
+    fields = ("q", "qd", "tau", "lam", "theta_f_norm", "supply")
+    run = dict(t_final=0.25, dt=1e-4, save_every=10, fields=fields)  # a batch's chunk: 2,000 steps
+    batch = H.simulate_batch(plants, ctrl, ref, q0=q0s, **run)
+    for i, (plant, q0) in enumerate(zip(plants, q0s)):
+        one = H.simulate(plant, ctrl, ref, q0=q0, **run)
+        for name in fields:
+            np.testing.assert_allclose(batch.member(i).arrays[name], one.arrays[name], rtol=1e-9, atol=1e-12,
+                                       err_msg=f"member {i}: {name}")
+    assert not np.allclose(batch.member(0).arrays["tau"], batch.member(1).arrays["tau"])
+
+    # the layout: a (5, r, …) array with the member axis minor is f64[5,r,…]{0,…} in XLA's text (XLA
+    # lays out a few so of its own accord)
+    Q = jnp.stack([jnp.asarray(q0s[0]) + 0.01 * i for i in range(5)])
+    minor = re.compile(r"f64\[5,[2-9][0-9,]*\]\{0,")
+    count = {}
+    for on in (True, False):
+        f = jax.vmap(lambda q, qd: reduced_model(ctrl.arm, ctrl.surface, q, qd).M_bar)  # a new trace
+        with active(LoopOptions(member_minor=on).for_joints(3, batched=True)):
+            program = jax.jit(f).lower(Q, 0.1 * Q).compile()
+        count[on] = len(minor.findall(program.as_text()))
+        np.testing.assert_allclose(program(Q, 0.1 * Q), f(Q, 0.1 * Q), rtol=1e-12)
+    assert count[True] > 3 * count[False] + 20, count
+
+
 def test_penetration_limit_stops_a_run(paper_plant, nominal_arm, nominal_surface, reference):
     ctrl = H.HinfController.design(nominal_arm, nominal_surface)
     tr = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.2, dt=1e-4,

@@ -14,7 +14,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
+from jax import custom_batching, lax
+from jax.experimental.layout import Layout, with_layout_constraint
 
 from . import _loop
 
@@ -101,6 +102,54 @@ def runtime_one(x):
     return 1.0 + 0.0 * jnp.reshape(x, (-1,))[0]
 
 
+@custom_batching.custom_vmap
+def _member_minor(x):
+    return x
+
+
+@_member_minor.def_vmap
+def _member_minor_vmap(axis_size, in_batched, x):
+    # vmap puts the member axis first (major); the layout puts it last (minor) in memory
+    if not in_batched[0] or x.ndim < 2:
+        return x, in_batched[0]
+    return with_layout_constraint(x, Layout(major_to_minor=tuple(range(1, x.ndim)) + (0,))), True
+
+
+@custom_batching.custom_vmap
+def _member_major(x):
+    return x
+
+
+@_member_major.def_vmap
+def _member_major_vmap(axis_size, in_batched, x):
+    if not in_batched[0] or x.ndim < 2:
+        return x, in_batched[0]
+    return with_layout_constraint(x, Layout(major_to_minor=tuple(range(x.ndim)))), True
+
+
+def member_minor(x):
+    """x as it is, laid out in memory with a batch's member axis minor (the ``member_minor`` loop
+    option, under ``jax.vmap``; else x untouched). For a stored value (:func:`store`,
+    :func:`stored`, :func:`hinfnn.model.rbd.keep`): ``vmap`` puts the member axis first, so a
+    member's 6 × 6 matrix is 36 adjacent values and the kernels that read it vectorise over a
+    row of 6; member-minor, each entry is a contiguous vector over the members and every kernel
+    around it runs on whole SIMD registers. A constraint on every value would cut XLA's fusions
+    (tried: 4 times slower); on the stored values, which are written to memory anyway, XLA's layout
+    assignment carries the layout to the kernels around them."""
+    if not _loop.current().member_minor:
+        return x
+    return _member_minor(x)
+
+
+def default_layout(tree):
+    """Every array of ``tree`` in the default (row-major) layout (the ``member_minor`` loop option,
+    under ``jax.vmap``; else the tree untouched): a compiled program's outputs, which JAX assumes
+    laid out so."""
+    if not _loop.current().member_minor:
+        return tree
+    return jax.tree.map(lambda x: _member_major(x) if isinstance(x, jax.Array) or hasattr(x, "aval") else x, tree)
+
+
 def store(x, one):
     """x computed once and kept: divided by ``one`` (:func:`runtime_one`, exact). XLA's CPU
     compiler recomputes cheap arithmetic in every kernel that uses it, and a division is not cheap
@@ -110,8 +159,8 @@ def store(x, one):
     product with its reciprocal, which it then copies into the readers like any product (a 6 × 6
     product read by six kernels was computed six times): for such a value use :func:`stored`.
     (Making this function :func:`stored` was measured and is slower: 1,427 against 1,403 UR5
-    kernels per step, 40.4 against 37.4 µs.)"""
-    return x / one
+    kernels per step, 40.4 against 37.4 µs.) Laid out by :func:`member_minor`."""
+    return member_minor(x / one)
 
 
 def stored(x):
@@ -120,7 +169,8 @@ def stored(x):
     feeding the six column kernels of :func:`chol` was recomputed in each of them (about 800
     operations apiece). Written x / (1 + 0·x), exact (NaN stays NaN): XLA does not copy a division
     into several consumers, and it turns a division by a broadcast scalar (:func:`store`) into a
-    product that it does copy. Its derivative is the tangent stored the same way."""
+    product that it does copy. Its derivative is the tangent stored the same way. Laid out by
+    :func:`member_minor`."""
     if not _loop.current().arm_kernels:
         return x
     return _stored(x)
@@ -128,7 +178,7 @@ def stored(x):
 
 @jax.custom_jvp
 def _stored(x):
-    return x / (1.0 + 0.0 * x)
+    return member_minor(x / (1.0 + 0.0 * x))
 
 
 @_stored.defjvp

@@ -18,7 +18,9 @@ How the arithmetic is laid out, and why (``docs/performance.md`` has the measure
   (:func:`keep`: the values stacked in one buffer of at most 64 numbers and divided by a one
   XLA cannot see through): each stage is one fused kernel, and nothing is recomputed across
   stages. Buffers stay at most 512 bytes: XLA's CPU runtime runs a loop body's kernels inline
-  only when every buffer they touch is that small (:mod:`hinfnn._devices`, ``blocks``).
+  only when every buffer they touch is that small (:mod:`hinfnn._devices`, ``blocks``). In a
+  batch each stored buffer is laid out with the member axis minor
+  (:func:`hinfnn._linalg.member_minor`).
 * **The chain's structure is unrolled** at trace time: the Python loop over the (static) joints
   and joint types, prefix and suffix sums over the bodies written out.
 
@@ -33,6 +35,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from .._linalg import member_minor
 
 #: Largest number of float64 values in one stored buffer (512 bytes, :mod:`hinfnn._devices`).
 BUFFER = 64
@@ -81,7 +85,7 @@ def keep(parts, one):
     out = []
     for i in range(0, len(parts), per):
         group = parts[i:i + per]
-        x = grid_stack(group) / one
+        x = member_minor(grid_stack(group) / one)
         out.extend(x[j] for j in range(len(group)))
     return tuple(out)
 
@@ -98,7 +102,7 @@ def table(rows, one):
     out = []
     for k0 in range(0, K, per):
         group = flat[k0 * n:min(K, k0 + per) * n]
-        x = grid_stack(group) / one
+        x = member_minor(grid_stack(group) / one)
         out.extend(x[j * n:(j + 1) * n] for j in range(len(group) // n))
     return tuple(out)
 

@@ -46,6 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _linalg as la
 from .. import _loop
 from .._loop import LoopOptions
 from .._programs import ExportedProgram, KeptFunction
@@ -290,7 +291,7 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
         c, rec = jax.lax.fori_loop(0, n_inner, body, (c, rec0))
         return c, _derived(ctrl, rec, fields)
 
-    return _record_scan(one_record, carry, n_records)
+    return la.default_layout(_record_scan(one_record, carry, n_records))
 
 
 def _record_scan(one_record, carry, n_records):
@@ -332,7 +333,7 @@ def _final(plant, ctrl, ref, carry):
         fault_value = jnp.where(carry.status == int(RunStatus.CONTROLLER_FAULT), measure, fault_value)
     details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts,
                    fault_value=fault_value, fault_index=carry.bad_fault_index)
-    return carry.status, carry.t_fail, details, final
+    return la.default_layout((carry.status, carry.t_fail, details, final))
 
 
 def _init_carry(ctrl, y0, n):
@@ -379,7 +380,7 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
     :meth:`~hinfnn.sim.plan.StepPlan.chunk`). The chunk program is also kept traced and lowered
     between processes (:class:`~hinfnn._programs.ExportedProgram`)."""
     options = loop.compiler_options(n_joints)
-    loop = loop.for_joints(n_joints)
+    loop = loop.for_joints(n_joints, batched=in_axes is not None)
     chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields)
     final, init = _final, _init_carry
     if in_axes is not None:
