@@ -21,7 +21,9 @@ Cases (each runs in a fresh worker process so that its peak memory is its own):
    the adaptive 10-s run and a 100-plant batch.
 7. ``arm_devices`` — ``rolled_rk4`` on and off on the UR5 (ur5-table, H∞ + NN): the first run
    (compile-dominated, empty cache) and a 0.5-s run.
-8. ``batch_devices`` — ``batch_groups`` on and off: the adaptive law at B = 1,000 (1 s, metrics).
+8. ``batch_devices`` — ``batch_groups`` on and off: the adaptive law at B = 1,000 (1 s, metrics);
+   ``arm_batch_devices`` — ``member_minor`` on and off: the UR5 (H∞ + NN) at B = 256
+   (``--arm-batch-horizon``; not in the default cases, the ``ur5_batch`` rows have it on).
 9. ``program_gc`` — the ``program_gc`` device on and off: ``hinfnn run paper --no-figures`` (0.05 s
    simulated, warm cache) in fresh processes, alternating; wall and CPU time.
 10. ``launch_floor`` — what XLA's CPU runtime costs per kernel launched in a loop: chains of 52–402
@@ -337,7 +339,7 @@ def case_device_run(args) -> dict:
 #: The switches of ``--disable``: the loop options (hinfnn._loop.LoopOptions) and the controller's
 #: block layout (``blocks``).
 SWITCHES = ("blocks", "sincos", "small_mm", "rolled_rk4", "batch_groups", "arm_kernels", "rolled_stages",
-            "fusion_emitters", "record_once", "record_blocks")
+            "fusion_emitters", "record_once", "record_blocks", "member_minor")
 
 
 def _loop_options(args):
@@ -353,7 +355,7 @@ def _loop_options(args):
     have = {f.name for f in dataclasses.fields(LoopOptions)}  # options of the hinfnn being measured
     extra = {"arm_kernels": ("arm_kernels", False), "rolled_stages": ("rolled_stages", 3),
              "fusion_emitters": ("fusion_emitters", True), "record_once": ("record_once", False),
-             "record_blocks": ("record_blocks", False)}
+             "record_blocks": ("record_blocks", False), "member_minor": ("member_minor", False)}
     for switch, (name, value) in extra.items():
         if switch in off:
             if name not in have:
@@ -437,6 +439,31 @@ def case_batch_run(args) -> dict:
 def case_batch_devices(args) -> dict:
     """``batch_groups`` on and off at B = 1,000: the benchmark line that justifies it."""
     return _each_off(args, "batch_run", ("batch_groups",))
+
+
+def case_arm_batch_run(args) -> dict:
+    """The UR5 (ur5-table, H∞ + NN) as a batch of 256 plants for ``--arm-batch-horizon`` s
+    (fields="metrics", the program compiled first), with the devices of ``--disable`` off in this
+    worker."""
+    import hinfnn as H
+
+    sc = _ur5()
+    plant, ctrl, ref = sc.build_plant(), sc.build_controller("hinf_nn"), sc.build_reference()
+    kw = dict(dt=DT, q0=[sc.initial_q(plant)] * 256, fields="metrics", loop=_loop_options(args),
+              t_final=args.arm_batch_horizon)
+    t0 = time.perf_counter()
+    H.simulate_batch([plant] * 256, ctrl, ref, **kw)
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    H.simulate_batch([plant] * 256, ctrl, ref, **kw)
+    wall = time.perf_counter() - t0
+    return dict(disabled=list(args.disable), compile_s=compile_s, wall_s=wall,
+                traj_steps_per_s=256 * round(args.arm_batch_horizon / DT) / wall)
+
+
+def case_arm_batch_devices(args) -> dict:
+    """``member_minor`` on and off on a UR5 batch of 256: the benchmark line that justifies it."""
+    return _each_off(args, "arm_batch_run", ("member_minor",))
 
 
 def case_program_gc(args) -> dict:
@@ -688,6 +715,7 @@ CASES = {"single": case_single, "batch": case_batch, "startup": case_startup, "w
          "latency": case_latency, "latency_sync": case_latency_sync, "devices": case_devices,
          "device_run": case_device_run, "arm_devices": case_arm_devices, "arm_run": case_arm_run,
          "batch_devices": case_batch_devices, "batch_run": case_batch_run, "program_gc": case_program_gc,
+         "arm_batch_devices": case_arm_batch_devices, "arm_batch_run": case_arm_batch_run,
          "launch_floor": case_launch_floor, "ur5_anchor": case_ur5_anchor, "ur5_single": case_ur5_single, "ur5_latency": case_ur5_latency,
          "ur5_latency_sync": case_ur5_latency_sync,
          "ur5_batch": case_ur5_batch, "ur5_whole": case_ur5_whole}
@@ -902,6 +930,9 @@ def print_report(res: dict) -> None:
                      ("0.5-s run s", 13, lambda r: f"{r['s_per_half_second']['median']:.3f}")])
     _print_each_off("\n8. batch_groups at B = 1,000 (adaptive law, 1 s, metrics)", c.get("batch_devices"),
                     [("wall s", 8, lambda r: f"{r['wall_s']:.2f}"),
+                     ("traj-steps/s", 14, lambda r: f"{r['traj_steps_per_s']:,.0f}")])
+    _print_each_off("\n8b. member_minor on a UR5 batch of 256 (H∞ + NN, metrics)", c.get("arm_batch_devices"),
+                    [("compile s", 11, lambda r: f"{r['compile_s']:.1f}"),
                      ("traj-steps/s", 14, lambda r: f"{r['traj_steps_per_s']:,.0f}")])
     g = c.get("program_gc", {})
     if "on" in g:
