@@ -152,6 +152,28 @@ class KeptFunction:
         return jax.jit(exported.call, compiler_options=self.compiler_options), meta, exported.out_avals
 
 
+def jit_by_joints(fn=None, *, static_argnames=None):
+    """Decorator: ``jax.jit(fn)``, compiled with the XLA options the simulator uses for the
+    joints of its first argument (a plant or an arm, ``.n``; :meth:`hinfnn._loop.LoopOptions.compiler_options`):
+    XLA's older loop emitters for arms of 3 or more joints, whose rigid-body algorithms written out
+    for fusion the default emitters compile several times slower (the UR5 closed loop's Jacobian of
+    ``hinfnn design``: 17.7 against 13.3 s, the same matrix to 3e-16), XLA's defaults for the
+    two-link arm. Called inside another trace, it is ``jax.jit(fn)``."""
+    if fn is None:
+        return functools.partial(jit_by_joints, static_argnames=static_argnames)
+    from ._loop import ROLL_FROM_JOINTS, LoopOptions
+
+    plain = jax.jit(fn, static_argnames=static_argnames)
+    arm = jax.jit(fn, static_argnames=static_argnames, compiler_options=LoopOptions().compiler_options(ROLL_FROM_JOINTS))
+
+    @functools.wraps(fn)
+    def call(first, *args, **kwargs):
+        return (arm if getattr(first, "n", 0) >= ROLL_FROM_JOINTS else plain)(first, *args, **kwargs)
+
+    call.plain, call.arm = plain, arm
+    return call
+
+
 def kept(name: str):
     """Decorator: :class:`KeptFunction` of the function, under ``name`` (unique in hinfnn)."""
     return lambda fn: KeptFunction(fn, name)

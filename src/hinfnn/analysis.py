@@ -45,6 +45,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._programs import jit_by_joints
 from .controllers import terms as T
 from .plant import PenaltyContact, RigidBodyPlant, SquareWave
 from .reference import CosineReference
@@ -89,7 +90,7 @@ def exact_plant(arm, surface, stiffness: float, damping: float = 0.0) -> RigidBo
                           disturbance=SquareWave.none(arm.n))
 
 
-@jax.jit
+@jit_by_joints
 def _A_J_M(arm, surface, q):
     t = arm.law_terms(q, jnp.zeros_like(q))
     return surface.A_hat(t.x), t.J, t.M
@@ -153,7 +154,7 @@ def _balance(plant, ctrl, u1d, lam_d, q):
     return jnp.concatenate([u1 - u1d, (lam - lam_d) / jnp.maximum(jnp.abs(lam_d), 1.0)])
 
 
-@jax.jit
+@jit_by_joints
 def _equilibrium_guess(plant, ctrl, u1d, lam_d, q):
     """The pose at x = (u1d, Ω(u1d) + u2), u2 from the linear estimate θ = λd ÂÂᵀ/k (exact for a
     penalty spring on a plane or line and for fitted coordinates), by Newton steps on ĥ(q) = x
@@ -167,7 +168,7 @@ def _equilibrium_guess(plant, ctrl, u1d, lam_d, q):
     return q, jnp.max(jnp.abs(_balance(plant, ctrl, u1d, lam_d, q)))
 
 
-@jax.jit
+@jit_by_joints
 def _equilibrium_newton(plant, ctrl, u1d, lam_d, q):
     """Newton steps on :func:`_balance` from q (a pose in contact)."""
     q = _lm(lambda q: _balance(plant, ctrl, u1d, lam_d, q), q, 30)
@@ -216,7 +217,7 @@ def rest_state(ctrl, q_eq) -> np.ndarray:
                           + [np.ravel(np.asarray(leaf)) for leaf in jax.tree.leaves(xc)])
 
 
-@jax.jit
+@jit_by_joints
 def _loop_jacobian(plant, ctrl, ref, y0):
     def f(y):
         ps, xc = _unflatten(plant, ctrl, y)
@@ -235,7 +236,7 @@ def closed_loop_jacobian(plant, ctrl, ref, q_eq):
     return np.asarray(A), np.asarray(y0), float(np.max(np.abs(np.asarray(f0))))
 
 
-@functools.partial(jax.jit, static_argnames="n_sub")
+@jit_by_joints(static_argnames="n_sub")
 def sampled_map_direct(plant, ctrl, ref, y0, period, n_sub):
     """(Jacobian at y0, value at y0) of the closed loop over one control period under zero-order
     hold, differentiated whole (as the simulator's sampled mode: the controller's sample update at
@@ -298,7 +299,7 @@ def _drop_neutral(A, candidates, shift: float = 0.0, tol: float = 1e-9):
     return W, Z.shape[1]
 
 
-@jax.jit
+@jit_by_joints
 def _u_jacobian(arm, surface, q):
     """∂u/∂q, u = (u1, u2) of eq. (6) at ĥ(q)."""
     return jax.jacfwd(lambda q: surface.to_u(arm.h(q)))(q)
@@ -492,7 +493,7 @@ def contact_modes(scenario, kind: str, stiffness: float, u1d=None, lam_d=None, c
                 q=q_eq.tolist(), **out)
 
 
-@jax.jit
+@jit_by_joints
 def _held_plant_jacobian(plant, ctrl, ref, y_p, tau):
     """(∂(q̇, q̈)/∂(q, q̇), ∂(q̇, q̈)/∂τ, (q̇, q̈)) of the simulator's right-hand side in its sampled
     mode (the torque held at ``tau``, the controller's output not applied) at the plant state y_p."""
@@ -614,7 +615,7 @@ def path_report(scenario, ctrl, q0) -> dict:
     return out
 
 
-@jax.jit
+@jit_by_joints
 def _jacobian_det(arm, q):
     return jnp.linalg.det(arm.J(q))
 
