@@ -131,8 +131,9 @@ def test_a_batch_in_groups_equals_the_batch_in_one(paper_plant, nominal_arm, nom
 
 
 def test_an_arm_batch_laid_out_member_minor_is_its_single_runs():
-    """A batch of a 3-joint URDF arm (the ``member_minor`` loop option, on by default for arms of
-    3 or more joints in a batch: the stored values laid out with the member axis minor) gives each
+    """A batch of a 3-joint URDF arm with the ``member_minor`` loop option (on by default for
+    batches of 16 or more members of arms of 3 or more joints: the stored values laid out with the
+    member axis minor) gives each
     member's single run to rounding, over two chunks (the carry handed from one program call to the
     next); the compiled batch really is laid out so, and only with the option."""
     import re
@@ -143,16 +144,19 @@ def test_an_arm_batch_laid_out_member_minor_is_its_single_runs():
     from hinfnn import _linalg as la
     from hinfnn._loop import LoopOptions, active
 
-    assert LoopOptions().for_joints(3, batched=True).member_minor
-    assert not LoopOptions().for_joints(3).member_minor and not LoopOptions().for_joints(2, batched=True).member_minor
-    assert not LoopOptions(member_minor=False).for_joints(6, batched=True).member_minor
+    # by default on for batches of 16 or more members of an arm of 3 or more joints
+    assert LoopOptions().for_joints(3, members=16).member_minor
+    assert not LoopOptions().for_joints(3, members=15).member_minor and not LoopOptions().for_joints(3).member_minor
+    assert not LoopOptions().for_joints(2, members=100).member_minor
+    assert not LoopOptions(member_minor=False).for_joints(6, members=256).member_minor
+    assert LoopOptions(member_minor=True).for_joints(6, members=2).member_minor
     sc = H.load_scenario("planar3-drum", {"controller.kind": "hinf"})
     plant, ctrl, ref = sc.build_plant(), sc.build_controller("hinf"), sc.build_reference()
     q0 = np.asarray(sc.initial_q(plant))
     q0s = [q0, q0 + np.array([2e-3, -1e-3, 1e-3])]
     fields = ("q", "qd", "tau", "lam", "supply")
     run = dict(t_final=0.25, dt=1e-4, save_every=10, fields=fields)  # a batch's chunk: 2,000 steps
-    batch = H.simulate_batch([plant, plant], ctrl, ref, q0=q0s, **run)
+    batch = H.simulate_batch([plant, plant], ctrl, ref, q0=q0s, loop=LoopOptions(member_minor=True), **run)
     for i, q in enumerate(q0s):
         one = H.simulate(plant, ctrl, ref, q0=q, **run)
         for name in fields:
@@ -167,7 +171,7 @@ def test_an_arm_batch_laid_out_member_minor_is_its_single_runs():
     count = {}
     for on in (True, False):
         f = jax.vmap(lambda q, qd: la.chol(la.stored(la.mm(ctrl.arm.M(q), ctrl.arm.M(qd)))))  # a new trace
-        with active(LoopOptions(member_minor=on).for_joints(3, batched=True)):
+        with active(LoopOptions(member_minor=on).for_joints(3, members=5)):
             program = jax.jit(f).lower(Q, 0.1 * Q).compile()
         count[on] = len(minor.findall(program.as_text()))
         np.testing.assert_allclose(program(Q, 0.1 * Q), f(Q, 0.1 * Q), rtol=1e-12)

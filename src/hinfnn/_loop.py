@@ -86,15 +86,17 @@ Outside a trace the defaults apply.
     of 256 against 38,800 in one of 1,024).
 
 ``member_minor``
-    In a batch (``jax.vmap``) of an arm of at least :data:`ROLL_FROM_JOINTS` joints (``None``, the
-    default): every stored value (:func:`hinfnn._linalg.store`, :func:`~hinfnn._linalg.stored`,
+    In a batch (``jax.vmap``) of at least :data:`MEMBER_MINOR_FROM` members of an arm of at least
+    :data:`ROLL_FROM_JOINTS` joints (``None``, the default): every stored value (:func:`hinfnn._linalg.store`, :func:`~hinfnn._linalg.stored`,
     :func:`hinfnn.model.rbd.keep`) laid out in memory with the member axis minor
     (:func:`hinfnn._linalg.member_minor`), the programs' outputs in the default layout
     (:func:`hinfnn._linalg.default_layout`). ``vmap`` puts the member axis first: a member's
     6 × 6 matrix is then 36 adjacent values and a kernel that reads it vectorises over a row of 6;
     member-minor, each entry is a vector over the members. UR5 (H∞ + NN) at B = 64 / 256 / 1,024:
     33,900 / 40,900 / 60,300 → 40,700 / 50,600 / 67,500 trajectory-steps/s (2026-12-04, eighth
-    pass). No effect on a single run (no member axis) or on the two-link arm (nothing stored).
+    pass), at about 6 s more to compile a batch program (XLA converts layouts in about 1,200 fused
+    copies), which a batch of a few runs (an experiment's pair of laws) would not earn back. No
+    effect on a single run (no member axis) or on the two-link arm (nothing stored).
 
 The controller's own layout (the networks' weights carried in blocks of at most 64 values, so that
 XLA runs the loop's kernels inline) is the controller's business
@@ -117,6 +119,8 @@ SEQUENTIAL_VALUES = 64
 #: ``batch_group`` by the arm (``None``): the two-link arm's groups, and those of larger arms.
 BATCH_GROUP_PLANAR = 100
 BATCH_GROUP_ARM = 4096
+#: ``member_minor`` by the batch (``None``): on for batches of at least this many members of an arm.
+MEMBER_MINOR_FROM = 16
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,18 +150,20 @@ class LoopOptions:
         """Whether a plant with ``n_joints`` joints integrates with RK4's stages rolled."""
         return n_joints >= ROLL_FROM_JOINTS if self.rolled_rk4 is None else bool(self.rolled_rk4)
 
-    def for_joints(self, n_joints: int, batched: bool = False) -> "LoopOptions":
-        """These options with the choices left to the arm (``None``) made for ``n_joints`` joints,
-        in a batch (``batched``) or a single run: what the simulator traces a plant of that size
-        with."""
+    def for_joints(self, n_joints: int, members: int | None = None) -> "LoopOptions":
+        """These options with the choices left to the arm (``None``) made for ``n_joints`` joints:
+        what the simulator traces a plant of that size with. ``member_minor`` is the batch's choice:
+        made for a batch of ``members`` members, left ``None`` (off) without."""
         big = n_joints >= ROLL_FROM_JOINTS
         group = (BATCH_GROUP_ARM if big else BATCH_GROUP_PLANAR) if self.batch_group is None else self.batch_group
+        minor = self.member_minor
+        if minor is None and members is not None:
+            minor = big and members >= MEMBER_MINOR_FROM
         return dataclasses.replace(self, rolled_rk4=self.rolled(n_joints), batch_group=group,
                                    arm_kernels=big if self.arm_kernels is None else bool(self.arm_kernels),
                                    fusion_emitters=(not big) if self.fusion_emitters is None
                                    else bool(self.fusion_emitters),
-                                   member_minor=(big and batched) if self.member_minor is None
-                                   else bool(self.member_minor))
+                                   member_minor=minor if minor is None else bool(minor))
 
     def compiler_options(self, n_joints: int) -> dict | None:
         """XLA compile options of a simulation program for a plant of ``n_joints`` joints
@@ -200,5 +206,5 @@ def active(options: LoopOptions):
         _ACTIVE.reset(token)
 
 
-__all__ = ["BATCH_GROUP_ARM", "BATCH_GROUP_PLANAR", "LoopOptions", "ROLL_FROM_JOINTS", "SEQUENTIAL_VALUES", "current",
+__all__ = ["BATCH_GROUP_ARM", "BATCH_GROUP_PLANAR", "LoopOptions", "MEMBER_MINOR_FROM", "ROLL_FROM_JOINTS", "SEQUENTIAL_VALUES", "current",
            "active"]

@@ -353,12 +353,14 @@ def _init_carry(ctrl, y0, n):
                  maxes={k: jnp.zeros((), f64) for k in STEP_MAXES})
 
 
-def _with_options(fn, loop: LoopOptions):
+def _with_options(fn, loop: LoopOptions, members=None, n_joints: int = 2):
     """``fn`` traced with ``loop`` active (:func:`hinfnn._loop.active`), under ``fn``'s name (the
-    compiled program's name, e.g. ``jit__chunk``)."""
+    compiled program's name, e.g. ``jit__chunk``). ``members``: a batch's size from ``fn``'s
+    arguments, for the options a batch decides (:meth:`~hinfnn._loop.LoopOptions.for_joints`)."""
 
     def traced(*args):
-        with _loop.active(loop):
+        opts = loop if members is None else loop.for_joints(n_joints, members(*args))
+        with _loop.active(opts):
             return fn(*args)
 
     base = fn
@@ -380,17 +382,23 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
     :meth:`~hinfnn.sim.plan.StepPlan.chunk`). The chunk program is also kept traced and lowered
     between processes (:class:`~hinfnn._programs.ExportedProgram`)."""
     options = loop.compiler_options(n_joints)
-    loop = loop.for_joints(n_joints, batched=in_axes is not None)
+    loop = loop.for_joints(n_joints)
     chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields)
     final, init = _final, _init_carry
+    members = {"chunk": None, "final": None}
     if in_axes is not None:
         p, c, r, lim = in_axes
         chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None, None, None))
         final = jax.vmap(final, in_axes=(p, c, r, 0))
         init = jax.vmap(_init_carry, in_axes=(c, 0, None))
-    chunk = ExportedProgram(_with_options(chunk, loop), "chunk", (in_axes, n_records, sampled, fields, loop),
-                            carry_arg=4, compiler_options=options)  # kept lowered on disk (hinfnn._programs)
-    final = KeptFunction(_with_options(final, loop), "final", (in_axes, loop), compiler_options=options)
+        # the batch's own options (member_minor) by its size: the leading axis of the carry
+        members = {"chunk": lambda *a: jax.tree.leaves(a[4])[0].shape[0],
+                   "final": lambda *a: jax.tree.leaves(a[3])[0].shape[0]}
+    chunk = ExportedProgram(_with_options(chunk, loop, members["chunk"], n_joints), "chunk",
+                            (in_axes, n_records, sampled, fields, loop), carry_arg=4,
+                            compiler_options=options)  # kept lowered on disk (hinfnn._programs)
+    final = KeptFunction(_with_options(final, loop, members["final"], n_joints), "final", (in_axes, loop),
+                         compiler_options=options)
     return chunk, final, jax.jit(_with_options(init, loop), static_argnums=2)
 
 
