@@ -33,6 +33,7 @@ Cases (each runs in a fresh worker process so that its peak memory is its own):
    tool's Jacobian and its rate, four stages) by Pinocchio called from Python;
    ``ur5_single`` — one run, continuous and at 1 kHz sampled control (``ur5-table-stable``): compile,
    steps per second, kernels per step of the compiled loop, launched and distinct (benchmarks/hlo.py);
+   and the floor under the sampled run: RK4 steps of the true plant alone, the torque held;
    ``ur5_latency`` — the sampled update at 1 kHz from a Python loop (``ur5_latency_sync``: with
    JAX's CPU async dispatch off, as ``latency_sync``);
    ``ur5_batch`` — B = 64, 256, 1,024, 4,096 plants (``--arm-batches``): compile and trajectory-steps/s;
@@ -645,7 +646,56 @@ def case_ur5_single(args) -> dict:
             plant = sc.build_plant()
             out[label]["ops"] = step_profile(plant, sc.build_controller("hinf_nn"), sc.build_reference(),
                                              sc.initial_q(plant), loop)
+    out["plant alone"] = _plant_alone(_ur5(name="ur5-table-stable"), loop, args)
     return out
+
+
+def _plant_alone(sc, loop, args) -> dict:
+    """The floor under a sampled run: RK4 steps of the scenario's true plant alone (sensing, contact,
+    forward dynamics), the torque held constant (the UR5's gravity torque at the start pose), no
+    controller, no record, no checks: a ``fori_loop`` of 10,000 steps compiled with the simulator's
+    loop and XLA options. The same rows as a run (first call: compile)."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from hinfnn._loop import LoopOptions, active
+    from hinfnn.sim.integrate import rk4_step
+
+    plant = sc.build_plant()
+    n = plant.n
+    opts = (loop or LoopOptions()).for_joints(n)
+    y0 = plant.initial_state(jnp.asarray(sc.initial_q(plant)), jnp.zeros(n))
+    tau = sc.build_controller("hinf_nn").arm.G(y0.q)
+    steps = 10_000
+
+    def run(plant, y0, tau):
+        w = jnp.zeros(n)
+
+        def f(t, y):
+            _, cache = plant.sense(t, y)
+            return plant.derivative(t, y, tau, w, cache)[0], ()
+
+        def body(k, y):
+            return rk4_step(f, k * DT, y, DT, rolled=opts.rolled(n), rolled_stages=opts.rolled_stages,
+                            record_once=False)[0]
+
+        return jax.lax.fori_loop(0, steps, body, y0)
+
+    program = jax.jit(run, compiler_options=opts.compiler_options(n))
+    t0 = time.perf_counter()
+    with active(opts):
+        y = jax.block_until_ready(program(plant, y0, tau))
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(max(1, args.repeats) + 1):
+        t0 = time.perf_counter()
+        y = jax.block_until_ready(program(plant, y0, tau))
+        times.append(time.perf_counter() - t0)
+    best = min(times)
+    finite = all(bool(np.isfinite(np.asarray(a)).all()) for a in jax.tree.leaves(y))
+    return dict(scenario="ur5-table-stable", first_run_s=first, run_s=_stats(times), steps_per_s=steps / best,
+                us_per_step=1e6 * best / steps, s_per_10s_run=T_RUN / (steps * DT) * best, status=0 if finite else 1)
 
 
 def case_ur5_latency(args, sync: bool = False) -> dict:
@@ -809,6 +859,9 @@ def _print_ur5(c: dict) -> None:
                       f"{near['distinct']} distinct kernels"
                       + (f"; {branch} of the {ops['kernels']} kernels counted are in conditionals, counted as if "
                          "taken at every iteration" if branch else "") + ")")
+        if "plant alone" in rows:
+            print(f"{'':<16}(plant alone: RK4 of the true plant with the torque held, no controller, record or checks: "
+                  "the floor under a sampled run's step)")
     if "ur5_batch" in c and "error" not in c["ur5_batch"]:
         hdr = (f"{'batch B':<16}{'1st run s':>10}{'wall s':>9}{'compile s':>10}{'traj-steps/s':>14}{'µs/member-step':>16}"
                f"{'× anchor':>9}{'peak GB':>8}{'failed':>7}")

@@ -152,19 +152,30 @@ class KeptFunction:
         return jax.jit(exported.call, compiler_options=self.compiler_options), meta, exported.out_avals
 
 
+#: XLA options added, for an arm of 3 or more joints, to those of the simulator
+#: (:func:`jit_by_joints`): LLVM's optimisation level 0. A design's programs run a few times each
+#: and are compiled once: ``hinfnn design ur5-polish`` (H∞-only law, empty cache) 39.5 -> 34.2 s;
+#: ``panda-table`` under the test suite's XLA flags 42.4 -> 37.3 s, its closed loop's Jacobian
+#: 16.1 -> 12.4 s to compile; the same printed design (the UR5's loop Jacobian to 7e-16), the
+#: programs about twice as slow to run (that Jacobian 1.2 -> 2.2 ms; docs/performance.md).
+ANALYSIS_OPTIONS = {"xla_backend_optimization_level": 0}
+
+
 def jit_by_joints(fn=None, *, static_argnames=None):
-    """Decorator: ``jax.jit(fn)``, compiled with the XLA options the simulator uses for the
-    joints of its first argument (a plant or an arm, ``.n``; :meth:`hinfnn._loop.LoopOptions.compiler_options`):
-    XLA's older loop emitters for arms of 3 or more joints, whose rigid-body algorithms written out
-    for fusion the default emitters compile several times slower (the UR5 closed loop's Jacobian of
-    ``hinfnn design``: 17.7 against 13.3 s, the same matrix to 3e-16), XLA's defaults for the
+    """Decorator for design-time programs: ``jax.jit(fn)``, compiled with the XLA options the
+    simulator uses for the joints of its first argument (a plant or an arm, ``.n``;
+    :meth:`hinfnn._loop.LoopOptions.compiler_options`) and :data:`ANALYSIS_OPTIONS`: for arms of 3
+    or more joints XLA's older loop emitters (its default emitters compile the rigid-body
+    algorithms written out for fusion several times slower: the UR5 closed loop's Jacobian 17.7
+    against 13.3 s, the same matrix to 3e-16) and no LLVM optimisation; XLA's defaults for the
     two-link arm. Called inside another trace, it is ``jax.jit(fn)``."""
     if fn is None:
         return functools.partial(jit_by_joints, static_argnames=static_argnames)
     from ._loop import ROLL_FROM_JOINTS, LoopOptions
 
     plain = jax.jit(fn, static_argnames=static_argnames)
-    arm = jax.jit(fn, static_argnames=static_argnames, compiler_options=LoopOptions().compiler_options(ROLL_FROM_JOINTS))
+    options = {**(LoopOptions().compiler_options(ROLL_FROM_JOINTS) or {}), **ANALYSIS_OPTIONS}
+    arm = jax.jit(fn, static_argnames=static_argnames, compiler_options=options)
 
     @functools.wraps(fn)
     def call(first, *args, **kwargs):
