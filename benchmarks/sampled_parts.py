@@ -3,8 +3,9 @@
     python benchmarks/sampled_parts.py [--horizon 1.0] [--repeats 3]
 
 ``ur5-table-stable`` (the bare 1e5 N/m table, adaptive law with the force-rate term), dt = 0.1 ms,
-timed in one process without the compilation cache, each variant compiled first (then the best of ``--repeats`` runs of
-``--horizon`` s; µs per RK4 step and the 10-s run's simulation time at that rate):
+timed in one process without the compilation cache, each variant compiled first (then the best of
+``--repeats`` runs of ``--horizon`` s; µs per RK4 step and the 10-s run's simulation time at that
+rate):
 
 1. ``plant alone``: RK4 of the true plant, the torque held, no controller, record or checks
    (``benchmarks/run.py``'s floor row);
@@ -47,7 +48,7 @@ def main(argv=None) -> int:
 
     from hinfnn._pytree import pytree_dataclass, static_field
     from hinfnn.protocols import Controller, ControllerOutput
-    from run import DT, T_RUN, _plant_alone  # noqa: E402
+    from run import DT, T_RUN, _plant_alone
 
     @pytree_dataclass
     class HoldLaw(Controller):
