@@ -23,7 +23,10 @@ Cases (each runs in a fresh worker process so that its peak memory is its own):
    (compile-dominated, empty cache) and a 0.5-s run.
 8. ``batch_devices`` — ``batch_groups`` on and off: the adaptive law at B = 1,000 (1 s, metrics);
    ``arm_batch_devices`` — ``member_minor`` on and off: the UR5 (H∞ + NN) at B = 256
-   (``--arm-batch-horizon``; not in the default cases, the ``ur5_batch`` rows have it on).
+   (``--arm-batch-horizon``; not in the default cases, the ``ur5_batch`` rows have it on);
+   ``arm_sampled_devices`` — ``frozen_law`` on and off: the UR5 at 1 kHz sampled control
+   (``ur5-table-stable``, H∞ + NN), with and without the theorems' bookkeeping, 0.5-s runs (not in the
+   default cases, the ``ur5_single`` rows have it on).
 9. ``program_gc`` — the ``program_gc`` device on and off: ``hinfnn run paper --no-figures`` (0.05 s
    simulated, warm cache) in fresh processes, alternating; wall and CPU time.
 10. ``launch_floor`` — what XLA's CPU runtime costs per kernel launched in a loop: chains of 52–402
@@ -31,8 +34,8 @@ Cases (each runs in a fresh worker process so that its peak memory is its own):
 11. The UR5 (``ur5-table``, H∞ + NN), every per-step time also as a ratio to the anchor:
    ``ur5_anchor`` — the rigid-body terms of one RK4 step (plant and nominal model: M, bias, the
    tool's Jacobian and its rate, four stages) by Pinocchio called from Python;
-   ``ur5_single`` — one run, continuous and at 1 kHz sampled control (``ur5-table-stable``): compile,
-   steps per second, kernels per step of the compiled loop, launched and distinct (benchmarks/hlo.py);
+   ``ur5_single`` — one run, continuous and at 1 kHz sampled control (``ur5-table-stable``; and the
+   same with ``simulation.bookkeeping = false``, no J or supply integrated): compile, steps per second, kernels per step of the compiled loop, launched and distinct (benchmarks/hlo.py);
    and the floor under the sampled run: RK4 steps of the true plant alone, the torque held;
    ``ur5_latency`` — the sampled update at 1 kHz from a Python loop (``ur5_latency_sync``: with
    JAX's CPU async dispatch off, as ``latency_sync``);
@@ -137,7 +140,7 @@ def chunk_text(plant, ctrl, ref, q0, loop=None, sampled: bool = False) -> str:
     S = importlib.import_module("hinfnn.sim.simulate")
     loop = loop or LoopOptions()
     y0 = S.initial_state(plant, ctrl, q0=q0)
-    chunk, _, init = S._compiled(None, S.SINGLE_RECORDS, sampled, None, loop, plant.n)
+    chunk, _, init = S._compiled(None, S.SINGLE_RECORDS, sampled, None, loop, plant.n, True)
     carry = init(ctrl, y0, plant.n)
     hold = 10 if sampled else 1
     args = (plant, ctrl, ref, S.Limits(), carry, jnp.zeros((), jnp.int64), *S._chunk_scalars(10, DT, hold, 10, 1))
@@ -340,7 +343,7 @@ def case_device_run(args) -> dict:
 #: The switches of ``--disable``: the loop options (hinfnn._loop.LoopOptions) and the controller's
 #: block layout (``blocks``).
 SWITCHES = ("blocks", "sincos", "small_mm", "rolled_rk4", "batch_groups", "arm_kernels", "rolled_stages",
-            "fusion_emitters", "record_once", "record_blocks", "member_minor")
+            "fusion_emitters", "record_once", "record_blocks", "member_minor", "frozen_law")
 
 
 def _loop_options(args):
@@ -356,7 +359,8 @@ def _loop_options(args):
     have = {f.name for f in dataclasses.fields(LoopOptions)}  # options of the hinfnn being measured
     extra = {"arm_kernels": ("arm_kernels", False), "rolled_stages": ("rolled_stages", 3),
              "fusion_emitters": ("fusion_emitters", True), "record_once": ("record_once", False),
-             "record_blocks": ("record_blocks", False), "member_minor": ("member_minor", False)}
+             "record_blocks": ("record_blocks", False), "member_minor": ("member_minor", False),
+             "frozen_law": ("frozen_law", False)}
     for switch, (name, value) in extra.items():
         if switch in off:
             if name not in have:
@@ -424,6 +428,36 @@ def case_arm_devices(args) -> dict:
     """``rolled_rk4`` on and off on a 6-joint arm (it is off for the paper's 2-joint arm): the
     benchmark line that justifies it (compile time)."""
     return _each_off(args, "arm_run", ("rolled_rk4",))
+
+
+def case_arm_sampled_run(args) -> dict:
+    """The UR5 at 1 kHz sampled control (ur5-table-stable, H∞ + NN), with and without the theorems'
+    bookkeeping: the first 0.01-s run (compile, empty cache) and ``--repeats`` 0.5-s runs (µs per
+    RK4 step of the best), with the devices of ``--disable`` off in this worker."""
+    import hinfnn as H
+
+    loop = _loop_options(args)
+    out = dict(disabled=list(args.disable))
+    for book in (True, False):
+        sc = _ur5(name="ur5-table-stable", **{"simulation.control": "sampled", "simulation.control_period": 1e-3,
+                                               "simulation.t_final": 0.01, "simulation.bookkeeping": book})
+        t0 = time.perf_counter()
+        sc.simulate("hinf_nn", loop=loop)
+        first = time.perf_counter() - t0
+        sc = sc.with_overrides({"simulation.t_final": 0.5})
+        times = []
+        for _ in range(max(1, args.repeats)):
+            t0 = time.perf_counter()
+            sc.simulate("hinf_nn", loop=loop, raise_on_failure=False)
+            times.append(time.perf_counter() - t0)
+        out["bookkeeping" if book else "no bookkeeping"] = dict(first_run_s=first,
+                                                                us_per_step=1e6 * min(times) / round(0.5 / DT))
+    return out
+
+
+def case_arm_sampled_devices(args) -> dict:
+    """``frozen_law`` on and off on the UR5 at 1 kHz: the benchmark line that justifies it."""
+    return _each_off(args, "arm_sampled_run", ("frozen_law",))
 
 
 def case_batch_run(args) -> dict:
@@ -616,7 +650,8 @@ def case_launch_floor(args) -> dict:
 def case_ur5_single(args) -> dict:
     """The UR5 on its table, H∞ + NN, one run: continuous control (ur5-table) and 1 kHz sampled
     control (ur5-table-stable: the bare table with the force-rate term designed for sampled control;
-    the controller once per 1 ms with zero-order hold, the plant's RK4 every 0.1 ms). For each: the
+    the controller once per 1 ms with zero-order hold, the plant's RK4 every 0.1 ms), and the latter
+    without the theorems' bookkeeping (``simulation.bookkeeping = false``). For each: the
     first 0.01-s run (compile, empty cache), then ``--repeats`` runs of ``--arm-horizon`` s:
     steady-state RK4 steps per second and the 10-s run's simulation time at that rate; for the
     continuous run the kernels per RK4 step of its compiled loop."""
@@ -624,9 +659,11 @@ def case_ur5_single(args) -> dict:
 
     loop = _loop_options(args)
     out = {}
+    sampled = {"simulation.control": "sampled", "simulation.control_period": 1e-3}
     for label, name, over in (("continuous", "ur5-table", {}),
-                              ("sampled 1 kHz", "ur5-table-stable",
-                               {"simulation.control": "sampled", "simulation.control_period": 1e-3})):
+                              ("sampled 1 kHz", "ur5-table-stable", sampled),
+                              ("1 kHz, no bookkeeping", "ur5-table-stable",
+                               {**sampled, "simulation.bookkeeping": False})):
         sc = _ur5(name=name, **{"simulation.t_final": 0.01, **over})
         t0 = time.perf_counter()
         sc.simulate("hinf_nn", loop=loop)
@@ -766,6 +803,7 @@ CASES = {"single": case_single, "batch": case_batch, "startup": case_startup, "w
          "device_run": case_device_run, "arm_devices": case_arm_devices, "arm_run": case_arm_run,
          "batch_devices": case_batch_devices, "batch_run": case_batch_run, "program_gc": case_program_gc,
          "arm_batch_devices": case_arm_batch_devices, "arm_batch_run": case_arm_batch_run,
+         "arm_sampled_devices": case_arm_sampled_devices, "arm_sampled_run": case_arm_sampled_run,
          "launch_floor": case_launch_floor, "ur5_anchor": case_ur5_anchor, "ur5_single": case_ur5_single, "ur5_latency": case_ur5_latency,
          "ur5_latency_sync": case_ur5_latency_sync,
          "ur5_batch": case_ur5_batch, "ur5_whole": case_ur5_whole}
@@ -840,13 +878,13 @@ def _print_ur5(c: dict) -> None:
     rows = c.get("ur5_single", {})
     rows = {k: r for k, r in rows.items() if isinstance(r, dict) and "steps_per_s" in r}
     if rows:
-        hdr = (f"{'one run':<16}{'1st run s':>10}{'steps/s':>9}{'µs/step':>9}{'× anchor':>9}{'10-s run s':>11}"
+        hdr = (f"{'one run':<22}{'1st run s':>10}{'steps/s':>9}{'µs/step':>9}{'× anchor':>9}{'10-s run s':>11}"
                f"{'kernels/step':>13}{'distinct':>9}{'lib calls':>10}{'status':>7}")
         print(hdr + "\n" + "-" * len(hdr))
         foot = c.get("launch_floor", {}).get("footprint") or []
         for label, r in rows.items():
             ops = r.get("ops") or {}
-            print(f"{label:<16}{r['first_run_s']:>10.1f}{r['steps_per_s']:>9,.0f}{r['us_per_step']:>9.1f}"
+            print(f"{label:<22}{r['first_run_s']:>10.1f}{r['steps_per_s']:>9,.0f}{r['us_per_step']:>9.1f}"
                   f"{ratio(r['us_per_step']):>9}{r['s_per_10s_run']:>11.2f}{fmt(ops.get('kernels'), 'd'):>13}"
                   f"{fmt(ops.get('distinct_kernels'), 'd'):>9}{fmt(ops.get('custom_calls'), 'd'):>10}{r['status']:>7}")
             if foot and ops.get("kernels") and ops.get("distinct_kernels"):
@@ -854,13 +892,13 @@ def _print_ur5(c: dict) -> None:
                 per, branch = near["us_per_launch"], ops.get("kernels_in_conditionals") or 0
                 span = (f"{per * (ops['kernels'] - branch):.0f}–{per * ops['kernels']:.0f} µs" if branch
                         else f"about {per * ops['kernels']:.0f} µs")
-                print(f"{'':<16}(its kernels at launch_floor's cost, a launch and a 6 × 6 product's work each: {span} "
+                print(f"{'':<22}(its kernels at launch_floor's cost, a launch and a 6 × 6 product's work each: {span} "
                       f"of the {r['us_per_step']:.0f} µs per step, at {per:.3f} µs per kernel in a loop of "
                       f"{near['distinct']} distinct kernels"
                       + (f"; {branch} of the {ops['kernels']} kernels counted are in conditionals, counted as if "
                          "taken at every iteration" if branch else "") + ")")
         if "plant alone" in rows:
-            print(f"{'':<16}(plant alone: RK4 of the true plant with the torque held, no controller, record or checks: "
+            print(f"{'':<22}(plant alone: RK4 of the true plant with the torque held, no controller, record or checks: "
                   "the floor under a sampled run's step)")
     if "ur5_batch" in c and "error" not in c["ur5_batch"]:
         hdr = (f"{'batch B':<16}{'1st run s':>10}{'wall s':>9}{'compile s':>10}{'traj-steps/s':>14}{'µs/member-step':>16}"
@@ -987,6 +1025,11 @@ def print_report(res: dict) -> None:
     _print_each_off("\n8b. member_minor on a UR5 batch of 256 (H∞ + NN, metrics)", c.get("arm_batch_devices"),
                     [("compile s", 11, lambda r: f"{r['compile_s']:.1f}"),
                      ("traj-steps/s", 14, lambda r: f"{r['traj_steps_per_s']:,.0f}")])
+    _print_each_off("\n8c. frozen_law on the UR5 at 1 kHz (ur5-table-stable, H∞ + NN): µs per RK4 step of a 0.5-s run",
+                    c.get("arm_sampled_devices"),
+                    [("1st run s", 11, lambda r: f"{r['bookkeeping']['first_run_s']:.1f}"),
+                     ("bookkeeping", 13, lambda r: f"{r['bookkeeping']['us_per_step']:.1f}"),
+                     ("none", 8, lambda r: f"{r['no bookkeeping']['us_per_step']:.1f}")])
     g = c.get("program_gc", {})
     if "on" in g:
         print("\n9. program_gc: `hinfnn run paper --no-figures` (0.05 s, warm), medians of fresh processes")
@@ -1038,6 +1081,9 @@ def targets(c: dict) -> dict:
         add("UR5 continuous: s per 10-s run", u["continuous"]["s_per_10s_run"], "<=", TARGETS["ur5_s_per_10s_run"])
     if "steps_per_s" in u.get("sampled 1 kHz", {}):
         add("UR5 1 kHz: s per 10-s run", u["sampled 1 kHz"]["s_per_10s_run"], "<=",
+            TARGETS["ur5_sampled_s_per_10s_run"])
+    if "steps_per_s" in u.get("1 kHz, no bookkeeping", {}):
+        add("UR5 1 kHz, no bookkeeping: s per 10-s run", u["1 kHz, no bookkeeping"]["s_per_10s_run"], "<=",
             TARGETS["ur5_sampled_s_per_10s_run"])
     for B, r in c.get("ur5_batch", {}).items():
         if isinstance(r, dict) and int(B) >= 256:

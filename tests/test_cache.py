@@ -341,7 +341,7 @@ def test_a_run_of_many_chunks_compiles_its_kept_program_once(tmp_path, cache_sta
     _cache.enable_cache(tmp_path / "c")
     S._compiled.cache_clear()
     sc.simulate("fl")
-    chunk = S._compiled(None, S.SINGLE_RECORDS, False, None, S.LoopOptions(), 2)[0]  # the program the run used
+    chunk = S._compiled(None, S.SINGLE_RECORDS, False, None, S.LoopOptions(), 2, True)[0]  # the program the run used
     (entry,) = chunk._entries.values()
     assert entry[0]._cache_size() == 1
     sc.simulate("fl")

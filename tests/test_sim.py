@@ -219,6 +219,76 @@ def test_sampled_accumulators_are_integrated_at_every_rk4_stage():
     np.testing.assert_allclose(out[1], out[0], rtol=1e-4)
 
 
+BOOKKEEPING_FIELDS = ("J", "J_aug", "supply", "V", "f_p", "f_f")
+
+
+@pytest.mark.parametrize("mode", ["continuous", "sampled", "sampled, rolled"])
+def test_a_run_without_the_bookkeeping_is_the_same_run_without_its_fields(mode, true_arm, true_surface, nominal_arm,
+                                                                          nominal_surface, reference):
+    """``bookkeeping=False`` drops the theorems' bookkeeping and nothing else: the same records to
+    rounding (bit for bit where XLA compiles the rest alike), none of J, J_aug, the supply, V, f_p,
+    f_f, NaN for the final accumulators, and no dissipation verdict in the metrics. Under sampled
+    control the law then leaves RK4's stages: ``rolled`` runs the arms' loop (the stages a loop, the
+    record cut out of the derivative, hinfnn.sim.integrate.split_aux) on the paper's arm. A damped
+    contact: the paper's law does not hold the undamped 1e5 N/m one at 1 kHz."""
+    plant = make_plant(true_arm, true_surface, damping=200.0)
+    ctrl = H.HinfNNController.design(nominal_arm, nominal_surface)
+    kw = dict(u1_0=U1_0, t_final=0.2, dt=1e-4, control_period=None if mode == "continuous" else 1e-3)
+    if mode.endswith("rolled"):
+        from hinfnn._loop import LoopOptions
+
+        kw["loop"] = LoopOptions(rolled_rk4=True)
+    on = H.simulate(plant, ctrl, reference, **kw)
+    off = H.simulate(plant, ctrl, reference, bookkeeping=False, **kw)
+    assert set(on.arrays) - set(off.arrays) == set(BOOKKEEPING_FIELDS) and set(off.arrays) < set(on.arrays)
+    for k, v in off.arrays.items():
+        np.testing.assert_allclose(v, on.arrays[k], rtol=1e-12, atol=1e-13, err_msg=k)
+    for k in ("J", "J_aug", "supply"):
+        assert np.isnan(off.final[k]) and np.isfinite(on.final[k]) and on.final[k] > 0
+    m_on, m_off = H.compute_metrics(on), H.compute_metrics(off)
+    assert m_on["dissipation_holds_for_all_t"] is True and m_on["J_T"] > 0
+    assert m_off["dissipation_holds"] is None and m_off["dissipation_holds_for_all_t"] is None
+    assert np.isnan(m_off["J_T"])
+    for k in ("rms_e_u1", "rms_e_lam", "peak_abs_tau", "fraction_out_of_contact"):
+        assert m_off[k] == pytest.approx(m_on[k], rel=1e-12, abs=1e-15), k
+
+
+@pytest.mark.parametrize("rolled", [False, True])
+def test_a_frozen_law_between_samples_is_integrated_as_before_bit_for_bit(rolled, true_arm, true_surface,
+                                                                          nominal_arm, nominal_surface, reference):
+    """Under sampled control the law's state is frozen between samples: RK4 integrates the plant and
+    the accumulators alone (``frozen_law``), the law's state passed through. It is what RK4 gave
+    with the law's zero rate (y + dt/6 · 0), bit for bit, for every stored field, with the
+    bookkeeping (J, the supply at RK4's stages) and without it."""
+    from hinfnn._loop import LoopOptions
+
+    plant = make_plant(true_arm, true_surface, damping=200.0)
+    ctrl = H.HinfNNController.design(nominal_arm, nominal_surface)
+    kw = dict(u1_0=U1_0, t_final=0.1, dt=1e-4, control_period=1e-3)
+    for book in (True, False):
+        runs = [H.simulate(plant, ctrl, reference, bookkeeping=book,
+                           loop=LoopOptions(rolled_rk4=rolled, frozen_law=frozen), **kw) for frozen in (True, False)]
+        assert runs[0].arrays.keys() == runs[1].arrays.keys()
+        for k in runs[0].arrays:
+            np.testing.assert_array_equal(runs[0].arrays[k], runs[1].arrays[k], err_msg=f"{k}, bookkeeping {book}")
+        for k in runs[0].final:
+            np.testing.assert_array_equal(runs[0].final[k], runs[1].final[k], err_msg=f"final {k}")
+
+
+def test_the_bookkeeping_is_a_scenario_setting_that_reaches_runs_and_batches():
+    """``simulation.bookkeeping = false`` reaches a scenario's run (its own compiled program: the
+    group key differs) and a batch of its runs."""
+    over = {"controller.kind": "hinf", "simulation.t_final": 0.05}
+    on, off = (H.load_scenario("paper", {**over, "simulation.bookkeeping": b}) for b in (True, False))
+    assert on.simulation.bookkeeping is True and off.simulation.bookkeeping is False
+    r_on, r_off = on.run("hinf"), off.run("hinf")
+    assert r_off.bookkeeping is False and r_on.group_key() != r_off.group_key()
+    assert "J" in on.simulate("hinf").arrays and "J" not in off.simulate("hinf").arrays
+    runs = [dataclasses.replace(r_off, name=f"m{i}") for i in range(2)]
+    out = H.simulate_many(runs, fields="metrics")
+    assert all("J" not in t.arrays and np.isnan(t.final["J"]) for t in out.values())
+
+
 # --- storage: decimated records, exact step statistics, field selection ------------------------
 
 def test_default_storage_is_one_sample_per_ms_and_size_follows_the_decimation(paper_plant, nominal_arm,

@@ -138,6 +138,7 @@ class LoopOptions:
     record_once: bool = True
     record_blocks: bool = True
     member_minor: bool | None = None
+    frozen_law: bool = True
 
     def __post_init__(self):
         if self.batch_group is not None and not (isinstance(self.batch_group, int) and self.batch_group >= 0):

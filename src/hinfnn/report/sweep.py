@@ -343,12 +343,14 @@ def distributions_figure(df, meta, path: Path) -> Path:
     axes = fig.subplots(nrow, ncol, squeeze=False).ravel()
     units = meta.get("units", {})
     for ax, col in zip(axes, cols):
+        drawn = 0
         for kind in meta["controllers"]:
             sel = df[(df["controller"] == kind) & (df["status"] == "ok")]
             v = np.sort(sel[col].astype(float).to_numpy())
             v = v[np.isfinite(v)]
             if v.size == 0:
                 continue
+            drawn += 1
             y = np.arange(1, v.size + 1) / v.size
             ax.step(v, y, where="post", color=_color(meta, kind), label=f"{_label(meta, kind)} ({v.size})")
             ax.plot([np.median(v)], [0.5], "o", color=_color(meta, kind), markersize=4)
@@ -362,7 +364,11 @@ def distributions_figure(df, meta, path: Path) -> Path:
         ax.set_ylabel("share of bounded runs ≤ x")
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="lower right")
+        if drawn:
+            ax.legend(fontsize=7, loc="lower right")
+        else:  # e.g. J_T of runs without the theorems' bookkeeping (simulation.bookkeeping = false)
+            ax.text(0.5, 0.5, "no bounded run has a value", transform=ax.transAxes, ha="center", va="center",
+                    fontsize=9, color="0.4")
     for ax in axes[n:]:
         ax.set_visible(False)
     fig.suptitle(f"{meta['name']}: distribution of each metric over the runs that stayed bounded (• median)",

@@ -181,7 +181,7 @@ class Setup:
         """Keyword arguments of :func:`hinfnn.simulate` for this scenario."""
         s = self.scenario.simulation
         return dict(t_final=s.t_final, dt=s.dt, save_interval=s.output_interval, control_period=self.control_period,
-                    limits=self.limits)
+                    limits=self.limits, bookkeeping=s.bookkeeping)
 
     def plan(self):
         """The :class:`~hinfnn.sim.plan.StepPlan` of a run of this scenario."""

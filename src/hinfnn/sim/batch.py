@@ -26,6 +26,7 @@ class Run:
     save_interval: float = DEFAULT_SAVE_INTERVAL
     limits: Limits = Limits()
     info: RunInfo = RunInfo()
+    bookkeeping: bool = True  # the theorems' bookkeeping integrated (simulate's ``bookkeeping``)
 
     def plan(self, save_every: int | None = None) -> StepPlan:
         """The run's :class:`~hinfnn.sim.plan.StepPlan` (``save_every`` overrides the output
@@ -42,7 +43,7 @@ class Run:
         structure AND every leaf's shape and dtype (two networks of different sizes have the same
         structure but cannot be stacked), and the simulation settings."""
         return (*structure_key((self.plant, self.controller, self.reference, self.limits)), self.t_final, self.dt,
-                self.control_period, self.save_interval)
+                self.control_period, self.save_interval, self.bookkeeping)
 
 
 def simulate_many(runs: list[Run], *, progress=None, save_every: int | None = None,
@@ -73,7 +74,7 @@ def simulate_many(runs: list[Run], *, progress=None, save_every: int | None = No
 
         common = dict(t_final=first.t_final, dt=first.dt, control_period=first.control_period,
                       save_interval=first.save_interval, save_every=save_every, fields=fields,
-                      progress=report if progress else None)
+                      bookkeeping=first.bookkeeping, progress=report if progress else None)
         if len(items) == 1:
             out[first.name] = simulate(first.plant, first.controller, first.reference, q0=first.q0,
                                        limits=first.limits, info=first.info, raise_on_failure=False, **common)

@@ -40,10 +40,11 @@ class Accumulators:
         return cls(J=z, J_aug=z, supply=z)
 
 
-def bookkeeping(controller, xc, out, qd, qdd, acc: Accumulators):
+def bookkeeping(controller, xc, out, qd, qdd, acc: Accumulators, enabled: bool = True):
     """(rates of the accumulators, recorded fields) at one instant. A controller that is not
-    :class:`~hinfnn.protocols.Dissipative` gets zero rates and records nothing of it."""
-    if not isinstance(controller, Dissipative):
+    :class:`~hinfnn.protocols.Dissipative`, or a run that declines the bookkeeping (``enabled``
+    False, ``simulation.bookkeeping = false``), gets zero rates and records nothing of it."""
+    if not enabled or not isinstance(controller, Dissipative):
         zero = jnp.zeros(())
         return Accumulators(J=zero, J_aug=zero, supply=zero), {}
     d = controller.dissipation(xc, out, qd, qdd)

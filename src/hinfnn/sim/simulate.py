@@ -94,16 +94,18 @@ def _evaluate(plant, ctrl, ref, t, y: SimState, w, held, sampled):
     return meas, cache, out, tau, record
 
 
-def rhs(plant, ctrl, ref, t, y: SimState, w, held=None, sampled: bool = False):
+def rhs(plant, ctrl, ref, t, y: SimState, w, held=None, sampled: bool = False, book: bool = True):
     """Time derivative of the whole closed-loop state of a continuous plant (plant, controller,
     accumulators) at (t, y) under the held input w, and the record there. The function the
     simulator integrates, and that :mod:`hinfnn.analysis` linearises. ``held``/``sampled``: the
-    torque held by the sampled-data path (the controller state is then frozen between samples)."""
+    torque held by the sampled-data path (the controller state is then frozen between samples).
+    ``book``: the theorems' bookkeeping (:func:`~hinfnn.sim.recorder.bookkeeping`); False: the
+    accumulators' rates are zero and the record has none of its fields."""
     meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, sampled)
     dplant, qdd = plant.derivative(t, y.plant, tau, w, cache)
-    rates, book = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
+    rates, kept = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc, enabled=book)
     dxc = jax.tree.map(jnp.zeros_like, out.dstate) if sampled else out.dstate
-    return SimState(plant=dplant, xc=dxc, acc=rates), {**record, **book}
+    return SimState(plant=dplant, xc=dxc, acc=rates), {**record, **kept}
 
 
 @pytree_dataclass
@@ -138,10 +140,11 @@ EVERY_STEP = ("tau", "penetration", "e_u1", "e_lam", "_cfault", "_cfault_value",
               "_pfault_index")
 
 
-def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rolled=None):
+def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rolled=None, book: bool = True):
     """(sample, step): the sampled-mode controller update at step k, and one step k -> k + 1
     with failure detection (a no-op for k ≥ n_steps) that also returns the record at step k.
-    ``rolled``: RK4's stages as a loop (default: the active loop options' choice)."""
+    ``rolled``: RK4's stages as a loop (default: the active loop options' choice); ``book``: the
+    theorems' bookkeeping integrated (:func:`rhs`)."""
     discrete = plant.discrete
     rolled = _loop.current().rolled(plant.n) if rolled is None else rolled
 
@@ -172,12 +175,22 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         if discrete:
             meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, True)
             new_plant, qdd = plant.step(t, y.plant, held, dt)
-            rates, book = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc)
+            rates, kept = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc, enabled=book)
             acc = jax.tree.map(lambda a, r: a + dt * r, y.acc, rates)
-            return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **book}
-        y_new, aux = rk4_step(lambda tt, yy: rhs(plant, ctrl, ref, tt, yy, w, held, sampled), t, y, dt,
-                              rolled=rolled, rolled_stages=_loop.current().rolled_stages,
-                              record_once=_loop.current().record_once, take=take, every=EVERY_STEP)
+            return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **kept}
+        opts = dict(rolled=rolled, rolled_stages=_loop.current().rolled_stages,
+                    record_once=_loop.current().record_once, take=take, every=EVERY_STEP)
+        if sampled and _loop.current().frozen_law:
+            # the law's state is frozen between samples (its rate is zero): RK4 integrates the
+            # plant and the accumulators, the law's state passes through unchanged (as it would
+            # with its zero rate: y + dt/6 · 0, exactly)
+            def f(tt, part):
+                d, aux = rhs(plant, ctrl, ref, tt, SimState(plant=part[0], xc=y.xc, acc=part[1]), w, held, True, book)
+                return (d.plant, d.acc), aux
+
+            (p_new, acc_new), aux = rk4_step(f, t, (y.plant, y.acc), dt, **opts)
+            return SimState(plant=p_new, xc=ctrl.constrain(y.xc), acc=acc_new), aux
+        y_new, aux = rk4_step(lambda tt, yy: rhs(plant, ctrl, ref, tt, yy, w, held, sampled, book), t, y, dt, **opts)
         return SimState(plant=y_new.plant, xc=ctrl.constrain(y_new.xc), acc=y_new.acc), aux
 
     def step(c: Carry, k, first):
@@ -254,7 +267,7 @@ def _derived(ctrl, rec, fields):
 
 
 def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every, n_take, *, n_records, sampled,
-           fields):
+           fields, book=True):
     """Records ``r = 0 … n_records − 1`` of a chunk starting at step ``k0``: record r is taken at
     step k = k0 + r · save_every, as the first of the ``save_every`` steps after it. Only the
     first ``n_take`` (traced) are taken; the other slots run no step and hold zeros.
@@ -272,7 +285,7 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
     places (hence the strongly typed ``first``); if they did not, the step would be traced twice,
     with the same result (a test counts the traces), in about twice the time."""
     ctrl = ctrl.prepared()  # its constants by the blocks the loop reads, cut once here
-    sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields)
+    sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, book=book)
     step = jax.jit(step, inline=True)
 
     def one_record(c, r):
@@ -371,8 +384,10 @@ def _with_options(fn, loop: LoopOptions, members=None, n_joints: int = 2):
 
 
 @functools.lru_cache(maxsize=128)
-def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptions(), n_joints: int = 2):
-    """(chunk, final, init) compiled for one structure; in_axes=None for a single run; traced with
+def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptions(), n_joints: int = 2,
+              book: bool = True):
+    """(chunk, final, init) compiled for one structure; in_axes=None for a single run; ``book``: the
+    theorems' bookkeeping integrated (part of the key, as the structure); traced with
     the loop options ``loop`` as they are for a plant of ``n_joints`` joints
     (:meth:`~hinfnn._loop.LoopOptions.for_joints`, part of the key), compiled with their XLA options
     (:meth:`~hinfnn._loop.LoopOptions.compiler_options`).
@@ -383,7 +398,7 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
     between processes (:class:`~hinfnn._programs.ExportedProgram`)."""
     options = loop.compiler_options(n_joints)
     loop = loop.for_joints(n_joints)
-    chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields)
+    chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields, book=book)
     final, init = _final, _init_carry
     members = {"chunk": None, "final": None}
     if in_axes is not None:
@@ -395,7 +410,7 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
         members = {"chunk": lambda *a: jax.tree.leaves(a[4])[0].shape[0],
                    "final": lambda *a: jax.tree.leaves(a[3])[0].shape[0]}
     chunk = ExportedProgram(_with_options(chunk, loop, members["chunk"], n_joints), "chunk",
-                            (in_axes, n_records, sampled, fields, loop), carry_arg=4,
+                            (in_axes, n_records, sampled, fields, loop, book), carry_arg=4,
                             compiler_options=options)  # kept lowered on disk (hinfnn._programs)
     final = KeptFunction(_with_options(final, loop, members["final"], n_joints), "final", (in_axes, loop),
                          compiler_options=options)
@@ -418,7 +433,7 @@ def release_programs() -> None:
 
 
 def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, fields, loop: LoopOptions,
-           progress=None, what: str = ""):
+           book: bool = True, progress=None, what: str = ""):
     """Run the chunks from Python; returns (records, status, t_fail, details, final).
 
     The n_records + 1 records (t = 0, …, t_final) are copied chunk by chunk into arrays allocated
@@ -427,7 +442,7 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, f
     slots, per_chunk = plan.chunk(batched=in_axes is not None)  # independent of the horizon
     # a single run's program stores every field; the driver keeps those asked for (one program)
     chunk, final, init = _compiled(in_axes, slots, plan.sampled, fields if in_axes is not None else None, loop,
-                                   n_joints)
+                                   n_joints, book)
     carry = init(ctrl, y0, n_joints)
     axis = 0 if in_axes is None else 1  # the time axis of the records
     n_steps_a, dt_a, hold_a, every_a, take_a = _chunk_scalars(n_steps, plan.dt, plan.n_hold, save_every, per_chunk)
@@ -494,16 +509,19 @@ def start(plant, ctrl, ref, y0: SimState) -> SimState:
     return _started(plant, ctrl, ref, y0) if ctrl.needs_start else y0
 
 
-def _to_numpy(rec, status, t_fail, details, final, *, info, plan: StepPlan, plant, ctrl) -> Trajectory:
+def _to_numpy(rec, status, t_fail, details, final, *, info, plan: StepPlan, plant, ctrl,
+              book: bool = True) -> Trajectory:
     arrays = {k: np.asarray(v) for k, v in rec.items()}
+    final = {k: np.asarray(v) for k, v in final.items()}
+    if not book:  # the accumulators were not integrated: their final values are not known
+        final.update({k: np.full_like(final[k], np.nan) for k in ("J", "J_aug", "supply")})
     details = {k: np.asarray(v) for k, v in details.items()}
     details.update(controller_fault=ctrl.fault_name, plant_fault=plant.fault_name)
     index = details.pop("fault_index")
     items = [plant.fault_item(int(i)) if i >= 0 else "" for i in np.ravel(index)]
     details["fault_item"] = np.asarray(items).reshape(np.shape(index)) if np.ndim(index) else items[0]
     return Trajectory(arrays=arrays, status=np.asarray(status), t_fail=np.asarray(t_fail), fail_details=details,
-                      dt=plan.dt, save_every=plan.save_every,
-                      final={k: np.asarray(v) for k, v in final.items()}, info=info)
+                      dt=plan.dt, save_every=plan.save_every, final=final, info=info)
 
 
 def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float = 1e-4,
@@ -511,7 +529,7 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
              save_interval: float | None = None, fields=None,
              control_period: float | None = None, limits: Limits | None = None,
              info: RunInfo | None = None, raise_on_failure: bool = True, progress=None,
-             loop: LoopOptions | None = None) -> Trajectory:
+             loop: LoopOptions | None = None, bookkeeping: bool = True) -> Trajectory:
     """Simulate one closed-loop run; returns a :class:`Trajectory` sampled every ``save_every``
     steps (t = 0, …, t_final).
 
@@ -533,6 +551,12 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     ``progress(steps_done, steps_total, what)``, if given, is called after each compiled chunk (about
     :data:`~hinfnn.sim.plan.CHUNK_STEPS` steps; 200 when every step is stored). ``loop``: how the
     compiled program is written (:class:`~hinfnn._loop.LoopOptions`; default: all options on).
+    ``bookkeeping``: integrate the theorems' bookkeeping of a dissipative controller (J, J_aug and
+    the supply along the run; V, f_p, f_f recorded). False (``simulation.bookkeeping = false``):
+    none of it is computed or recorded, the final J, J_aug and supply are NaN, and the metrics of
+    the dissipation inequality are not reported; everything else is the same run (to rounding).
+    Under sampled control it is most of what a step costs besides the plant: a 1 kHz UR5 run
+    3.3 s → 1.9 s (docs/performance.md).
     """
     from .._config import require_x64
 
@@ -546,8 +570,10 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     if xc0 is None:
         y0 = start(plant, controller, reference, y0)
     out = _drive(plant, controller, reference, limits or Limits(), y0, None, plan=plan, n_joints=plant.n,
-                 fields=fields, loop=loop or LoopOptions(), progress=progress, what=info.name if info else "")
-    traj = _to_numpy(*out, info=info or RunInfo(kind=controller.kind), plan=plan, plant=plant, ctrl=controller)
+                 fields=fields, loop=loop or LoopOptions(), book=bool(bookkeeping), progress=progress,
+                 what=info.name if info else "")
+    traj = _to_numpy(*out, info=info or RunInfo(kind=controller.kind), plan=plan, plant=plant, ctrl=controller,
+                     book=bool(bookkeeping))
     if raise_on_failure and int(traj.status) != 0:
         raise failure_error(traj)
     return traj
@@ -582,14 +608,14 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
                    q0=None, u1_0=None, save_every: int | None = None,
                    save_interval: float | None = None, fields=None,
                    control_period: float | None = None, limits=None, infos: list | None = None,
-                   progress=None, loop: LoopOptions | None = None) -> Trajectory:
+                   progress=None, loop: LoopOptions | None = None, bookkeeping: bool = True) -> Trajectory:
     """Simulate B runs as ONE program (``jax.vmap`` of :func:`simulate`'s run).
 
     ``plants``, ``controllers``, ``references`` (and ``limits``): each either a list of B objects
     (stacked along a new axis) or a single object shared by every member. ``q0``/``u1_0`` may be
     lists too. Members that fail are marked in ``status``/``t_fail`` and do not stop the others;
-    nothing is raised for them. ``save_every``, ``save_interval``, ``fields`` and ``progress``
-    as for :func:`simulate`; a batch of B runs stores B times what one run stores. More than
+    nothing is raised for them. ``save_every``, ``save_interval``, ``fields``, ``progress`` and
+    ``bookkeeping`` as for :func:`simulate`; a batch of B runs stores B times what one run stores. More than
     ``loop.batch_group`` members (by default 100 for the two-link arm, 4,096 for larger arms) run
     as equal groups, one after the other, through the same compiled program
     (:class:`~hinfnn._loop.LoopOptions`: faster; the numbers to rounding, as any other batch size).
@@ -635,7 +661,7 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
                 args.append(x)
                 axes.append(None)
         y0, axes = stack(y0s), tuple(axes)
-    opts = dict(plan=plan, n_joints=plant0.n, fields=fields, loop=loop)
+    opts = dict(plan=plan, n_joints=plant0.n, fields=fields, loop=loop, book=bool(bookkeeping))
     groups = loop.groups(B, plant0.n)
     if len(groups) == 1:
         out = _drive(*args, y0, axes, progress=progress, **opts)
@@ -649,7 +675,7 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
         out = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:B], *parts)
     if B == 1:
         out = jax.tree.map(lambda a: np.expand_dims(np.asarray(a), 0), out)
-    return _to_numpy(*out, info=info, plan=plan, plant=plant0, ctrl=ctrl0)
+    return _to_numpy(*out, info=info, plan=plan, plant=plant0, ctrl=ctrl0, book=bool(bookkeeping))
 
 
 def _take(tree, idx):
@@ -663,7 +689,7 @@ def _group_progress(progress, i, n_groups, done, total, what=""):
 
 def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
                   fields=None, limits: Limits | None = None, single: bool = False,
-                  loop: LoopOptions | None = None) -> dict:
+                  loop: LoopOptions | None = None, bookkeeping: bool = True) -> dict:
     """``{field: (shape, dtype)}`` of one stored sample of a run, found by tracing (``eval_shape``:
     nothing is compiled or run). What a run stores is this times its number of samples;
     :mod:`hinfnn.resources` uses it to estimate memory before a run.
@@ -681,17 +707,18 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
     sampled = control_period is not None or plant.discrete
     y0 = initial_state(plant, controller, q0=q0)
     args = (plant, controller, reference, limits or Limits(), y0)
-    key = (*structure_key(args), float(dt), sampled, fields, loop)
+    book = bool(bookkeeping)
+    key = (*structure_key(args), float(dt), sampled, fields, loop, book)
     if key in _RECORD_SHAPES:
         return dict(_RECORD_SHAPES[key])
 
     def one(plant, ctrl, ref, lim, y0):
         carry = _init_carry(ctrl, y0, plant.n)
-        _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True)
+        _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True, book=book)
         return _derived(ctrl, step(carry, jnp.zeros((), jnp.int64), True)[1], fields)
 
     if single:  # the arguments _drive gives the single-run program (their values do not matter)
-        chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None, loop, plant.n)
+        chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None, loop, plant.n, book)
         carry = init.eval_shape(controller, y0, plant.n)
         k0 = jnp.zeros((), jnp.int64)
         records = chunk.eval_shape(*args[:4], carry, k0, *_chunk_scalars(1, dt, 1, 1, 1))[1]

@@ -284,7 +284,7 @@ def execute_batch(job: BatchJob, progress: Callable[[float], None] | None = None
 
     traj = simulate_batch(plants, controllers, references, q0=q0s, t_final=first.t_final, dt=first.dt,
                           save_interval=first.save_interval, fields="metrics", control_period=first.control_period,
-                          limits=limits, progress=report)
+                          limits=limits, bookkeeping=first.bookkeeping, progress=report)
     rows = [member_row(r, traj.member(j), job.max_out_of_contact) for j, r in enumerate(job.members)]
     return {"batch": job.batch.id, "rows": rows, "wall_s": time.perf_counter() - t0,
             "cpu_s": time.process_time() - c0, "host": socket.gethostname(), "pid": os.getpid(), "members": n_real,
