@@ -97,6 +97,14 @@ Outside a trace the defaults apply.
     pass), at about 6 s more to compile a batch program (XLA converts layouts in about 1,200 fused
     copies), which a batch of a few runs (an experiment's pair of laws) would not earn back. No
     effect on a single run (no member axis) or on the two-link arm (nothing stored).
+``frozen_law``
+    Under sampled control (a zero-order hold, ``control_period``) the law's state is frozen between
+    samples, its rate zero: RK4's four stages integrate the plant and the theorems' accumulators
+    alone and the law's state passes through, instead of RK4 adding dt/6 · 0 to every weight of the
+    networks at every stage (the same numbers bit for bit). UR5 at 1 kHz (``ur5-table-stable``,
+    H∞ + NN), compiled side by side and run alternately: 29.0 → 24.4 µs per step without the
+    theorems' bookkeeping, 48.9 → 46.8 with it (2026-12-04, tenth pass); kernels per step 1,191 → 1,021.
+    No effect under continuous control.
 
 The controller's own layout (the networks' weights carried in blocks of at most 64 values, so that
 XLA runs the loop's kernels inline) is the controller's business
