@@ -1278,7 +1278,7 @@ class SimulationConfig:
     penetration_limit: float = param(doc="a run stops past this penetration, m", gt=0.0, le=1e3)
     bookkeeping: bool = param(True, doc="integrate the theorems' bookkeeping along the run (J, J_aug, the supply; "
                               "V, f_p, f_f recorded) and check the dissipation inequality; false: none of it "
-                              "(a 1 kHz sampled arm run about 40 % faster)")
+                              "(a 1 kHz sampled arm run in less than half the time)")
 
     def limits(self):
         from ..sim import Limits
