@@ -556,8 +556,8 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     none of it is computed or recorded, the final J, J_aug and supply are NaN, and the metrics of
     the dissipation inequality are not reported; everything else is the same run (to rounding).
     Under sampled control it is most of what a step costs besides the plant (the law evaluated at
-    RK4's four stages between samples): a 1 kHz UR5 step takes 2.3 times the plant alone's without
-    it, 5.4 times with it (docs/performance.md, tenth pass).
+    RK4's four stages between samples): a 1 kHz UR5 step takes 2.2–2.45 times the plant alone's
+    without it, 4.5–6.3 times with it (docs/performance.md, tenth pass).
     """
     from .._config import require_x64
 
