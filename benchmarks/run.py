@@ -411,17 +411,23 @@ def case_arm_run(args) -> dict:
     import hinfnn as H
 
     sc = H.load_scenario("ur5-table", {"controller.kind": "hinf_nn", "simulation.t_final": 0.05})
-    loop = _loop_options(args)
-    t0 = time.perf_counter()
-    sc.simulate("hinf_nn", loop=loop)
-    first = time.perf_counter() - t0
-    sc = sc.with_overrides({"simulation.t_final": 0.5})
-    times = []
-    for _ in range(max(1, args.repeats)):
-        t0 = time.perf_counter()
-        sc.simulate("hinf_nn", loop=loop)
-        times.append(time.perf_counter() - t0)
+    first, times, _ = _first_then_runs(sc, _loop_options(args), 0.5, args.repeats)
     return dict(disabled=list(args.disable), first_run_s=first, s_per_half_second=_stats(times))
+
+
+def _first_then_runs(sc, loop, horizon, repeats, kind="hinf_nn"):
+    """(seconds of the scenario's run as given: the compile-dominated first, [seconds of each of
+    ``repeats`` runs of ``horizon`` s], the last run's trajectory), one law, the loop options ``loop``."""
+    t0 = time.perf_counter()
+    sc.simulate(kind, loop=loop)
+    first = time.perf_counter() - t0
+    sc = sc.with_overrides({"simulation.t_final": horizon})
+    times = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        tr = sc.simulate(kind, loop=loop, raise_on_failure=False)
+        times.append(time.perf_counter() - t0)
+    return first, times, tr
 
 
 def case_arm_devices(args) -> dict:
@@ -441,15 +447,7 @@ def case_arm_sampled_run(args) -> dict:
     for book in (True, False):
         sc = _ur5(name="ur5-table-stable", **{"simulation.control": "sampled", "simulation.control_period": 1e-3,
                                                "simulation.t_final": 0.01, "simulation.bookkeeping": book})
-        t0 = time.perf_counter()
-        sc.simulate("hinf_nn", loop=loop)
-        first = time.perf_counter() - t0
-        sc = sc.with_overrides({"simulation.t_final": 0.5})
-        times = []
-        for _ in range(max(1, args.repeats)):
-            t0 = time.perf_counter()
-            sc.simulate("hinf_nn", loop=loop, raise_on_failure=False)
-            times.append(time.perf_counter() - t0)
+        first, times, _ = _first_then_runs(sc, loop, 0.5, args.repeats)
         out["bookkeeping" if book else "no bookkeeping"] = dict(first_run_s=first,
                                                                 us_per_step=1e6 * min(times) / round(0.5 / DT))
     return out
@@ -665,15 +663,7 @@ def case_ur5_single(args) -> dict:
                               ("1 kHz, no bookkeeping", "ur5-table-stable",
                                {**sampled, "simulation.bookkeeping": False})):
         sc = _ur5(name=name, **{"simulation.t_final": 0.01, **over})
-        t0 = time.perf_counter()
-        sc.simulate("hinf_nn", loop=loop)
-        first = time.perf_counter() - t0
-        sc = sc.with_overrides({"simulation.t_final": args.arm_horizon})
-        times = []
-        for _ in range(max(1, args.repeats)):
-            t0 = time.perf_counter()
-            tr = sc.simulate("hinf_nn", loop=loop, raise_on_failure=False)
-            times.append(time.perf_counter() - t0)
+        first, times, tr = _first_then_runs(sc, loop, args.arm_horizon, args.repeats)
         steps = round(args.arm_horizon / DT)
         best = min(times)
         out[label] = dict(scenario=name, first_run_s=first, run_s=_stats(times), steps_per_s=steps / best,
