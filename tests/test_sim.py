@@ -748,3 +748,17 @@ def test_records_are_taken_in_blocks_whose_stacks_the_runtime_runs_inline(paper_
     assert one.arrays.keys() == blocked.arrays.keys()
     for k in one.arrays:
         np.testing.assert_allclose(blocked.arrays[k], one.arrays[k], rtol=1e-12, atol=1e-300, err_msg=k)
+
+
+def test_the_metrics_table_says_why_a_run_has_no_dissipation_verdict():
+    """A run without the bookkeeping prints n/a for J(T) and the verdict, and a line that says why
+    (its own overrides first, else the document's scenario)."""
+    from hinfnn.report.markdown import metrics_table
+
+    doc = {"scenario": {"simulation": {"bookkeeping": True}},
+           "runs": [{"name": "off", "controller": "hinf", "metrics": {}, "overrides": {"simulation.bookkeeping": False}},
+                    {"name": "on", "controller": "hinf", "metrics": {}, "overrides": {}}]}
+    text = metrics_table(doc, markdown=False)
+    assert "off: J(T) and the dissipation verdict n/a" in text and "on: J(T)" not in text
+    doc["scenario"]["simulation"]["bookkeeping"] = False
+    assert "off, on: J(T) and the dissipation verdict n/a" in metrics_table(doc, markdown=False)

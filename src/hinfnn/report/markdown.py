@@ -77,7 +77,21 @@ def metrics_table(doc, *, markdown: bool = True) -> str:
     lines += [fmt(row) for row in rows]
     lines += stopped_notes(doc)
     lines += [f"{r['name']}: {note}" for r in doc["runs"] for note in (r.get("verdict") or {}).get("notes", ())]
+    off = [r["name"] for r in doc["runs"] if not _bookkeeping(doc, r)]
+    if off:
+        lines.append(f"{', '.join(off)}: J(T) and the dissipation verdict n/a: the run did not integrate the "
+                     "theorems' bookkeeping (simulation.bookkeeping = false)")
     return "\n".join(lines)
+
+
+def _bookkeeping(doc, run) -> bool:
+    """Whether a run of a results document integrated the theorems' bookkeeping (its overrides,
+    else the document's scenario; on by default)."""
+    over = run.get("overrides") or {}
+    if "simulation.bookkeeping" in over:
+        return bool(over["simulation.bookkeeping"])
+    sim = (doc.get("scenario") or {}).get("simulation") or {}
+    return bool(sim.get("bookkeeping", True))
 
 
 def job_done(run) -> str:
