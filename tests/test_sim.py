@@ -284,6 +284,8 @@ def test_the_bookkeeping_is_a_scenario_setting_that_reaches_runs_and_batches():
     r_on, r_off = on.run("hinf"), off.run("hinf")
     assert r_off.bookkeeping is False and r_on.group_key() != r_off.group_key()
     assert "J" in on.simulate("hinf").arrays and "J" not in off.simulate("hinf").arrays
+    with pytest.raises(H.ConfigError, match=r"bookkeeping: must be True or False, got 'false'"):
+        H.simulate(r_off.plant, r_off.controller, r_off.reference, q0=r_off.q0, t_final=0.01, bookkeeping="false")
     runs = [dataclasses.replace(r_off, name=f"m{i}") for i in range(2)]
     out = H.simulate_many(runs, fields="metrics")
     assert all("J" not in t.arrays and np.isnan(t.final["J"]) for t in out.values())

@@ -148,7 +148,8 @@ def plan(runs, *, fields=None, save_every: int | None = None, copies: float = 2.
         n_steps, every = step_plan.n_steps, step_plan.save_every
         shapes = record_shapes(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt,
                                control_period=r.control_period, fields=fields, limits=r.limits,
-                               single=len(items) == 1, bookkeeping=r.bookkeeping)  # a group of one runs the single-run program
+                               single=len(items) == 1,  # a group of one runs the single-run program
+                               bookkeeping=r.bookkeeping)
         per_sample = sum(math.prod(shape) * dtype.itemsize for shape, dtype in shapes.values())
         n_samples = step_plan.samples
         stored += per_sample * n_samples * len(items)

@@ -570,14 +570,22 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     controller.check_start(plant.joints(y0.plant)[0])
     if xc0 is None:
         y0 = start(plant, controller, reference, y0)
+    book = _flag(bookkeeping, "bookkeeping")
     out = _drive(plant, controller, reference, limits or Limits(), y0, None, plan=plan, n_joints=plant.n,
-                 fields=fields, loop=loop or LoopOptions(), book=bool(bookkeeping), progress=progress,
+                 fields=fields, loop=loop or LoopOptions(), book=book, progress=progress,
                  what=info.name if info else "")
     traj = _to_numpy(*out, info=info or RunInfo(kind=controller.kind), plan=plan, plant=plant, ctrl=controller,
-                     book=bool(bookkeeping))
+                     book=book)
     if raise_on_failure and int(traj.status) != 0:
         raise failure_error(traj)
     return traj
+
+
+def _flag(value, name: str) -> bool:
+    """A yes/no option of a run, given as a bool (a string such as "false" would be true)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ConfigError(f"must be True or False, got {value!r}", key=name)
+    return bool(value)
 
 
 def failure_error(traj: Trajectory) -> SimulationError:
@@ -616,8 +624,8 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     (stacked along a new axis) or a single object shared by every member. ``q0``/``u1_0`` may be
     lists too. Members that fail are marked in ``status``/``t_fail`` and do not stop the others;
     nothing is raised for them. ``save_every``, ``save_interval``, ``fields``, ``progress`` and
-    ``bookkeeping`` as for :func:`simulate`; a batch of B runs stores B times what one run stores. More than
-    ``loop.batch_group`` members (by default 100 for the two-link arm, 4,096 for larger arms) run
+    ``bookkeeping`` as for :func:`simulate`; a batch of B runs stores B times what one run stores.
+    More than ``loop.batch_group`` members (by default 100 for the two-link arm, 4,096 for larger arms) run
     as equal groups, one after the other, through the same compiled program
     (:class:`~hinfnn._loop.LoopOptions`: faster; the numbers to rounding, as any other batch size).
     """
@@ -662,7 +670,8 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
                 args.append(x)
                 axes.append(None)
         y0, axes = stack(y0s), tuple(axes)
-    opts = dict(plan=plan, n_joints=plant0.n, fields=fields, loop=loop, book=bool(bookkeeping))
+    book = _flag(bookkeeping, "bookkeeping")
+    opts = dict(plan=plan, n_joints=plant0.n, fields=fields, loop=loop, book=book)
     groups = loop.groups(B, plant0.n)
     if len(groups) == 1:
         out = _drive(*args, y0, axes, progress=progress, **opts)
@@ -676,7 +685,7 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
         out = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:B], *parts)
     if B == 1:
         out = jax.tree.map(lambda a: np.expand_dims(np.asarray(a), 0), out)
-    return _to_numpy(*out, info=info, plan=plan, plant=plant0, ctrl=ctrl0, book=bool(bookkeeping))
+    return _to_numpy(*out, info=info, plan=plan, plant=plant0, ctrl=ctrl0, book=book)
 
 
 def _take(tree, idx):
@@ -708,7 +717,7 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
     sampled = control_period is not None or plant.discrete
     y0 = initial_state(plant, controller, q0=q0)
     args = (plant, controller, reference, limits or Limits(), y0)
-    book = bool(bookkeeping)
+    book = _flag(bookkeeping, "bookkeeping")
     key = (*structure_key(args), float(dt), sampled, fields, loop, book)
     if key in _RECORD_SHAPES:
         return dict(_RECORD_SHAPES[key])
