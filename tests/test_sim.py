@@ -253,26 +253,41 @@ def test_a_run_without_the_bookkeeping_is_the_same_run_without_its_fields(mode, 
         assert m_off[k] == pytest.approx(m_on[k], rel=1e-12, abs=1e-15), k
 
 
-@pytest.mark.parametrize("rolled", [False, True])
-def test_a_frozen_law_between_samples_is_integrated_as_before_bit_for_bit(rolled, true_arm, true_surface,
+@pytest.mark.parametrize("rolled,book", [(False, True), (True, False)])
+def test_a_frozen_law_between_samples_is_integrated_as_before_bit_for_bit(rolled, book, true_arm, true_surface,
                                                                           nominal_arm, nominal_surface, reference):
     """Under sampled control the law's state is frozen between samples: RK4 integrates the plant and
     the accumulators alone (``frozen_law``), the law's state passed through. It is what RK4 gave
-    with the law's zero rate (y + dt/6 · 0), bit for bit, for every stored field, with the
-    bookkeeping (J, the supply at RK4's stages) and without it."""
+    with the law's zero rate (y + dt/6 · 0), bit for bit, for every stored field: the two-link
+    arm's written-out stages with the bookkeeping (J, the supply at RK4's stages), the arms' rolled
+    loop without it."""
     from hinfnn._loop import LoopOptions
 
     plant = make_plant(true_arm, true_surface, damping=200.0)
     ctrl = H.HinfNNController.design(nominal_arm, nominal_surface)
-    kw = dict(u1_0=U1_0, t_final=0.1, dt=1e-4, control_period=1e-3)
-    for book in (True, False):
-        runs = [H.simulate(plant, ctrl, reference, bookkeeping=book,
-                           loop=LoopOptions(rolled_rk4=rolled, frozen_law=frozen), **kw) for frozen in (True, False)]
-        assert runs[0].arrays.keys() == runs[1].arrays.keys()
-        for k in runs[0].arrays:
-            np.testing.assert_array_equal(runs[0].arrays[k], runs[1].arrays[k], err_msg=f"{k}, bookkeeping {book}")
-        for k in runs[0].final:
-            np.testing.assert_array_equal(runs[0].final[k], runs[1].final[k], err_msg=f"final {k}")
+    kw = dict(u1_0=U1_0, t_final=0.1, dt=1e-4, control_period=1e-3, bookkeeping=book)
+    runs = [H.simulate(plant, ctrl, reference, loop=LoopOptions(rolled_rk4=rolled, frozen_law=frozen), **kw)
+            for frozen in (True, False)]
+    assert runs[0].arrays.keys() == runs[1].arrays.keys() and ("J" in runs[0].arrays) == book
+    for k in runs[0].arrays:
+        np.testing.assert_array_equal(runs[0].arrays[k], runs[1].arrays[k], err_msg=k)
+    for k in runs[0].final:
+        np.testing.assert_array_equal(runs[0].final[k], runs[1].final[k], err_msg=f"final {k}")
+    # and the option does something: the frozen program adds nothing to the law's state at RK4's stages
+    import importlib
+
+    import jax.numpy as jnp
+
+    S = importlib.import_module("hinfnn.sim.simulate")
+    y0 = S.initial_state(plant, ctrl, u1_0=U1_0)
+    adds = []
+    for frozen in (True, False):
+        chunk, _, init = S._compiled(None, S.SINGLE_RECORDS, True, None,
+                                     LoopOptions(rolled_rk4=rolled, frozen_law=frozen), plant.n, book)
+        args = (plant, ctrl, reference, S.Limits(), init(ctrl, y0, plant.n), jnp.zeros((), jnp.int64),
+                *S._chunk_scalars(10, 1e-4, 10, 10, 1))
+        adds.append(chunk.jitted.lower(*args).as_text().count("stablehlo.add"))
+    assert adds[0] < adds[1], adds
 
 
 def test_the_bookkeeping_is_a_scenario_setting_that_reaches_runs_and_batches():
