@@ -35,7 +35,8 @@ Cases (each runs in a fresh worker process so that its peak memory is its own):
    ``ur5_anchor`` — the rigid-body terms of one RK4 step (plant and nominal model: M, bias, the
    tool's Jacobian and its rate, four stages) by Pinocchio called from Python;
    ``ur5_single`` — one run, continuous and at 1 kHz sampled control (``ur5-table-stable``; and the
-   same with ``simulation.bookkeeping = false``, no J or supply integrated): compile, steps per second, kernels per step of the compiled loop, launched and distinct (benchmarks/hlo.py);
+   same with ``simulation.bookkeeping = false``, no J or supply integrated): compile, steps per
+   second, kernels per step of the compiled loop, launched and distinct (benchmarks/hlo.py);
    and the floor under the sampled run: RK4 steps of the true plant alone, the torque held;
    ``ur5_latency`` — the sampled update at 1 kHz from a Python loop (``ur5_latency_sync``: with
    JAX's CPU async dispatch off, as ``latency_sync``);
