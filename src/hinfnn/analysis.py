@@ -228,8 +228,9 @@ def _loop_jacobian(plant, ctrl, ref, y0):
         dps, dxc = _simulator_rhs(plant, ctrl, ref, 0.0, ps, xc)
         return _flatten(plant, dps, dxc)
 
-    columns = jax.lax.map(lambda e: jax.jvp(f, (y0,), (e,))[1], jnp.eye(y0.shape[0], dtype=y0.dtype))
-    return columns.T, f(y0)
+    # each JVP's primal is f(y0): taken from the first column's rather than traced a second time
+    values, columns = jax.lax.map(lambda e: jax.jvp(f, (y0,), (e,)), jnp.eye(y0.shape[0], dtype=y0.dtype))
+    return columns.T, values[0]
 
 
 def closed_loop_jacobian(plant, ctrl, ref, q_eq):
