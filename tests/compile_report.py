@@ -1,6 +1,7 @@
 """Summarise a HINFNN_COMPILE_REPORT file (see conftest.py): the tests and files that spend the
 most time, and how much of it is tracing, lowering and compiling JAX programs in the test's own
-process. Usage: python tests/compile_report.py FILE [--top 30]"""
+process, and the programs that took longest to trace, lower or compile (by their JAX names, summed
+over the tests that compiled them). Usage: python tests/compile_report.py FILE [--top 30]"""
 
 from __future__ import annotations
 
@@ -32,6 +33,17 @@ def main() -> None:
     for r in sorted(rows, key=lambda r: -r["wall"])[:args.top]:
         print(f"{r['wall']:8.1f} {r.get('trace', 0):7.1f} {r.get('lower', 0):7.1f} {r.get('compile', 0):8.1f} "
               f"{r.get('programs', 0):6d} {r.get('cache_hits', 0):5d}  {r['test']}")
+    named = collections.defaultdict(lambda: [0, 0.0, collections.Counter()])
+    for r in rows:
+        for span, program, seconds in r.get("named", ()):  # spans of 0.2 s or more (conftest.py)
+            entry = named[(span, program)]
+            entry[0] += 1
+            entry[1] += seconds
+            entry[2][r["test"].split("::")[0]] += seconds
+    print(f"\n{'seconds':>8} {'times':>6}  span     program (the files that spent most on it)")
+    for (span, program), (count, seconds, files) in sorted(named.items(), key=lambda kv: -kv[1][1])[:args.top]:
+        where = ", ".join(f"{f.removeprefix('tests/')} {s:.0f}" for f, s in files.most_common(3))
+        print(f"{seconds:8.1f} {count:6d}  {span:8s} {program}  ({where})")
 
 
 if __name__ == "__main__":

@@ -70,12 +70,14 @@ if _COMPILE_REPORT:
     _spans = StartupTrace._NAMES  # JAX's trace, lower and compile events, named as hinfnn's startup trace does
     _now: dict = {}
 
-    def _on_duration(event, seconds, **_):
+    def _on_duration(event, seconds, fun_name=None, **_):
         name = _spans.get(event)
         if name is not None and _now:
             _now[name] = _now.get(name, 0.0) + seconds
             if name == "compile":
                 _now["programs"] = _now.get("programs", 0) + 1
+            if seconds >= 0.2:  # the programs worth naming: [span, program, seconds]
+                _now.setdefault("named", []).append([name, str(fun_name), round(seconds, 3)])
 
     def _on_event(event, **_):
         if event == "/jax/compilation_cache/cache_hits" and _now:
@@ -92,7 +94,7 @@ if _COMPILE_REPORT:
         wall = time.perf_counter() - _now.pop("t0")
         with open(_COMPILE_REPORT, "a", encoding="utf-8") as f:
             f.write(json.dumps({"test": item.nodeid, "wall": round(wall, 3), "pid": os.getpid(),
-                                **{k: round(v, 3) for k, v in _now.items()}}) + "\n")
+                                **{k: v if k == "named" else round(v, 3) for k, v in _now.items()}}) + "\n")
         _now.clear()
 
 

@@ -17,7 +17,8 @@ import pytest
 import hinfnn as H
 from hinfnn.model.arm import Arm, PlanarPointMassArm
 from hinfnn.model.taskmap import PlanarTaskMap, PoseTaskMap, PositionTaskMap, so3_exp, so3_log
-from hinfnn.model.urdf import UrdfArm, UrdfError, UrdfWarning, asset_path, load_urdf, load_urdf_string, rpy_matrix
+from hinfnn.model.urdf import (UrdfArm, UrdfError, UrdfWarning, _tool_frame, asset_path, load_urdf, load_urdf_string,
+                               rpy_matrix)
 
 #: one xdist worker runs this module: its tests share compiled programs and expensive fixtures
 pytestmark = pytest.mark.xdist_group("urdf")
@@ -103,12 +104,22 @@ def pinocchio_terms(model, frame, q, qd):
 
 def chain_terms(chain, q, qd):
     """The quantities :func:`pinocchio_terms` returns, from a UrdfChain (each public function
-    called once: XLA compile time grows with every forward pass traced)."""
+    called once: XLA compile time grows with every forward pass traced). The tool frame, its
+    Jacobian and M twice: by the public ``fk``, ``frame_jacobian`` and ``M`` (3 × 3 products, the
+    programs that run once) and by the compiled loop's algorithms on its kinematics
+    (``_kinematics``, component by component), each against Pinocchio's (:data:`LOOP_KEYS`)."""
     p, R = chain.fk(q)
     Jd = chain.frame_jacobian_dot(q, qd)
     G = chain.G(q)
+    k = chain._kinematics(q)
+    p_loop, R_loop = _tool_frame(k)
     return {"M": chain.M(q), "Cqd": chain.bias(q, qd) - G, "G": G, "p": p, "R": R,
-            "J": chain.frame_jacobian(q), "Jd": Jd, "Jdqd": Jd @ qd}
+            "J": chain.frame_jacobian(q), "Jd": Jd, "Jdqd": Jd @ qd,
+            "p_loop": p_loop, "R_loop": R_loop, "J_loop": chain._jacobian(k), "M_loop": chain._crba(k)}
+
+
+#: The compiled loop's tool frame, Jacobian and M, checked against the same Pinocchio quantities.
+LOOP_KEYS = {"p_loop": "p", "R_loop": "R", "J_loop": "J", "M_loop": "M"}
 
 
 def identities(arm, q, qd, v, qdd):
@@ -235,6 +246,7 @@ def synthetic_case(synthetic_arm):
 def test_against_pinocchio(request, name):
     case = request.getfixturevalue(name)
     errors = {k: rel(case.got[k], case.ref[k]) for k in case.ref}
+    errors.update({k: rel(case.got[k], case.ref[ref]) for k, ref in LOOP_KEYS.items()})
     print(name, {k: f"{v:.1e}" for k, v in errors.items()})
     assert all(v < TOL for v in errors.values()), errors
 

@@ -92,8 +92,7 @@ def exact_plant(arm, surface, stiffness: float, damping: float = 0.0) -> RigidBo
 
 @jit_by_joints
 def _A_J_M(arm, surface, q):
-    t = arm.law_terms(q, jnp.zeros_like(q))
-    return surface.A_hat(t.x), t.J, t.M
+    return surface.A_hat(arm.h(q)), arm.J(q), arm.M(q)  # a URDF arm's by 3 × 3 products (UrdfChain.fk)
 
 
 def loop_constants(arm, surface, stiffness: float, q) -> dict:

@@ -88,10 +88,9 @@ def normal_mass(arm, surface, q):
     ÂÂᵀ = 1, so m_n = 1/(nᵀ J_p M̂⁻¹ J_pᵀ n): the inverse of the normal entry of the tool point's
     inverse operational-space inertia J_p M̂⁻¹ J_pᵀ. For the Sec. VI line (paper scaling,
     Â = [tan δ, −1]) it is the expression of the two-link case."""
-    t = arm.law_terms(q, jnp.zeros_like(q))
-    A = surface.A_hat(t.x)
-    AJ = A @ t.J
-    return (A @ A.T)[0, 0] / (AJ @ jnp.linalg.solve(t.M, AJ.T))[0, 0]
+    A = surface.A_hat(arm.h(q))  # h, J, M alone: a URDF arm's by 3 × 3 products (UrdfChain.fk)
+    AJ = A @ arm.J(q)
+    return (A @ A.T)[0, 0] / (AJ @ jnp.linalg.solve(arm.M(q), AJ.T))[0, 0]
 
 
 @jax.jit
@@ -99,11 +98,10 @@ def normal_mass_matrix(arm, surface, q):
     """M_N = (N Ĵ M̂⁻¹ Ĵᵀ Nᵀ)⁻¹, N = DÂ the constraints' unit normals (D = diag(1/‖Â_i‖)): the
     effective-mass matrix along the k normals at q (k × k; for k = 1 the m_n of
     :func:`normal_mass`). docs/beyond-the-paper.md, section 7."""
-    t = arm.law_terms(q, jnp.zeros_like(q))
-    A = surface.A_hat(t.x)
+    A = surface.A_hat(arm.h(q))
     N = A / jnp.linalg.norm(A, axis=1, keepdims=True)
-    NJ = N @ t.J
-    return jnp.linalg.inv(NJ @ jnp.linalg.solve(t.M, NJ.T))
+    NJ = N @ arm.J(q)
+    return jnp.linalg.inv(NJ @ jnp.linalg.solve(arm.M(q), NJ.T))
 
 
 @jit_by_joints

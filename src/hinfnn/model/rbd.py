@@ -305,6 +305,90 @@ def frames(chain, q) -> Frames:
                   one=one)
 
 
+def skew(v):
+    """[v]×, so that skew(v) @ u = v × u."""
+    z = jnp.zeros_like(v[0])
+    return jnp.stack([jnp.stack([z, -v[2], v[1]]), jnp.stack([v[2], z, -v[0]]), jnp.stack([-v[1], v[0], z])])
+
+
+class Placements(NamedTuple):
+    """The chain's placements as arrays (:func:`placements`): ``R`` (n, 3, 3) and ``p`` (n, 3) of
+    the bodies, ``axes`` (n, 3) the joint axes in the base frame, the tool frame ``p_tool`` (3,)
+    and ``R_tool`` (3, 3)."""
+
+    R: jax.Array
+    p: jax.Array
+    axes: jax.Array
+    p_tool: jax.Array
+    R_tool: jax.Array
+
+
+def placements(chain, q) -> Placements:
+    """The forward kinematics of :func:`frames` by 3 × 3 array products, for the programs that run
+    once (the start pose's and the reference path's Newton solves, the design's equilibria): their
+    compile time is their cost, and the component-by-component layout of :func:`frames`, written
+    for the compiled loop's speed, is about five times the program (the UR5's start-pose solve:
+    14,021 StableHLO lines and 24.6 s to trace and compile on a 2-core host, against 2,752 lines and
+    7.1 s so; docs/performance.md). The same placements to rounding (tested)."""
+    Rw = jnp.eye(3, dtype=q.dtype)
+    p = jnp.zeros(3, dtype=q.dtype)
+    s, c = jnp.sin(q), jnp.cos(q)
+    Rs, ps, aws = [], [], []
+    for i, kind in enumerate(chain.joint_types):
+        a = chain.axes[i]
+        X = chain.placement_rot[i]
+        if kind != "prismatic":  # Rodrigues: c I + s [a]x + (1 − c) a aᵀ
+            K = skew(a)
+            rot = c[i] * jnp.eye(3, dtype=q.dtype) + s[i] * K + (1.0 - c[i]) * jnp.outer(a, a)
+            X = X @ rot
+        p = p + Rw @ chain.placement_pos[i]
+        Rw = Rw @ X
+        aw = Rw @ a
+        if kind == "prismatic":
+            p = p + q[i] * aw
+        Rs.append(Rw)
+        ps.append(p)
+        aws.append(aw)
+    return Placements(R=jnp.stack(Rs), p=jnp.stack(ps), axes=jnp.stack(aws),
+                      p_tool=p + Rw @ chain.tool_pos, R_tool=Rw @ chain.tool_rot)
+
+
+def placements_jacobian(chain, pl: Placements):
+    """The tool frame's geometric Jacobian (6, n) from :func:`placements` (as :func:`frame_jacobian`):
+    column i is (a_i × (p_tool − p_i), a_i) for a revolute joint, (a_i, 0) for a prismatic one."""
+    cols = []
+    for i, kind in enumerate(chain.joint_types):
+        a = pl.axes[i]
+        if kind == "prismatic":
+            cols.append(jnp.concatenate([a, jnp.zeros_like(a)]))
+        else:
+            cols.append(jnp.concatenate([jnp.cross(a, pl.p_tool - pl.p[i]), a]))
+    return jnp.stack(cols, axis=1)
+
+
+def placements_crba(chain, pl: Placements):
+    """M(q) from :func:`placements` (as :func:`crba`, by 6 × 6 array products): body i's spatial
+    inertia about the base origin, (linear, angular) rows, I_i = [[m I, −m[c]×], [m[c]×, I_c −
+    m[c]×[c]×]] (c its centre of mass, I_c its rotational inertia about c, base axes), composite
+    inertias I^c_j = Σ_{i ≥ j} I_i, and M_jk = S_jᵀ I^c_max(j,k) S_k."""
+    n = chain.n
+    eye = jnp.eye(3, dtype=pl.R.dtype)
+    c = pl.p + jnp.einsum("nij,nj->ni", pl.R, chain.com)
+    Ic = pl.R @ chain.inertia @ jnp.swapaxes(pl.R, 1, 2)
+    m = chain.mass[:, None, None]
+    C = jax.vmap(skew)(c)  # [c]x per body
+    I6 = jnp.concatenate([jnp.concatenate([m * eye[None], -m * C], axis=2),
+                          jnp.concatenate([m * C, Ic - m * (C @ C)], axis=2)], axis=1)
+    comp = jnp.cumsum(I6[::-1], axis=0)[::-1]  # I^c_j = Σ_{i ≥ j} I_i
+    S = jnp.stack([jnp.concatenate([a, jnp.zeros_like(a)]) if kind == "prismatic"
+                   else jnp.concatenate([jnp.cross(p, a), a])
+                   for kind, a, p in zip(chain.joint_types, pl.axes, pl.p)])  # (n, 6)
+    F = jnp.einsum("jab,jb->ja", comp, S)  # I^c_j S_j
+    G = S @ F.T  # G[k, j] = S_kᵀ I^c_j S_j: M_kj for k ≤ j
+    upper = np.triu(np.ones((n, n), dtype=bool))
+    return jnp.where(upper, G, G.T)
+
+
 def as_matrix(T):
     """A 3 × 3 tuple of scalars as a (3, 3) array."""
     return jnp.stack([jnp.stack(row) for row in T])

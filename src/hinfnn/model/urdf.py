@@ -452,11 +452,7 @@ def _ancestors(link, parent_joint):
 # ---------------------------------------------------------------------------------------------
 # Spatial algebra (the rigid-body algorithms themselves are in hinfnn.model.rbd)
 # ---------------------------------------------------------------------------------------------
-def skew(v):
-    """[v]×, so that skew(v) @ u = v × u."""
-    z = jnp.zeros_like(v[0])
-    return jnp.stack([jnp.stack([z, -v[2], v[1]]), jnp.stack([v[2], z, -v[0]]),
-                      jnp.stack([-v[1], v[0], z])])
+skew = rbd.skew  # [v]×, so that skew(v) @ u = v × u
 
 
 @pytree_dataclass
@@ -496,8 +492,11 @@ class UrdfChain:
         return rbd.frames(self, q)
 
     def fk(self, q):
-        """Tool frame (position (3,), rotation (3,3)) in the base frame."""
-        return _tool_frame(self._kinematics(q))
+        """Tool frame (position (3,), rotation (3,3)) in the base frame, by 3 × 3 products
+        (:func:`hinfnn.model.rbd.placements`: a fifth of the program of the compiled loop's
+        :meth:`_kinematics`, for the programs that run once)."""
+        pl = rbd.placements(self, q)
+        return pl.p_tool, pl.R_tool
 
     @staticmethod
     def _jacobian(k: rbd.Frames):
@@ -509,8 +508,9 @@ class UrdfChain:
 
     def frame_jacobian(self, q):
         """Geometric Jacobian (6, n) of the tool frame: rows (ṗ_tool, ω), base-frame axes
-        (Pinocchio's LOCAL_WORLD_ALIGNED). Column i: (a_i × (p_tool − p_i), a_i) (revolute)."""
-        return self._jacobian(self._kinematics(q))
+        (Pinocchio's LOCAL_WORLD_ALIGNED). Column i: (a_i × (p_tool − p_i), a_i) (revolute).
+        By 3 × 3 products, as :meth:`fk`."""
+        return rbd.placements_jacobian(self, rbd.placements(self, q))
 
     def frame_jacobian_dot(self, q, qd):
         """d/dt of :meth:`frame_jacobian` along q̇; J̇ q̇ is the tool's classical acceleration
@@ -544,8 +544,10 @@ class UrdfChain:
         return cols.T
 
     def M(self, q):
-        """Joint-space inertia matrix by the composite-rigid-body algorithm."""
-        return self._crba(self._kinematics(q))
+        """Joint-space inertia matrix by the composite-rigid-body algorithm, by 6 × 6 products
+        (:func:`hinfnn.model.rbd.placements_crba`, as :meth:`fk`; the compiled loop's M comes
+        from :meth:`_crba` on its own kinematics)."""
+        return rbd.placements_crba(self, rbd.placements(self, q))
 
     def bias(self, q, qd):
         """C(q, q̇) q̇ + G(q) by recursive Newton–Euler (q̈ = 0)."""
@@ -767,9 +769,11 @@ class UrdfArm(Arm):
                                  self.chain._jacobian_dot(k, qd, v), qd)
 
     def J(self, q):
-        """∂h/∂q = (∂task/∂(p, R)) · frame Jacobian."""
-        k = self.chain._kinematics(q)
-        return self._J_Jdot(k, jnp.zeros_like(q))[0]
+        """∂h/∂q = (∂task/∂(p, R)) · frame Jacobian (the kinematics by 3 × 3 products, as
+        :meth:`UrdfChain.fk`: J alone is computed by the programs that run once; the compiled
+        loop's comes from :meth:`law_terms` and :meth:`plant_terms`)."""
+        pl = rbd.placements(self.chain, q)
+        return _task_jacobian(self.task, pl.p_tool, pl.R_tool, rbd.placements_jacobian(self.chain, pl))
 
     def J_dot(self, q, qd):
         """dJ/dt along q̇ (frame Jacobian, its time derivative and the task map's derivatives)."""
@@ -865,8 +869,10 @@ class UrdfArm(Arm):
                         p=self.task.space(p), J_p=jnp.stack([Jf[i] for i in self.task.space_rows]))
 
     def task_margin(self, q):
-        """The task map's distance from its singularities at q (:meth:`~hinfnn.model.taskmap.PoseTaskMap.margin`)."""
-        return self.task.margin(*self.chain.fk(q))
+        """The task map's distance from its singularities at q (:meth:`~hinfnn.model.taskmap.PoseTaskMap.margin`).
+        Recorded by the compiled loop at every stored sample: from the loop's own kinematics
+        (:meth:`UrdfChain._kinematics`), which XLA shares with the plant's terms at the same q."""
+        return self.task.margin(*_tool_frame(self.chain._kinematics(q)))
 
     def forward_dynamics(self, q, qd, tau_total, terms: ArmTerms | None = None):
         """q̈ = M⁻¹ (τ_total − C q̇ − G); without ``terms`` by CRBA + RNEA (C is not formed)."""

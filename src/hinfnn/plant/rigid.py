@@ -208,13 +208,15 @@ class RigidBodyPlant(ContinuousPlant):
 
 @kept("effective_mass")
 def _effective_mass(plant, q):
-    if plant.cartesian:
-        t = plant.arm.plant_terms(q, jnp.zeros_like(q))
-        Jn = la.mm(t.J_p.T, plant.surface.normal(t.p))
+    if plant.cartesian:  # the tool point, its Jacobian and M alone (a URDF arm's by 3 × 3 products, UrdfChain.fk)
+        arm = plant.arm
+        Jn = la.mm(arm.point_jacobian(q).T, plant.surface.normal(arm.point(q)))
+        M = arm.M(q)
     else:
         t = plant.arm.terms(q, jnp.zeros_like(q))
         Jn = la.mm(t.J.T, plant.surface.inward_normal(t.x))
-    return 1.0 / la.mm(Jn, jnp.linalg.solve(t.M, Jn))
+        M = t.M
+    return 1.0 / la.mm(Jn, jnp.linalg.solve(M, Jn))
 
 
 @kept("initial_q_cartesian")
