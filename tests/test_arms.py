@@ -431,6 +431,31 @@ def test_the_force_sensor_reads_the_tool_force_and_the_controller_maps_it(drum_p
     assert abs(float(lam[0]) - float(fn)) < 0.05 * float(fn)
 
 
+@pytest.mark.parametrize("name", ["paper", "planar3-drum"])
+def test_observe_reads_what_the_law_reads(name, drum_plant):
+    """``observe`` (the controller's reading of its sensors, which the design's rest poses solve on)
+    computes u1, u̇1 and λ from the arm's h, J and J_p alone; the law computes them inside its
+    reduced-order model (from the loop's own rigid-body terms): the same numbers, on the paper's
+    arm (task coordinates = the tip) and on a URDF chain with fitted coordinates (J_p ≠ J)."""
+    sc = drum_plant[0] if name == "planar3-drum" else H.load_scenario(name, check=False)
+    plant, ctrl, ref = sc.build_plant(), sc.build_controller("hinf"), sc.build_reference()
+    rng = np.random.default_rng(11)
+    n = plant.n
+    q = jnp.asarray(sc.initial_q(plant)) + 0.02 * rng.standard_normal(n)
+    meas = H.Measurement(q=q, qd=jnp.asarray(0.3 * rng.standard_normal(n)),
+                         force=jnp.asarray(rng.uniform(-5.0, 20.0, ctrl.arm.space_dim)))
+    assert isinstance(ctrl.arm, H.model.urdf.UrdfArm) == (name != "paper")
+
+    @jax.jit
+    def both(ctrl, meas):
+        s = ctrl.evaluate(0.0, ctrl.init(), meas, ref).signals
+        return ctrl.observe(meas), (s["u1"], s["u1_dot"], s["lam"])
+
+    seen, law = both(ctrl, meas)
+    for a, b in zip(seen, law):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * float(np.max(np.abs(b))))
+
+
 # --------------------------------------------------------------------------------------------
 # Networks with one output per coordinate; references
 # --------------------------------------------------------------------------------------------

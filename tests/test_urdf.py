@@ -15,6 +15,7 @@ import pinocchio as pin  # the oracle (a test dependency)
 import pytest
 
 import hinfnn as H
+from hinfnn.model import rbd
 from hinfnn.model.arm import Arm, PlanarPointMassArm
 from hinfnn.model.taskmap import PlanarTaskMap, PoseTaskMap, PositionTaskMap, so3_exp, so3_log
 from hinfnn.model.urdf import (UrdfArm, UrdfError, UrdfWarning, _tool_frame, asset_path, load_urdf, load_urdf_string,
@@ -107,19 +108,31 @@ def chain_terms(chain, q, qd):
     called once: XLA compile time grows with every forward pass traced). The tool frame, its
     Jacobian and M twice: by the public ``fk``, ``frame_jacobian`` and ``M`` (3 × 3 products, the
     programs that run once) and by the compiled loop's algorithms on its kinematics
-    (``_kinematics``, component by component), each against Pinocchio's (:data:`LOOP_KEYS`)."""
+    (``_kinematics``, component by component), each against Pinocchio's (:data:`LOOP_KEYS`). The
+    loop's algorithms once more on the kinematics the design's programs give them
+    (:func:`hinfnn.model.rbd.by_products`): M, C(q, q̇)q̇, G and J̇ (:data:`PRODUCTS_KEYS`)."""
     p, R = chain.fk(q)
     Jd = chain.frame_jacobian_dot(q, qd)
     G = chain.G(q)
     k = chain._kinematics(q)
     p_loop, R_loop = _tool_frame(k)
+    with rbd.by_products():
+        kp = chain._kinematics(q)
+        G_products = chain.G(q)
+        products = {"M_products": chain._crba(kp), "G_products": G_products,
+                    "Cqd_products": chain.bias(q, qd) - G_products, "Jd_products": chain.frame_jacobian_dot(q, qd),
+                    "p_products": kp.p_tool, "R_products": kp.R_tool}
     return {"M": chain.M(q), "Cqd": chain.bias(q, qd) - G, "G": G, "p": p, "R": R,
             "J": chain.frame_jacobian(q), "Jd": Jd, "Jdqd": Jd @ qd,
-            "p_loop": p_loop, "R_loop": R_loop, "J_loop": chain._jacobian(k), "M_loop": chain._crba(k)}
+            "p_loop": p_loop, "R_loop": R_loop, "J_loop": chain._jacobian(k), "M_loop": chain._crba(k),
+            **{key: jnp.asarray(v) for key, v in products.items()}}
 
 
 #: The compiled loop's tool frame, Jacobian and M, checked against the same Pinocchio quantities.
 LOOP_KEYS = {"p_loop": "p", "R_loop": "R", "J_loop": "J", "M_loop": "M"}
+#: The loop's algorithms on the design programs' kinematics (by products), against Pinocchio.
+PRODUCTS_KEYS = {"M_products": "M", "G_products": "G", "Cqd_products": "Cqd", "Jd_products": "Jd",
+                 "p_products": "p", "R_products": "R"}
 
 
 def identities(arm, q, qd, v, qdd):
@@ -246,7 +259,7 @@ def synthetic_case(synthetic_arm):
 def test_against_pinocchio(request, name):
     case = request.getfixturevalue(name)
     errors = {k: rel(case.got[k], case.ref[k]) for k in case.ref}
-    errors.update({k: rel(case.got[k], case.ref[ref]) for k, ref in LOOP_KEYS.items()})
+    errors.update({k: rel(case.got[k], case.ref[ref]) for k, ref in {**LOOP_KEYS, **PRODUCTS_KEYS}.items()})
     print(name, {k: f"{v:.1e}" for k, v in errors.items()})
     assert all(v < TOL for v in errors.values()), errors
 

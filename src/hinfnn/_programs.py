@@ -167,15 +167,24 @@ def jit_by_joints(fn=None, *, static_argnames=None):
     :meth:`hinfnn._loop.LoopOptions.compiler_options`) and :data:`ANALYSIS_OPTIONS`: for arms of 3
     or more joints XLA's older loop emitters (its default emitters compile the rigid-body
     algorithms written out for fusion several times slower: the UR5 closed loop's Jacobian 17.7
-    against 13.3 s, the same matrix to 3e-16) and no LLVM optimisation; XLA's defaults for the
+    against 13.3 s, the same matrix to 3e-16) and no LLVM optimisation, and traced with a URDF
+    chain's kinematics by array products (:func:`hinfnn.model.rbd.by_products`: the layout written
+    for the compiled loop is a third of the loop Jacobian's program); XLA's defaults for the
     two-link arm. Called inside another trace, it is ``jax.jit(fn)``."""
     if fn is None:
         return functools.partial(jit_by_joints, static_argnames=static_argnames)
     from ._loop import ROLL_FROM_JOINTS, LoopOptions
 
+    from .model.rbd import by_products
+
+    @functools.wraps(fn)
+    def traced(*args, **kwargs):
+        with by_products():
+            return fn(*args, **kwargs)
+
     plain = jax.jit(fn, static_argnames=static_argnames)
     options = {**(LoopOptions().compiler_options(ROLL_FROM_JOINTS) or {}), **ANALYSIS_OPTIONS}
-    arm = jax.jit(fn, static_argnames=static_argnames, compiler_options=options)
+    arm = jax.jit(traced, static_argnames=static_argnames, compiler_options=options)
 
     @functools.wraps(fn)
     def call(first, *args, **kwargs):

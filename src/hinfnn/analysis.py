@@ -65,8 +65,18 @@ def _simulator_rhs(plant, ctrl, ref, t, plant_state, xc, held=None, sampled=Fals
     n = plant.n
     held = jnp.zeros(n) if held is None else held
     y = SimState(plant=plant_state, xc=xc, acc=Accumulators.zero())
-    dy, _ = rhs(plant, ctrl, ref, t, y, jnp.zeros(n), held, sampled)
+    # book=False: the accumulators' rates are not returned, so their integrands are not traced (nor
+    # differentiated) only for XLA to drop them (UR5: 5.6 -> s to trace the loop's Jacobian)
+    dy, _ = rhs(plant, ctrl, ref, t, y, jnp.zeros(n), held, sampled, book=False)
     return dy.plant, dy.xc
+
+
+def _held_plant_rhs(plant, t, plant_state, held):
+    """d plant_state/dt of the simulator's right-hand side in its sampled mode (:func:`hinfnn.sim.rhs`
+    with ``sampled``: the torque ``held``, no disturbance), which reads the plant alone: its sensing
+    and its derivative, without tracing the controller whose output that mode does not apply."""
+    _, cache = plant.sense(t, plant_state)
+    return plant.derivative(t, plant_state, held, jnp.zeros(plant.n), cache)[0]
 
 
 # --- operating point ------------------------------------------------------------------------------
@@ -499,19 +509,21 @@ def contact_modes(scenario, kind: str, stiffness: float, u1d=None, lam_d=None, c
 
 
 @jit_by_joints
-def _held_plant_jacobian(plant, ctrl, ref, y_p, tau):
+def _held_plant_jacobian(plant, y_p, tau):
     """(∂(q̇, q̈)/∂(q, q̇), ∂(q̇, q̈)/∂τ, (q̇, q̈)) of the simulator's right-hand side in its sampled
-    mode (the torque held at ``tau``, the controller's output not applied) at the plant state y_p."""
+    mode (the torque held at ``tau``, the controller's output not applied) at the plant state y_p;
+    column by column as :func:`_loop_jacobian`."""
     n = plant.n
-    xc = ctrl.init()
 
-    def g(yp, tau):
-        d, _ = _simulator_rhs(plant, ctrl, ref, 0.0, plant.initial_state(yp[:n], yp[n:]), xc, tau, True)
+    def g(v):
+        yp, tau = v[:2 * n], v[2 * n:]
+        d = _held_plant_rhs(plant, 0.0, plant.initial_state(yp[:n], yp[n:]), tau)
         q_dot, qd_dot = plant.joints(d)
         return jnp.concatenate([q_dot, qd_dot])
 
-    Jy, Jt = jax.jacfwd(g, argnums=(0, 1))(y_p, tau)
-    return Jy, Jt, g(y_p, tau)
+    v0 = jnp.concatenate([y_p, tau])
+    values, columns = jax.lax.map(lambda e: jax.jvp(g, (v0,), (e,)), jnp.eye(v0.shape[0], dtype=v0.dtype))
+    return columns[:2 * n].T, columns[2 * n:].T, values[0]
 
 
 def sampled_map_jacobian(plant, ctrl, ref, q_eq, period: float, dt: float):
@@ -528,10 +540,10 @@ def sampled_map_jacobian(plant, ctrl, ref, q_eq, period: float, dt: float):
     n = plant.n
     A, y0, _ = closed_loop_jacobian(plant, ctrl, ref, q_eq)
     y_p = jnp.asarray(y0[:2 * n])
-    _, Jt, f0 = _held_plant_jacobian(plant, ctrl, ref, y_p, jnp.zeros(n))
+    _, Jt, f0 = _held_plant_jacobian(plant, y_p, jnp.zeros(n))
     B = np.asarray(Jt)[n:]
     tau_star = -np.linalg.solve(B, np.asarray(f0)[n:])  # q̈ is affine in τ: at rest q̈(τ*) = 0
-    P, Jt, _ = (np.asarray(a) for a in _held_plant_jacobian(plant, ctrl, ref, y_p, jnp.asarray(tau_star)))
+    P, Jt, _ = (np.asarray(a) for a in _held_plant_jacobian(plant, y_p, jnp.asarray(tau_star)))
     Bfull = Jt
     Kmat = np.linalg.lstsq(Bfull, A[:2 * n] - np.concatenate([P, np.zeros((2 * n, A.shape[1] - 2 * n))], axis=1),
                            rcond=None)[0]  # τ's gains on (y_p, xc)

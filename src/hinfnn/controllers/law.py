@@ -255,10 +255,13 @@ class ReducedOrderController(Controller, Dissipative):
     # --- measurement map (nominal kinematics, docs/paper-conventions.md "Measurements") ---------
     def observe(self, meas):
         """u1 = ĥ1(q), u̇1 = (Ĵ q̇)_1 and λ = (Â Âᵀ)⁻¹ Â F from the nominal model (F the measured
-        tool force in task coordinates, :func:`measured_force`)."""
-        rm = reduced_model(self.arm, self.surface, meas.q, meas.qd)
-        F = measured_force(rm.J, rm.J_p, meas.force)
-        return rm.x[: self.m], rm.x_dot[: self.m], force_multiplier(rm.A_hat, F)
+        tool force in task coordinates, :func:`measured_force`): what :meth:`evaluate` reads, from
+        the arm's ĥ, Ĵ and Ĵ_p alone (the reduced-order model's M̄, C̄, Ḡ are not needed; a URDF
+        arm's by 3 × 3 products, :meth:`hinfnn.model.urdf.UrdfChain.fk`: design programs call this)."""
+        arm = self.arm
+        x, J = arm.h(meas.q), arm.J(meas.q)
+        F = measured_force(J, None if arm.task_is_point else arm.point_jacobian(meas.q), meas.force)
+        return x[: self.m], la.mm(J, meas.qd)[: self.m], force_multiplier(self.surface.A_hat(x), F)
 
     # --- the control law -----------------------------------------------------------------------
     def evaluate(self, t, state: ControllerState, meas, ref) -> ControllerOutput:
