@@ -561,7 +561,7 @@ def test_checking_draws_of_an_arm_traces_its_path_programs_once():
     from hinfnn.scenario import checks
 
     base = H.load_scenario("ur5-table")
-    program = checks._path_joints_program()  # a KeptFunction: one entry per argument structure
+    program = checks._path_joints_program().arm  # the KeptFunction of arms: one entry per argument structure
     before = len(program._entries)
     for i, m in enumerate((0.85, 1.05, 1.15)):
         base.with_overrides({"plant.arm.mass_scale": m, "plant.contact.stiffness": 4e4 + 3e4 * i})

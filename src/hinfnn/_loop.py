@@ -198,6 +198,26 @@ class LoopOptions:
 
 
 _ACTIVE: contextvars.ContextVar = contextvars.ContextVar("hinfnn_loop_options", default=LoopOptions())
+_BY_PRODUCTS: contextvars.ContextVar = contextvars.ContextVar("hinfnn_by_products", default=False)
+
+
+@contextlib.contextmanager
+def by_products():
+    """Within: a URDF chain's kinematics traced by array products
+    (:func:`hinfnn.model.rbd.frames_by_products`) rather than in the compiled loop's layout. The
+    design's programs (:func:`hinfnn._programs.jit_by_joints`) and the setup programs
+    (:func:`hinfnn._programs.kept`) trace under it: they run a few times and are paid by their
+    compile time, which that layout triples."""
+    token = _BY_PRODUCTS.set(True)
+    try:
+        yield
+    finally:
+        _BY_PRODUCTS.reset(token)
+
+
+def tracing_by_products() -> bool:
+    """Whether :func:`by_products` is on (read at trace time)."""
+    return _BY_PRODUCTS.get()
 
 
 def current() -> LoopOptions:

@@ -161,6 +161,25 @@ class KeptFunction:
 ANALYSIS_OPTIONS = {"xla_backend_optimization_level": 0}
 
 
+def _arm_options() -> dict:
+    """The XLA options of :func:`jit_by_joints` and :func:`kept` for an arm of 3 or more joints."""
+    from ._loop import ROLL_FROM_JOINTS, LoopOptions
+
+    return {**(LoopOptions().compiler_options(ROLL_FROM_JOINTS) or {}), **ANALYSIS_OPTIONS}
+
+
+def _by_products(fn):
+    """``fn`` traced with a URDF chain's kinematics by array products (:func:`hinfnn._loop.by_products`)."""
+    from ._loop import by_products
+
+    @functools.wraps(fn)
+    def traced(*args, **kwargs):
+        with by_products():
+            return fn(*args, **kwargs)
+
+    return traced
+
+
 def jit_by_joints(fn=None, *, static_argnames=None):
     """Decorator for design-time programs: ``jax.jit(fn)``, compiled with the XLA options the
     simulator uses for the joints of its first argument (a plant or an arm, ``.n``;
@@ -168,23 +187,15 @@ def jit_by_joints(fn=None, *, static_argnames=None):
     or more joints XLA's older loop emitters (its default emitters compile the rigid-body
     algorithms written out for fusion several times slower: the UR5 closed loop's Jacobian 17.7
     against 13.3 s, the same matrix to 3e-16) and no LLVM optimisation, and traced with a URDF
-    chain's kinematics by array products (:func:`hinfnn.model.rbd.by_products`: the layout written
+    chain's kinematics by array products (:func:`hinfnn._loop.by_products`: the layout written
     for the compiled loop is a third of the loop Jacobian's program); XLA's defaults for the
     two-link arm. Called inside another trace, it is ``jax.jit(fn)``."""
     if fn is None:
         return functools.partial(jit_by_joints, static_argnames=static_argnames)
-    from ._loop import ROLL_FROM_JOINTS, LoopOptions
-
-    from .model.rbd import by_products
-
-    @functools.wraps(fn)
-    def traced(*args, **kwargs):
-        with by_products():
-            return fn(*args, **kwargs)
+    from ._loop import ROLL_FROM_JOINTS
 
     plain = jax.jit(fn, static_argnames=static_argnames)
-    options = {**(LoopOptions().compiler_options(ROLL_FROM_JOINTS) or {}), **ANALYSIS_OPTIONS}
-    arm = jax.jit(traced, static_argnames=static_argnames, compiler_options=options)
+    arm = jax.jit(_by_products(fn), static_argnames=static_argnames, compiler_options=_arm_options())
 
     @functools.wraps(fn)
     def call(first, *args, **kwargs):
@@ -195,8 +206,29 @@ def jit_by_joints(fn=None, *, static_argnames=None):
 
 
 def kept(name: str):
-    """Decorator: :class:`KeptFunction` of the function, under ``name`` (unique in hinfnn)."""
-    return lambda fn: KeptFunction(fn, name)
+    """Decorator: :class:`KeptFunction` of the function, under ``name`` (unique in hinfnn), chosen
+    by the joints of its first argument (a plant or an arm, ``.n``): for an arm of 3 or more joints
+    traced by array products (:func:`hinfnn._loop.by_products`) and compiled with XLA's older
+    loop emitters, as the simulator's programs (``ur5-table``'s four setup programs, empty cache:
+    10–11 s to compile with XLA's defaults, 7–8 s so; the same start poses, or one ulp off). Not
+    at LLVM -O0 as the design's programs (5 s to compile): a sweep checks every draw with them,
+    0.09 s a UR5 draw that -O0 made 0.18 s (docs/performance.md). XLA's defaults for the two-link
+    arm."""
+    from ._loop import ROLL_FROM_JOINTS, LoopOptions
+
+    def decorate(fn):
+        plain = KeptFunction(fn, name)
+        options = LoopOptions().compiler_options(ROLL_FROM_JOINTS)
+        arm = KeptFunction(_by_products(fn), name, compiler_options=options)
+
+        @functools.wraps(fn)
+        def call(first, *args):
+            return (arm if getattr(first, "n", 0) >= ROLL_FROM_JOINTS else plain)(first, *args)
+
+        call.plain, call.arm = plain, arm
+        return call
+
+    return decorate
 
 
 class ExportedProgram(KeptFunction):

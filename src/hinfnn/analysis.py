@@ -66,7 +66,7 @@ def _simulator_rhs(plant, ctrl, ref, t, plant_state, xc, held=None, sampled=Fals
     held = jnp.zeros(n) if held is None else held
     y = SimState(plant=plant_state, xc=xc, acc=Accumulators.zero())
     # book=False: the accumulators' rates are not returned, so their integrands are not traced (nor
-    # differentiated) only for XLA to drop them (UR5: 5.6 -> s to trace the loop's Jacobian)
+    # differentiated) only for XLA to drop them (the UR5's loop Jacobian traced in 4.8 s instead of 5.6)
     dy, _ = rhs(plant, ctrl, ref, t, y, jnp.zeros(n), held, sampled, book=False)
     return dy.plant, dy.xc
 

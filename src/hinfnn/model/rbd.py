@@ -38,14 +38,13 @@ Pinocchio.
 
 from __future__ import annotations
 
-import contextlib
-import contextvars
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _loop
 from .._linalg import member_minor
 
 #: Largest number of float64 values in one stored buffer (512 bytes, :mod:`hinfnn._devices`).
@@ -254,25 +253,15 @@ def _mat(a):
     return tuple(tuple(a[..., r, k] for k in range(3)) for r in range(3))
 
 
-_BY_PRODUCTS: contextvars.ContextVar = contextvars.ContextVar("hinfnn_rbd_by_products", default=False)
-
-
-@contextlib.contextmanager
-def by_products():
-    """Within: :func:`frames` computed by :func:`frames_by_products` (the design's programs,
-    :func:`hinfnn._programs.jit_by_joints`, trace under it)."""
-    token = _BY_PRODUCTS.set(True)
-    try:
-        yield
-    finally:
-        _BY_PRODUCTS.reset(token)
+#: Within: :func:`frames` computed by :func:`frames_by_products` (:func:`hinfnn._loop.by_products`).
+by_products = _loop.by_products
 
 
 def frames(chain, q) -> Frames:
     """Forward pass: body placements (the static joints unrolled, one stored stage per body),
     motion subspaces, body inertias in the base frame, tool frame. Under :func:`by_products`,
     :func:`frames_by_products`."""
-    if _BY_PRODUCTS.get():
+    if _loop.tracing_by_products():
         return frames_by_products(chain, q)
     one = runtime_one(q)
     s, c = keep([jnp.sin(q), jnp.cos(q)], one)
