@@ -161,13 +161,6 @@ class KeptFunction:
 ANALYSIS_OPTIONS = {"xla_backend_optimization_level": 0}
 
 
-def _arm_options() -> dict:
-    """The XLA options of :func:`jit_by_joints` and :func:`kept` for an arm of 3 or more joints."""
-    from ._loop import ROLL_FROM_JOINTS, LoopOptions
-
-    return {**(LoopOptions().compiler_options(ROLL_FROM_JOINTS) or {}), **ANALYSIS_OPTIONS}
-
-
 def _by_products(fn):
     """``fn`` traced with a URDF chain's kinematics by array products (:func:`hinfnn._loop.by_products`)."""
     from ._loop import by_products
@@ -192,10 +185,11 @@ def jit_by_joints(fn=None, *, static_argnames=None):
     two-link arm. Called inside another trace, it is ``jax.jit(fn)``."""
     if fn is None:
         return functools.partial(jit_by_joints, static_argnames=static_argnames)
-    from ._loop import ROLL_FROM_JOINTS
+    from ._loop import ROLL_FROM_JOINTS, LoopOptions
 
     plain = jax.jit(fn, static_argnames=static_argnames)
-    arm = jax.jit(_by_products(fn), static_argnames=static_argnames, compiler_options=_arm_options())
+    options = {**(LoopOptions().compiler_options(ROLL_FROM_JOINTS) or {}), **ANALYSIS_OPTIONS}
+    arm = jax.jit(_by_products(fn), static_argnames=static_argnames, compiler_options=options)
 
     @functools.wraps(fn)
     def call(first, *args, **kwargs):

@@ -253,13 +253,9 @@ def _mat(a):
     return tuple(tuple(a[..., r, k] for k in range(3)) for r in range(3))
 
 
-#: Within: :func:`frames` computed by :func:`frames_by_products` (:func:`hinfnn._loop.by_products`).
-by_products = _loop.by_products
-
-
 def frames(chain, q) -> Frames:
     """Forward pass: body placements (the static joints unrolled, one stored stage per body),
-    motion subspaces, body inertias in the base frame, tool frame. Under :func:`by_products`,
+    motion subspaces, body inertias in the base frame, tool frame. Under :func:`hinfnn._loop.by_products`,
     :func:`frames_by_products`."""
     if _loop.tracing_by_products():
         return frames_by_products(chain, q)
