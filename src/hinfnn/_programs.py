@@ -190,13 +190,7 @@ def jit_by_joints(fn=None, *, static_argnames=None):
     plain = jax.jit(fn, static_argnames=static_argnames)
     options = {**(LoopOptions().compiler_options(ROLL_FROM_JOINTS) or {}), **ANALYSIS_OPTIONS}
     arm = jax.jit(_by_products(fn), static_argnames=static_argnames, compiler_options=options)
-
-    @functools.wraps(fn)
-    def call(first, *args, **kwargs):
-        return (arm if getattr(first, "n", 0) >= ROLL_FROM_JOINTS else plain)(first, *args, **kwargs)
-
-    call.plain, call.arm = plain, arm
-    return call
+    return _by_joints(fn, plain, arm)
 
 
 def kept(name: str):
@@ -211,18 +205,24 @@ def kept(name: str):
     from ._loop import ROLL_FROM_JOINTS, LoopOptions
 
     def decorate(fn):
-        plain = KeptFunction(fn, name)
         options = LoopOptions().compiler_options(ROLL_FROM_JOINTS)
-        arm = KeptFunction(_by_products(fn), name, compiler_options=options)
-
-        @functools.wraps(fn)
-        def call(first, *args):
-            return (arm if getattr(first, "n", 0) >= ROLL_FROM_JOINTS else plain)(first, *args)
-
-        call.plain, call.arm = plain, arm
-        return call
+        return _by_joints(fn, KeptFunction(fn, name), KeptFunction(_by_products(fn), name, compiler_options=options))
 
     return decorate
+
+
+def _by_joints(fn, plain, arm):
+    """``fn``'s two compiled forms as one function: ``arm`` when its first argument (a plant or an
+    arm, ``.n``) has 3 or more joints (:data:`hinfnn._loop.ROLL_FROM_JOINTS`), else ``plain``
+    (both kept as the attributes ``.plain`` and ``.arm``)."""
+    from ._loop import ROLL_FROM_JOINTS
+
+    @functools.wraps(fn)
+    def call(first, *args, **kwargs):
+        return (arm if getattr(first, "n", 0) >= ROLL_FROM_JOINTS else plain)(first, *args, **kwargs)
+
+    call.plain, call.arm = plain, arm
+    return call
 
 
 class ExportedProgram(KeptFunction):

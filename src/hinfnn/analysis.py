@@ -58,7 +58,8 @@ def _simulator_rhs(plant, ctrl, ref, t, plant_state, xc, held=None, sampled=Fals
     """(d plant_state/dt, d xc/dt) of the simulator's own right-hand side (:func:`hinfnn.sim.rhs`)
     at (plant_state, xc) with no disturbance, the accumulators of the bookkeeping left out.
     ``held``, ``sampled``: the torque held by the sampled mode (the controller state then does
-    not move between samples). The only use of the simulator in this module."""
+    not move between samples). With its plant part (:func:`hinfnn.sim.simulate.plant_rhs`, in
+    :func:`_held_plant_jacobian`), the only use of the simulator in this module."""
     from .sim.recorder import Accumulators
     from .sim.simulate import SimState, rhs
 
@@ -69,14 +70,6 @@ def _simulator_rhs(plant, ctrl, ref, t, plant_state, xc, held=None, sampled=Fals
     # differentiated) only for XLA to drop them (the UR5's loop Jacobian traced in 4.8 s instead of 5.6)
     dy, _ = rhs(plant, ctrl, ref, t, y, jnp.zeros(n), held, sampled, book=False)
     return dy.plant, dy.xc
-
-
-def _held_plant_rhs(plant, t, plant_state, held):
-    """d plant_state/dt of the simulator's right-hand side in its sampled mode (:func:`hinfnn.sim.rhs`
-    with ``sampled``: the torque ``held``, no disturbance), which reads the plant alone: its sensing
-    and its derivative, without tracing the controller whose output that mode does not apply."""
-    _, cache = plant.sense(t, plant_state)
-    return plant.derivative(t, plant_state, held, jnp.zeros(plant.n), cache)[0]
 
 
 # --- operating point ------------------------------------------------------------------------------
@@ -512,12 +505,15 @@ def contact_modes(scenario, kind: str, stiffness: float, u1d=None, lam_d=None, c
 def _held_plant_jacobian(plant, y_p, tau):
     """(∂(q̇, q̈)/∂(q, q̇), ∂(q̇, q̈)/∂τ, (q̇, q̈)) of the simulator's right-hand side in its sampled
     mode (the torque held at ``tau``, the controller's output not applied) at the plant state y_p;
-    column by column as :func:`_loop_jacobian`."""
+    column by column as :func:`_loop_jacobian`. The plant alone (:func:`hinfnn.sim.simulate.plant_rhs`):
+    the whole right-hand side, controller included, took 10.2 s to trace for the UR5, the plant 1.3 s."""
+    from .sim.simulate import plant_rhs
+
     n = plant.n
 
     def g(v):
         yp, tau = v[:2 * n], v[2 * n:]
-        d = _held_plant_rhs(plant, 0.0, plant.initial_state(yp[:n], yp[n:]), tau)
+        d, _ = plant_rhs(plant, 0.0, plant.initial_state(yp[:n], yp[n:]), tau, jnp.zeros(n))
         q_dot, qd_dot = plant.joints(d)
         return jnp.concatenate([q_dot, qd_dot])
 

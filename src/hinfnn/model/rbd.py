@@ -30,10 +30,12 @@ differs), and Pinocchio's to 1e-10 relative (tests/test_urdf.py).
 That layout is for the compiled loop, which runs its step millions of times. The programs that run
 once (the start pose's and the reference path's Newton solves, the effective and normal masses,
 the design's equilibria) are paid by their compile time, and there the layout is about five
-times the program: :func:`placements`, :func:`placements_jacobian` and :func:`placements_crba`
-compute the same kinematics, frame Jacobian and M by 3 × 3 and 6 × 6 array products
-(``UrdfChain.fk``, ``frame_jacobian``, ``M`` and ``UrdfArm.J`` use them). Both are checked against
-Pinocchio.
+times the program: :func:`placements` computes the same kinematics by 3 × 3 array products
+(``UrdfChain.fk``), and :func:`frames_by_products` puts them in the layout every algorithm below
+reads, with nothing stored, so that those programs trace the same algorithms on a fifth of the
+program (``UrdfChain.frame_jacobian``, ``M`` and ``UrdfArm.J`` always; every algorithm inside
+:func:`hinfnn._loop.by_products`, which the design's and the setup programs of arms set). Both
+are checked against Pinocchio.
 """
 
 from __future__ import annotations
@@ -389,42 +391,6 @@ def frames_by_products(chain, q) -> Frames:
                   m=m, h=tuple(m * c[:, k] for k in range(3)), Ib=Ib,
                   R_tool=tuple(tuple(pl.R_tool[r, k] for k in range(3)) for r in range(3)),
                   p_tool=tuple(pl.p_tool[k] for k in range(3)), one=runtime_one(q))
-
-
-def placements_jacobian(chain, pl: Placements):
-    """The tool frame's geometric Jacobian (6, n) from :func:`placements` (as :func:`frame_jacobian`):
-    column i is (a_i × (p_tool − p_i), a_i) for a revolute joint, (a_i, 0) for a prismatic one."""
-    cols = []
-    for i, kind in enumerate(chain.joint_types):
-        a = pl.axes[i]
-        if kind == "prismatic":
-            cols.append(jnp.concatenate([a, jnp.zeros_like(a)]))
-        else:
-            cols.append(jnp.concatenate([jnp.cross(a, pl.p_tool - pl.p[i]), a]))
-    return jnp.stack(cols, axis=1)
-
-
-def placements_crba(chain, pl: Placements):
-    """M(q) from :func:`placements` (as :func:`crba`, by 6 × 6 array products): body i's spatial
-    inertia about the base origin, (linear, angular) rows, I_i = [[m I, −m[c]×], [m[c]×, I_c −
-    m[c]×[c]×]] (c its centre of mass, I_c its rotational inertia about c, base axes), composite
-    inertias I^c_j = Σ_{i ≥ j} I_i, and M_jk = S_jᵀ I^c_max(j,k) S_k."""
-    n = chain.n
-    eye = jnp.eye(3, dtype=pl.R.dtype)
-    c = pl.p + jnp.einsum("nij,nj->ni", pl.R, chain.com)
-    Ic = pl.R @ chain.inertia @ jnp.swapaxes(pl.R, 1, 2)
-    m = chain.mass[:, None, None]
-    C = jax.vmap(skew)(c)  # [c]x per body
-    I6 = jnp.concatenate([jnp.concatenate([m * eye[None], -m * C], axis=2),
-                          jnp.concatenate([m * C, Ic - m * (C @ C)], axis=2)], axis=1)
-    comp = jnp.cumsum(I6[::-1], axis=0)[::-1]  # I^c_j = Σ_{i ≥ j} I_i
-    S = jnp.stack([jnp.concatenate([a, jnp.zeros_like(a)]) if kind == "prismatic"
-                   else jnp.concatenate([jnp.cross(p, a), a])
-                   for kind, a, p in zip(chain.joint_types, pl.axes, pl.p)])  # (n, 6)
-    F = jnp.einsum("jab,jb->ja", comp, S)  # I^c_j S_j
-    G = S @ F.T  # G[k, j] = S_kᵀ I^c_j S_j: M_kj for k ≤ j
-    upper = np.triu(np.ones((n, n), dtype=bool))
-    return jnp.where(upper, G, G.T)
 
 
 def as_matrix(T):

@@ -509,8 +509,9 @@ class UrdfChain:
     def frame_jacobian(self, q):
         """Geometric Jacobian (6, n) of the tool frame: rows (ṗ_tool, ω), base-frame axes
         (Pinocchio's LOCAL_WORLD_ALIGNED). Column i: (a_i × (p_tool − p_i), a_i) (revolute).
-        By 3 × 3 products, as :meth:`fk`."""
-        return rbd.placements_jacobian(self, rbd.placements(self, q))
+        On the kinematics by 3 × 3 products (:func:`hinfnn.model.rbd.frames_by_products`), as
+        :meth:`fk`."""
+        return rbd.frame_jacobian(rbd.frames_by_products(self, q))
 
     def frame_jacobian_dot(self, q, qd):
         """d/dt of :meth:`frame_jacobian` along q̇; J̇ q̇ is the tool's classical acceleration
@@ -544,10 +545,11 @@ class UrdfChain:
         return cols.T
 
     def M(self, q):
-        """Joint-space inertia matrix by the composite-rigid-body algorithm, by 6 × 6 products
-        (:func:`hinfnn.model.rbd.placements_crba`, as :meth:`fk`; the compiled loop's M comes
-        from :meth:`_crba` on its own kinematics)."""
-        return rbd.placements_crba(self, rbd.placements(self, q))
+        """Joint-space inertia matrix by the composite-rigid-body algorithm (:meth:`_crba`) on the
+        kinematics by 3 × 3 products (:func:`hinfnn.model.rbd.frames_by_products`), as :meth:`fk`:
+        M alone is computed by the programs that run once; the compiled loop's comes from
+        :meth:`_crba` on its own kinematics."""
+        return rbd.crba(rbd.frames_by_products(self, q))
 
     def bias(self, q, qd):
         """C(q, q̇) q̇ + G(q) by recursive Newton–Euler (q̈ = 0)."""
@@ -772,8 +774,8 @@ class UrdfArm(Arm):
         """∂h/∂q = (∂task/∂(p, R)) · frame Jacobian (the kinematics by 3 × 3 products, as
         :meth:`UrdfChain.fk`: J alone is computed by the programs that run once; the compiled
         loop's comes from :meth:`law_terms` and :meth:`plant_terms`)."""
-        pl = rbd.placements(self.chain, q)
-        return _task_jacobian(self.task, pl.p_tool, pl.R_tool, rbd.placements_jacobian(self.chain, pl))
+        k = rbd.frames_by_products(self.chain, q)
+        return _task_jacobian(self.task, *_tool_frame(k), rbd.frame_jacobian(k))
 
     def J_dot(self, q, qd):
         """dJ/dt along q̇ (frame Jacobian, its time derivative and the task map's derivatives)."""

@@ -94,6 +94,16 @@ def _evaluate(plant, ctrl, ref, t, y: SimState, w, held, sampled):
     return meas, cache, out, tau, record
 
 
+def plant_rhs(plant, t, y_plant, tau, w, cache=None):
+    """The plant's part of :func:`rhs`: (d y_plant/dt, q̈) under the torque τ and the disturbance
+    input w; ``cache``: the plant's sensing at (t, y_plant) (:meth:`sense`'s second result), sensed
+    here when None. :mod:`hinfnn.analysis` linearises it alone for the sampled loop, where τ is
+    held and the controller's output is not applied."""
+    if cache is None:
+        _, cache = plant.sense(t, y_plant)
+    return plant.derivative(t, y_plant, tau, w, cache)
+
+
 def rhs(plant, ctrl, ref, t, y: SimState, w, held=None, sampled: bool = False, book: bool = True):
     """Time derivative of the whole closed-loop state of a continuous plant (plant, controller,
     accumulators) at (t, y) under the held input w, and the record there. The function the
@@ -102,7 +112,7 @@ def rhs(plant, ctrl, ref, t, y: SimState, w, held=None, sampled: bool = False, b
     ``book``: the theorems' bookkeeping (:func:`~hinfnn.sim.recorder.bookkeeping`); False: the
     accumulators' rates are zero and the record has none of its fields."""
     meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, sampled)
-    dplant, qdd = plant.derivative(t, y.plant, tau, w, cache)
+    dplant, qdd = plant_rhs(plant, t, y.plant, tau, w, cache)
     rates, kept = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc, enabled=book)
     dxc = jax.tree.map(jnp.zeros_like, out.dstate) if sampled else out.dstate
     return SimState(plant=dplant, xc=dxc, acc=rates), {**record, **kept}
