@@ -306,6 +306,37 @@ def test_the_bookkeeping_is_a_scenario_setting_that_reaches_runs_and_batches():
     assert all("J" not in t.arrays and np.isnan(t.final["J"]) for t in out.values())
 
 
+def test_groups_simulated_at_once_equal_them_one_after_the_other():
+    """``simulate_many`` simulates its groups (each its own program) by threads: the same
+    trajectories bit for bit as one group after the other, the progress summed over the groups up
+    to the total, and an error in one group (here: its progress callback) raised to the caller,
+    the others stopped after their chunk."""
+    sc = H.load_scenario("paper", {"simulation.t_final": 0.05, "controller.kind": ["fl", "hinf", "hinf_nn"]})
+    runs = [sc.run(kind, kind) for kind in ("fl", "hinf", "hinf_nn")] + [sc.run("hinf", "hinf-2")]
+    assert len({r.group_key() for r in runs}) == 3  # the two hinf runs are one batch
+    calls = []
+    serial = H.simulate_many(runs, workers=1)
+    threaded = H.simulate_many(runs, workers=3, progress=lambda d, t, what: calls.append((d, t, what)))
+    assert list(threaded) == [r.name for r in runs]
+    for name in serial:
+        a, b = serial[name].arrays, threaded[name].arrays
+        assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k], equal_nan=True) for k in a), name
+    total = sum(r.n_steps for r in runs)
+    assert all(t == total for _, t, _ in calls) and calls[-1][0] == total
+    assert [d for d, _, _ in calls] == sorted(d for d, _, _ in calls)
+    assert {w for _, _, what in calls for w in what.split(", ")} <= {"fl", "hinf", "hinf-2", "hinf_nn"}
+
+    def failing(done, total, what):
+        if "hinf_nn" in what:
+            raise RuntimeError("the callback of hinf_nn fails")
+
+    with pytest.raises(RuntimeError, match="the callback of hinf_nn fails"):
+        H.simulate_many(runs, workers=3, progress=failing)
+    from hinfnn.sim import batch as B
+
+    assert B.default_workers(1) == 1 and 1 <= B.default_workers(100) <= B.MAX_WORKERS
+
+
 # --- storage: decimated records, exact step statistics, field selection ------------------------
 
 def test_default_storage_is_one_sample_per_ms_and_size_follows_the_decimation(paper_plant, nominal_arm,
