@@ -379,3 +379,51 @@ def test_a_kept_function_is_traced_once_across_instances(tmp_path, cache_state):
     _cache.enable_cache(None)
     KeptFunction(fn, "test_kept")(p, jnp.arange(4.0))  # a new shape: traced (JAX's own trace cache aside)
     assert len(traces) == 3 and len(list((tmp_path / "c").glob(f"{PREFIX}test_kept-*"))) == 1
+
+
+def test_a_program_compiled_ahead_leaves_the_run_nothing_to_compile(tmp_path, cache_state):
+    """hinfnn.sim.simulate.lower_ahead (what simulate_many compiles on its threads while another
+    group runs): its ``.compile()`` is the chunk program the run then calls. A run after it compiles
+    one kept program (``jit(call)``) fewer than the same run from nothing, the same trajectory bit
+    for bit; with the cache off there is nothing kept to lower ahead (None)."""
+    import importlib
+
+    import jax
+    import jax.monitoring as mon
+
+    import hinfnn as H
+
+    S = importlib.import_module("hinfnn.sim.simulate")
+    sc = H.load_scenario("paper", {"controller.kind": "fl", "simulation.t_final": 0.02})
+    r = sc.run("fl")
+    compiled: list[str] = []
+
+    def on_duration(event, seconds, fun_name=None, **_):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(str(fun_name))
+
+    def fresh(folder):
+        jax.clear_caches()
+        S._compiled.cache_clear()
+        _cache.enable_cache(folder)
+        compiled.clear()
+
+    mon.register_event_duration_secs_listener(on_duration)
+    try:
+        fresh(tmp_path / "plain")
+        plain = sc.simulate("fl")
+        from_nothing = compiled.count("jit(call)")
+        fresh(tmp_path / "ahead")
+        lowered = S.lower_ahead(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt,
+                                control_period=r.control_period, limits=r.limits, bookkeeping=r.bookkeeping)
+        lowered.compile()
+        compiled.clear()
+        ahead = sc.simulate("fl")
+        assert from_nothing >= 1 and compiled.count("jit(call)") == from_nothing - 1, compiled
+        fresh(None)
+        assert S.lower_ahead(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt) is None
+    finally:
+        mon.unregister_event_duration_listener(on_duration)
+        S._compiled.cache_clear()
+    for name, a in plain.arrays.items():
+        np.testing.assert_array_equal(ahead.arrays[name], a, err_msg=name)

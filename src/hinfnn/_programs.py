@@ -151,6 +151,25 @@ class KeptFunction:
         _write(path, meta, payload)
         return jax.jit(exported.call, compiler_options=self.compiler_options), meta, exported.out_avals
 
+    def lower_ahead(self, *args):
+        """The kept program lowered for the call ``self(*args)`` would make (``args`` may hold
+        ``jax.ShapeDtypeStruct`` in place of arrays; nothing runs), or None when the program is not
+        kept (the cache is off, or it cannot be exported: that call traces and compiles it). Its
+        ``.compile()``, which holds no Python lock while XLA compiles, then leaves that call nothing
+        to compile: the arrays the call commits (:func:`_committed`) are given their device here, so
+        that the call finds this compiled program in JAX's own cache (tested)."""
+        leaves, treedef = jax.tree.flatten(args)
+        entry = self._entry(leaves, treedef)
+        if entry is None:
+            return None
+        arrays = [x for x in leaves if isinstance(x, jax.Array)]
+        device = next(iter(arrays[0].devices())) if arrays else jax.local_devices()[0]
+        placed = jax.sharding.SingleDeviceSharding(device)
+        specs = [jax.ShapeDtypeStruct(shape, dtype, weak_type=weak,
+                                      sharding=placed if isinstance(x, (jax.Array, jax.ShapeDtypeStruct)) else None)
+                 for x, (shape, dtype, weak) in zip(leaves, map(_leaf_spec, leaves))]
+        return entry[0].lower(*specs)
+
 
 #: XLA options added, for an arm of 3 or more joints, to those of the simulator
 #: (:func:`jit_by_joints`): LLVM's optimisation level 0. A design's programs run a few times each

@@ -11,7 +11,7 @@ from typing import Any
 
 from .._pytree import structure_key
 from .plan import DEFAULT_SAVE_INTERVAL, StepPlan
-from .simulate import Limits, simulate, simulate_batch
+from .simulate import Limits, lower_ahead, simulate, simulate_batch
 from .trajectory import RunInfo, Trajectory
 
 
@@ -50,13 +50,13 @@ class Run:
                 self.control_period, self.save_interval, self.bookkeeping)
 
 
-#: Most groups :func:`simulate_many` simulates at once (each compiles its own program: about 1-3 GB
-#: of memory while XLA compiles a 7-DOF arm's).
+#: Most groups whose programs :func:`simulate_many` compiles at once (about 1-3 GB of memory each
+#: while XLA compiles a 7-DOF arm's).
 MAX_WORKERS = 8
 
 
 def default_workers(groups: int) -> int:
-    """How many groups :func:`simulate_many` simulates at once by default: one per core this
+    """How many groups' programs :func:`simulate_many` compiles at once by default: one per core this
     process may run on (``os.sched_getaffinity``), at most :data:`MAX_WORKERS` and the groups."""
     try:
         cores = len(os.sched_getaffinity(0))
@@ -81,13 +81,15 @@ def simulate_many(runs: list[Run], *, progress=None, save_every: int | None = No
     runs without ``vmap`` (faster to trace and to run). ``save_every`` overrides the runs'
     ``save_interval`` for what is kept in memory.
 
-    The groups (each its own program) are simulated at once by ``workers`` threads (default
-    :func:`default_workers`: one per core; 1: one after the other): XLA compiles and runs a
-    program without Python's lock, so a scenario's three controllers on a UR5 (three programs) take
-    57 s instead of 77 cold and 8 s instead of 12 warm for 2-s runs on 2 cores, with the same
-    numbers bit for bit (docs/performance.md). The caller's context (:mod:`contextvars`: the
-    loop options) is each thread's. If one group fails or the caller is interrupted, the others
-    stop after their current chunk (a compile in progress finishes first) and the error is raised.
+    The groups' programs (each group its own) are compiled at once by ``workers`` threads
+    (default :func:`default_workers`: one per core; 1: each group compiled and run after the
+    other): XLA compiles without Python's lock, so while one group runs or compiles the next
+    compiles. The groups still run one at a time (:data:`_RUNNING`). A scenario's three controllers
+    on a UR5 (three programs, 0.05-s runs, empty cache) take 54–59 s instead of 72–73 on 2 cores,
+    with the same numbers bit for bit (docs/performance.md). Each thread runs in a copy of the caller's
+    context (:mod:`contextvars`: the loop options). If a group fails or the caller is interrupted,
+    the others stop after their current chunk (a compile in progress finishes first) and the error
+    is raised.
     """
     groups: dict = {}
     for run in runs:
@@ -127,10 +129,11 @@ def _simulate_group(items: list[Run], save_every, fields, report) -> dict[str, T
 
 
 def _simulate_groups(jobs, total, n_workers, save_every, fields, progress) -> dict[str, Trajectory]:
-    """The groups by ``n_workers`` threads, each in a copy of the caller's context; ``progress``
-    called under a lock with the steps of every group summed and the names of the runs still
-    simulating."""
-    lock = threading.Lock()
+    """The groups by ``n_workers`` threads, each in a copy of the caller's context: each group's
+    program compiled while the others compile or run (a group of one: :func:`lower_ahead`, then
+    ``.compile()`` outside any lock), the groups run one at a time (:data:`_RUNNING`); ``progress``
+    called with the steps of every group summed and the names of the runs simulating."""
+    lock = threading.Lock()  # the progress sums
     stop = threading.Event()
     done = [0] * len(jobs)
     running: dict[int, str] = {}
@@ -143,20 +146,31 @@ def _simulate_groups(jobs, total, n_workers, save_every, fields, progress) -> di
                 return
             with lock:
                 done[g] = d * width
-                progress(sum(done), total, ", ".join(running.values()))
+                what = ", ".join(running.values())
+            progress(sum(done), total, what)
 
         return report
 
     def work(g, items):
-        if stop.is_set():
-            raise _Cancelled
-        with lock:
-            running[g] = ", ".join(r.name for r in items)
-        try:
-            return _simulate_group(items, save_every, fields, report_for(g, len(items)))
-        finally:
+        if len(items) == 1:  # its program compiled now, while another group compiles or runs
+            r = items[0]
+            with _RUNNING:  # tracing and lowering (Python's work) and the arrays it makes, one at a time
+                if stop.is_set():
+                    raise _Cancelled
+                lowered = lower_ahead(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt,
+                                      control_period=r.control_period, limits=r.limits, bookkeeping=r.bookkeeping)
+            if lowered is not None:
+                lowered.compile()
+        with _RUNNING:
+            if stop.is_set():
+                raise _Cancelled
             with lock:
-                running.pop(g, None)
+                running[g] = ", ".join(r.name for r in items)
+            try:
+                return _simulate_group(items, save_every, fields, report_for(g, len(items)))
+            finally:
+                with lock:
+                    running.pop(g, None)
 
     out: dict[str, Trajectory] = {}
     pool = concurrent.futures.ThreadPoolExecutor(n_workers, thread_name_prefix="hinfnn-group")
@@ -170,3 +184,10 @@ def _simulate_groups(jobs, total, n_workers, save_every, fields, progress) -> di
         raise
     pool.shutdown()
     return out
+
+
+#: Held while a group of :func:`simulate_many` runs (and while one's program is lowered): one
+#: program at a time executes. Two programs executing at once from two threads of one process hung
+#: XLA's CPU runtime (a UR5 batch in groups on two threads, 2 of 3 tries; docs/performance.md);
+#: XLA's compiler, which the threads run side by side, is not its runtime.
+_RUNNING = threading.RLock()

@@ -707,6 +707,24 @@ def _group_progress(progress, i, n_groups, done, total, what=""):
     progress(i * total + done, n_groups * total, what)
 
 
+def lower_ahead(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
+                limits: Limits | None = None, loop: LoopOptions | None = None, bookkeeping: bool = True):
+    """The chunk program a single run of these objects calls (:func:`simulate`; a group of one in
+    :func:`~hinfnn.sim.simulate_many`) lowered for its arguments' types, or None when the program
+    is not kept between processes (:meth:`hinfnn._programs.KeptFunction.lower_ahead`). Nothing is
+    compiled or run; its ``.compile()`` (XLA's work, without Python's lock) done before the run
+    leaves the run's first chunk nothing to compile: :func:`~hinfnn.sim.simulate_many` compiles its
+    groups' programs so, at once."""
+    loop = loop or LoopOptions()
+    sampled = control_period is not None or plant.discrete
+    book = _flag(bookkeeping, "bookkeeping")
+    chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None, loop, plant.n, book)
+    y0 = initial_state(plant, controller, q0=q0)
+    carry = init.eval_shape(controller, y0, plant.n)
+    return chunk.lower_ahead(plant, controller, reference, limits or Limits(), carry, jnp.zeros((), jnp.int64),
+                             *_chunk_scalars(1, dt, 1, 1, 1))
+
+
 def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
                   fields=None, limits: Limits | None = None, single: bool = False,
                   loop: LoopOptions | None = None, bookkeeping: bool = True) -> dict:
