@@ -294,3 +294,34 @@ def test_docs_scenario_table_is_current():
 
     doc = (Path(__file__).resolve().parents[1] / "docs" / "scenarios.md").read_text()
     assert schema_table() in doc
+
+
+def test_progress_time_left_counts_the_pace_after_the_first_chunk(monkeypatch):
+    """The progress lines of a log file: the time left is the steps left at the rate since the
+    first call (which follows the first chunk's compile), none before a second call; the end is
+    said once; a new part of the work (another total) measures its own rate."""
+    import io
+    import types
+
+    from hinfnn.cli import _common
+
+    clock = [0.0]
+    monkeypatch.setattr(_common, "time", types.SimpleNamespace(perf_counter=lambda: clock[0]))
+    out = io.StringIO()
+    p = _common.Progress(False, "simulating", stream=out)
+    for t, done in ((11.0, 2), (24.0, 28), (37.0, 54)):  # 11 s of compiling, then 2 steps/s
+        clock[0] = t
+        p(done, 100)
+    clock[0] = 38.0
+    p(100, 100)
+    p(100, 100)  # the part's end, said once
+    clock[0] = 50.0
+    p(10, 40, "second part")  # a new part: its first call, no rate yet (and under 3 s: no line)
+    clock[0] = 61.0
+    p(20, 40)  # 10 steps in 11 s
+    lines = out.getvalue().splitlines()
+    assert lines == ["simulating:   2.0 %  (11 s)",
+                     "simulating:  28.0 %  (24 s, about 36 s left)",
+                     "simulating:  54.0 %  (37 s, about 23 s left)",
+                     "simulating: 100.0 %  (38 s)",
+                     "simulating:  50.0 %  (11 s, about 22 s left)"], lines

@@ -13,8 +13,12 @@ class Progress:
     """Progress on stderr with an ETA, never with ``--quiet``: the progress callback of every
     workflow, ``progress(done, total, what)`` (``what``: the runs of the chunk being simulated). On a
     terminal: a tqdm bar (steps done, rate, time left) once a run has lasted 3 s; otherwise (a log
-    file, a pipe) one line every 10 s, ``LABEL: 12.0 % (10 s, about 73 s left)``. A call with
-    another total starts a new part of the work (its own bar, rate and time left)."""
+    file, a pipe) one line every 10 s, ``LABEL: 12.0 % (10 s, about 73 s left)``. The time left is
+    the steps left at the rate since the part's first call, which comes after its first chunk:
+    the tracing and compiling before that chunk (most of an arm's first minute) would otherwise be
+    taken for the pace of the run (a paper run, 2 % done after 7 s of compiling, said "about 6 min
+    left" with 3 s to go); until a second call there is no estimate. A call with another total
+    starts a new part of the work (its own bar, rate and time left)."""
 
     def __init__(self, quiet: bool, label: str, stream=None):
         self.quiet = quiet
@@ -24,6 +28,8 @@ class Progress:
         self.t0 = time.perf_counter()
         self.last = 0.0
         self.total = None
+        self.first = None  # (steps, time) at the part's first call: where its rate is measured from
+        self.shown = None  # (steps, total) of the last line: the end of a part is said once
         try:
             self.tty = self.stream.isatty()
         except (AttributeError, ValueError):
@@ -40,13 +46,18 @@ class Progress:
             self._bar(done, total, what)
             return
         now = time.perf_counter()
+        if self.first is None:
+            self.first = (done, now)
         elapsed = now - self.t0
-        if elapsed < 3.0 or (now - self.last < 10.0 and done < total):
+        if elapsed < 3.0 or (now - self.last < 10.0 and done < total) or self.shown == (done, total):
             return
+        self.shown = (done, total)
         self.last = now
         frac = done / max(total, 1)
-        left = elapsed * (1 - frac) / frac if frac > 0 else float("nan")
-        eta = f", about {_duration(left)} left" if frac > 0 and done < total else ""
+        steps, since = done - self.first[0], now - self.first[1]
+        eta = ""
+        if steps > 0 and since > 0 and done < total:
+            eta = f", about {_duration((total - done) * since / steps)} left"
         msg = f"{self.label}: {100 * frac:5.1f} %  ({_duration(elapsed)}{eta})"
         if what:
             msg += f"  [{what}]"
@@ -56,7 +67,8 @@ class Progress:
         if self.bar is None:
             from tqdm import tqdm
 
-            self.bar = tqdm(total=total, desc=self.label, unit="step", unit_scale=True, delay=3.0,
+            # from the steps done by the first call (its chunk's compile is not the run's pace)
+            self.bar = tqdm(total=total, initial=done, desc=self.label, unit="step", unit_scale=True, delay=3.0,
                             file=self.stream, leave=False, dynamic_ncols=True, mininterval=0.5)
         if what:
             self.bar.set_postfix_str(what[:40], refresh=False)
@@ -74,6 +86,8 @@ class Progress:
         self.t0 = time.perf_counter()
         self.last = 0.0
         self.total = None
+        self.first = None
+        self.shown = None
 
 
 def _duration(seconds: float) -> str:
