@@ -307,10 +307,11 @@ def test_the_bookkeeping_is_a_scenario_setting_that_reaches_runs_and_batches():
 
 
 def test_groups_simulated_at_once_equal_them_one_after_the_other():
-    """``simulate_many`` simulates its groups (each its own program) by threads: the same
-    trajectories bit for bit as one group after the other, the progress summed over the groups up
-    to the total, and an error in one group (here: its progress callback) raised to the caller,
-    the others stopped after their chunk."""
+    """``simulate_many`` compiles its groups' programs on threads and runs the groups one at a
+    time: the same trajectories bit for bit as one group after the other, the progress summed over
+    the groups up to the total, and an error in one group (here: its progress callback) raised to
+    the caller, the others stopped after their chunk; a number of threads that is not one is a
+    ConfigError naming ``workers``."""
     sc = H.load_scenario("paper", {"simulation.t_final": 0.05, "controller.kind": ["fl", "hinf", "hinf_nn"]})
     runs = [sc.run(kind, kind) for kind in ("fl", "hinf", "hinf_nn")] + [sc.run("hinf", "hinf-2")]
     assert len({r.group_key() for r in runs}) == 3  # the two hinf runs are one batch
@@ -335,6 +336,10 @@ def test_groups_simulated_at_once_equal_them_one_after_the_other():
     from hinfnn.sim import batch as B
 
     assert B.default_workers(1) == 1 and 1 <= B.default_workers(100) <= B.MAX_WORKERS
+    for bad in (0, -2, 1.5, "2", True):
+        with pytest.raises(H.ConfigError, match="workers") as err:
+            H.simulate_many(runs, workers=bad)
+        assert repr(bad) in str(err.value)
 
 
 # --- storage: decimated records, exact step statistics, field selection ------------------------
