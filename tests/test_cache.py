@@ -4,6 +4,7 @@ speed is measured by benchmarks/startup.py."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -381,11 +382,13 @@ def test_a_kept_function_is_traced_once_across_instances(tmp_path, cache_state):
     assert len(traces) == 3 and len(list((tmp_path / "c").glob(f"{PREFIX}test_kept-*"))) == 1
 
 
-def test_a_program_compiled_ahead_leaves_the_run_nothing_to_compile(tmp_path, cache_state):
-    """hinfnn.sim.simulate.lower_ahead (what simulate_many compiles on its threads while another
-    group runs): its ``.compile()`` is the chunk program the run then calls. A run after it compiles
-    one kept program (``jit(call)``) fewer than the same run from nothing, the same trajectory bit
-    for bit; with the cache off there is nothing kept to lower ahead (None)."""
+@pytest.mark.parametrize("members", [1, 3])
+def test_a_program_compiled_ahead_leaves_the_run_nothing_to_compile(tmp_path, cache_state, members):
+    """hinfnn.sim.simulate.lower_ahead and lower_ahead_batch (what simulate_many compiles on its
+    threads while another group runs): its ``.compile()`` is the chunk program the run then calls.
+    A run (one, or a batch of three plants) after it compiles one kept program (``jit(call)``)
+    fewer than the same run from nothing, the same trajectories bit for bit; with the cache off
+    there is nothing kept to lower ahead (None)."""
     import importlib
 
     import jax
@@ -395,8 +398,12 @@ def test_a_program_compiled_ahead_leaves_the_run_nothing_to_compile(tmp_path, ca
 
     S = importlib.import_module("hinfnn.sim.simulate")
     sc = H.load_scenario("paper", {"controller.kind": "fl", "simulation.t_final": 0.02})
-    r = sc.run("fl")
+    runs = [sc.with_overrides({"plant.arm.m2": 1.0 + 0.1 * i}).run("fl") for i in range(members)]
+    r = runs[0]
     compiled: list[str] = []
+
+    def simulate():
+        return H.simulate_many([dataclasses.replace(x, name=f"m{i}") for i, x in enumerate(runs)], workers=1)
 
     def on_duration(event, seconds, fun_name=None, **_):
         if event == "/jax/core/compile/backend_compile_duration":
@@ -411,19 +418,24 @@ def test_a_program_compiled_ahead_leaves_the_run_nothing_to_compile(tmp_path, ca
     mon.register_event_duration_secs_listener(on_duration)
     try:
         fresh(tmp_path / "plain")
-        plain = sc.simulate("fl")
+        plain = simulate()
         from_nothing = compiled.count("jit(call)")
         fresh(tmp_path / "ahead")
-        lowered = S.lower_ahead(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt,
-                                control_period=r.control_period, limits=r.limits, bookkeeping=r.bookkeeping)
+        lowered = S.lower_ahead_batch([x.plant for x in runs], [x.controller for x in runs],
+                                      [x.reference for x in runs], q0=[x.q0 for x in runs],
+                                      limits=[x.limits for x in runs], t_final=r.t_final, dt=r.dt,
+                                      control_period=r.control_period, save_interval=r.save_interval,
+                                      bookkeeping=r.bookkeeping)
         lowered.compile()
         compiled.clear()
-        ahead = sc.simulate("fl")
+        ahead = simulate()
         assert from_nothing >= 1 and compiled.count("jit(call)") == from_nothing - 1, compiled
         fresh(None)
         assert S.lower_ahead(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt) is None
     finally:
         mon.unregister_event_duration_listener(on_duration)
         S._compiled.cache_clear()
-    for name, a in plain.arrays.items():
-        np.testing.assert_array_equal(ahead.arrays[name], a, err_msg=name)
+    assert list(ahead) == list(plain)
+    for run, traj in plain.items():
+        for name, a in traj.arrays.items():
+            np.testing.assert_array_equal(ahead[run].arrays[name], a, err_msg=f"{run} {name}")

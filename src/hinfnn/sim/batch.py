@@ -12,7 +12,7 @@ from typing import Any
 from .._pytree import structure_key
 from ..errors import ConfigError
 from .plan import DEFAULT_SAVE_INTERVAL, StepPlan
-from .simulate import Limits, lower_ahead, simulate, simulate_batch
+from .simulate import Limits, lower_ahead_batch, simulate, simulate_batch
 from .trajectory import RunInfo, Trajectory
 
 
@@ -132,10 +132,19 @@ def _simulate_group(items: list[Run], save_every, fields, report) -> dict[str, T
     return {r.name: traj.member(j) for j, r in enumerate(items)}
 
 
+def _lower_group(items: list[Run], save_every, fields):
+    """The chunk program :func:`_simulate_group` will call first, lowered (None: not kept)."""
+    first = items[0]
+    return lower_ahead_batch([r.plant for r in items], [r.controller for r in items], [r.reference for r in items],
+                             q0=[r.q0 for r in items], limits=[r.limits for r in items], t_final=first.t_final,
+                             dt=first.dt, control_period=first.control_period, save_interval=first.save_interval,
+                             save_every=save_every, fields=fields, bookkeeping=first.bookkeeping)
+
+
 def _simulate_groups(jobs, total, n_workers, save_every, fields, progress) -> dict[str, Trajectory]:
     """The groups by ``n_workers`` threads, each in a copy of the caller's context: each group's
-    program compiled while the others compile or run (a group of one: :func:`lower_ahead`, then
-    ``.compile()`` outside any lock), the groups run one at a time (:data:`_RUNNING`); ``progress``
+    program compiled while the others compile or run (:func:`_lower_group` under :data:`_RUNNING`,
+    then ``.compile()`` outside any lock), the groups run one at a time (:data:`_RUNNING`); ``progress``
     called with the steps of every group summed and the names of the runs simulating."""
     lock = threading.Lock()  # the progress sums
     stop = threading.Event()
@@ -156,15 +165,12 @@ def _simulate_groups(jobs, total, n_workers, save_every, fields, progress) -> di
         return report
 
     def work(g, items):
-        if len(items) == 1:  # its program compiled now, while another group compiles or runs
-            r = items[0]
-            with _RUNNING:  # tracing and lowering (Python's work) and the arrays it makes, one at a time
-                if stop.is_set():
-                    raise _Cancelled
-                lowered = lower_ahead(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt,
-                                      control_period=r.control_period, limits=r.limits, bookkeeping=r.bookkeeping)
-            if lowered is not None:
-                lowered.compile()
+        with _RUNNING:  # tracing and lowering (Python's work) and the arrays it makes, one at a time
+            if stop.is_set():
+                raise _Cancelled
+            lowered = _lower_group(items, save_every, fields)
+        if lowered is not None:  # its program compiled now, while another group compiles or runs
+            lowered.compile()
         with _RUNNING:
             if stop.is_set():
                 raise _Cancelled

@@ -725,6 +725,35 @@ def lower_ahead(plant, controller, reference, *, q0, dt: float = 1e-4, control_p
                              *_chunk_scalars(1, dt, 1, 1, 1))
 
 
+def lower_ahead_batch(plants: list, controllers: list, references: list, *, q0: list, limits: list, t_final: float,
+                      dt: float = 1e-4, control_period: float | None = None, save_interval: float | None = None,
+                      save_every: int | None = None, fields=None, loop: LoopOptions | None = None,
+                      bookkeeping: bool = True):
+    """:func:`lower_ahead` for :func:`simulate_batch` of these lists of B members (q0 and limits
+    one per member: a group of :func:`~hinfnn.sim.simulate_many`): the batch's chunk program
+    lowered for its first group of members, or None when it is not kept. The members are stacked
+    as the run stacks them (their start, which changes values and not types, is not run); nothing
+    is compiled or run."""
+    loop = loop or LoopOptions()
+    B, plant0 = len(plants), plants[0]
+    if B == 1:  # simulate_batch runs one member unbatched
+        return lower_ahead(plant0, controllers[0], references[0], q0=q0[0], dt=dt, control_period=control_period,
+                           limits=limits[0], loop=loop, bookkeeping=bookkeeping)
+    plan = StepPlan.make(t_final, dt, control_period=control_period, save_interval=save_interval,
+                         save_every=save_every, discrete=plant0.discrete)
+    book = _flag(bookkeeping, "bookkeeping")
+    slots, per_chunk = plan.chunk(batched=True)
+    axes = (0, 0, 0, 0)
+    chunk, _, init = _compiled(axes, slots, plan.sampled, select(fields), loop, plant0.n, book)
+    idx = loop.groups(B, plant0.n)[0]
+    take = functools.partial(_take, idx=idx) if idx.size != B else (lambda x: x)
+    args = [take(stack(list(x))) for x in (plants, controllers, references, limits)]
+    y0 = take(stack([initial_state(p, c, q0=q) for p, c, q in zip(plants, controllers, q0)]))
+    carry = init.eval_shape(args[1], y0, plant0.n)
+    return chunk.lower_ahead(*args, carry, jnp.zeros((), jnp.int64),
+                             *_chunk_scalars(plan.n_steps, plan.dt, plan.n_hold, plan.save_every, per_chunk))
+
+
 def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
                   fields=None, limits: Limits | None = None, single: bool = False,
                   loop: LoopOptions | None = None, bookkeeping: bool = True) -> dict:
