@@ -715,14 +715,19 @@ def lower_ahead(plant, controller, reference, *, q0, dt: float = 1e-4, control_p
     compiled or run; its ``.compile()`` (XLA's work, without Python's lock) done before the run
     leaves the run's first chunk nothing to compile: :func:`~hinfnn.sim.simulate_many` compiles its
     groups' programs so, at once."""
-    loop = loop or LoopOptions()
     sampled = control_period is not None or plant.discrete
-    book = _flag(bookkeeping, "bookkeeping")
-    chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None, loop, plant.n, book)
     y0 = initial_state(plant, controller, q0=q0)
+    chunk, args = _single_chunk(plant, controller, reference, limits or Limits(), y0, dt, sampled,
+                                loop or LoopOptions(), _flag(bookkeeping, "bookkeeping"))
+    return chunk.lower_ahead(*args)
+
+
+def _single_chunk(plant, controller, reference, limits, y0, dt, sampled, loop, book):
+    """(the chunk program of a single run, the arguments :func:`_drive` gives it, the carry as its
+    type): their values do not matter to :func:`lower_ahead` and :func:`record_shapes`."""
+    chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None, loop, plant.n, book)
     carry = init.eval_shape(controller, y0, plant.n)
-    return chunk.lower_ahead(plant, controller, reference, limits or Limits(), carry, jnp.zeros((), jnp.int64),
-                             *_chunk_scalars(1, dt, 1, 1, 1))
+    return chunk, (plant, controller, reference, limits, carry, jnp.zeros((), jnp.int64), *_chunk_scalars(1, dt, 1, 1, 1))
 
 
 def lower_ahead_batch(plants: list, controllers: list, references: list, *, q0: list, limits: list, t_final: float,
@@ -784,11 +789,9 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
         _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True, book=book)
         return _derived(ctrl, step(carry, jnp.zeros((), jnp.int64), True)[1], fields)
 
-    if single:  # the arguments _drive gives the single-run program (their values do not matter)
-        chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None, loop, plant.n, book)
-        carry = init.eval_shape(controller, y0, plant.n)
-        k0 = jnp.zeros((), jnp.int64)
-        records = chunk.eval_shape(*args[:4], carry, k0, *_chunk_scalars(1, dt, 1, 1, 1))[1]
+    if single:  # the single-run program as _drive calls it
+        chunk, chunk_args = _single_chunk(*args, dt, sampled, loop, book)
+        records = chunk.eval_shape(*chunk_args)[1]
         out = {k: jax.ShapeDtypeStruct(v.shape[1:], v.dtype) for k, v in pick(records, fields).items()}
     else:
         out = jax.eval_shape(_with_options(one, loop.for_joints(plant.n)), *args)
