@@ -209,7 +209,11 @@ def test_sampled_accumulators_are_integrated_at_every_rk4_stage():
     law rings at the hold's rate: the stabilised adaptive law on the undamped 1e5 N/m contact,
     held at 10 kHz (every step). Halving dt under the same hold then moves the supply by 4.4e-6
     relative (0.5 s); the trapezoidal rule from one evaluation per step (tried: the plant alone at
-    RK4's stages, docs/performance.md, sixth pass) was 27 % off at dt = 0.1 ms, 16 % at 0.05 ms."""
+    RK4's stages, docs/performance.md, sixth pass) was 27 % off at dt = 0.1 ms, 16 % at 0.05 ms.
+    Tried again in the fifteenth pass with the integrand's left limit at every sample instant (taken
+    from the update's own evaluation of the law): second order, but the supply 40 % off at
+    dt = 0.1 ms, 9.9 % at 0.05 ms and 2.5 % at 0.025 ms, where RK4's stages agree to 4.4e-6; this
+    test fails on it."""
     base = {"plant.contact.stiffness": 1e5, "plant.contact.damping": 0.0, "controller.kind": "hinf_nn",
             "simulation.control": "sampled", "simulation.control_period": 1e-4, "simulation.t_final": 0.5}
     out = []
