@@ -449,13 +449,9 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, f
     The n_records + 1 records (t = 0, …, t_final) are copied chunk by chunk into arrays allocated
     once, so memory is what is stored, never proportional to the steps."""
     n_total, n_steps, save_every = plan.samples, plan.n_steps, plan.save_every
-    slots, per_chunk = plan.chunk(batched=in_axes is not None)  # independent of the horizon
-    # a single run's program stores every field; the driver keeps those asked for (one program)
-    chunk, final, init = _compiled(in_axes, slots, plan.sampled, fields if in_axes is not None else None, loop,
-                                   n_joints, book)
+    chunk, final, init, per_chunk, scalars = _chunk_program(plan, in_axes, fields, loop, n_joints, book)
     carry = init(ctrl, y0, n_joints)
     axis = 0 if in_axes is None else 1  # the time axis of the records
-    n_steps_a, dt_a, hold_a, every_a, take_a = _chunk_scalars(n_steps, plan.dt, plan.n_hold, save_every, per_chunk)
     out: dict[str, np.ndarray] = {}
     n_chunks = -(-n_total // per_chunk)
 
@@ -477,13 +473,25 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, f
     pending = None  # the previous chunk's records, copied while the next chunk runs
     for c in range(n_chunks):
         k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)  # typed as _chunk_scalars
-        carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, n_steps_a, dt_a, hold_a, every_a, take_a)
+        carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, *scalars)
         if pending is not None:
             store(*pending)
         pending = (c, rec)
     store(*pending)  # n_chunks >= 1
     del pending
     return (out, *final(plant, ctrl, ref, carry))
+
+
+def _chunk_program(plan: StepPlan, in_axes, fields, loop: LoopOptions, n_joints: int, book: bool):
+    """(chunk, final, init, samples per chunk, the chunk's traced scalars) of a run of ``plan``:
+    the program :func:`_drive` calls chunk by chunk and :func:`lower_ahead_batch` lowers ahead. A
+    single run's program stores every field, the driver keeping those asked for (one program); its
+    record slots are independent of the horizon."""
+    slots, per_chunk = plan.chunk(batched=in_axes is not None)
+    chunk, final, init = _compiled(in_axes, slots, plan.sampled, fields if in_axes is not None else None, loop,
+                                   n_joints, book)
+    return chunk, final, init, per_chunk, _chunk_scalars(plan.n_steps, plan.dt, plan.n_hold, plan.save_every,
+                                                         per_chunk)
 
 
 def _chunk_scalars(n_steps, dt, n_hold, save_every, per_chunk):
@@ -746,17 +754,14 @@ def lower_ahead_batch(plants: list, controllers: list, references: list, *, q0: 
                            limits=limits[0], loop=loop, bookkeeping=bookkeeping)
     plan = StepPlan.make(t_final, dt, control_period=control_period, save_interval=save_interval,
                          save_every=save_every, discrete=plant0.discrete)
-    book = _flag(bookkeeping, "bookkeeping")
-    slots, per_chunk = plan.chunk(batched=True)
-    axes = (0, 0, 0, 0)
-    chunk, _, init = _compiled(axes, slots, plan.sampled, select(fields), loop, plant0.n, book)
+    chunk, _, init, _, scalars = _chunk_program(plan, (0, 0, 0, 0), select(fields), loop, plant0.n,
+                                                _flag(bookkeeping, "bookkeeping"))
     idx = loop.groups(B, plant0.n)[0]
     take = functools.partial(_take, idx=idx) if idx.size != B else (lambda x: x)
     args = [take(stack(list(x))) for x in (plants, controllers, references, limits)]
     y0 = take(stack([initial_state(p, c, q0=q) for p, c, q in zip(plants, controllers, q0)]))
     carry = init.eval_shape(args[1], y0, plant0.n)
-    return chunk.lower_ahead(*args, carry, jnp.zeros((), jnp.int64),
-                             *_chunk_scalars(plan.n_steps, plan.dt, plan.n_hold, plan.save_every, per_chunk))
+    return chunk.lower_ahead(*args, carry, jnp.zeros((), jnp.int64), *scalars)
 
 
 def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
