@@ -1016,3 +1016,31 @@ def test_load_of_missing_folder_is_a_load_error(tmp_path):
         H.load(tmp_path / "nothing")
     code, _, text = _run_cli(["show", tmp_path / "nothing"])
     assert code == 2 and text.startswith("hinfnn: LoadError: ")
+
+
+def test_numpy_and_tuple_values_from_python_load_as_their_python_equal():
+    """A value given from Python as NumPy computes it (``np.float64``, ``np.float32``,
+    ``np.int64``, an array) or as a tuple loads as the same number or list would: the same
+    scenario, its values Python floats and tuples, its overrides Python's values (JSON writes
+    them). Bools stay refused for numbers, NumPy's too, and NaN inside an array is named by its
+    index."""
+    plain = Scenario.load("ur5-table", {"simulation.t_final": 1, "plant.arm.gravity": [0.0, 0.0, -9.81],
+                                        "simulation.torque_limit": 500.0})
+    for given in ({"simulation.t_final": np.int64(1), "plant.arm.gravity": np.array([0.0, 0.0, -9.81]),
+                   "simulation.torque_limit": np.float64(500)},
+                  {"simulation.t_final": 1.0, "plant.arm.gravity": (0.0, 0.0, -9.81),
+                   "simulation.torque_limit": np.float32(500)}):
+        sc = Scenario.load("ur5-table", given)
+        assert sc == plain, given
+        assert type(sc.get("simulation.t_final")) is float and type(sc.get("plant.arm.gravity")) is tuple
+        # the overrides as kept (and written to metrics.json): Python's values
+        assert json.loads(json.dumps(dict(sc.overrides))) == dict(plain.overrides), sc.overrides
+    for bad, key, words in ((np.True_, "simulation.t_final", "got True (bool)"),
+                            (True, "simulation.t_final", "got True (bool)"),
+                            (np.array([0.1, 0.2]), "simulation.t_final", "got [0.1, 0.2] (list)")):
+        with pytest.raises(H.ConfigError, match=re.escape(words)) as err:
+            Scenario.load("paper", {key: bad})
+        assert err.value.key == key
+    with pytest.raises(H.ConfigError) as err:
+        Scenario.load("ur5-table", {"plant.arm.gravity": np.array([0.0, np.nan, -9.81])})
+    assert err.value.key == "plant.arm.gravity[1]" and "finite" in str(err.value)

@@ -315,7 +315,7 @@ def test_groups_simulated_at_once_equal_them_one_after_the_other():
     time: the same trajectories bit for bit as one group after the other, the progress summed over
     the groups up to the total, and an error in one group (here: its progress callback) raised to
     the caller, the others stopped after their chunk; a number of threads that is not one is a
-    ConfigError naming ``workers``."""
+    ConfigError naming ``workers`` (a NumPy integer is one)."""
     sc = H.load_scenario("paper", {"simulation.t_final": 0.05, "controller.kind": ["fl", "hinf", "hinf_nn"]})
     runs = [sc.run(kind, kind) for kind in ("fl", "hinf", "hinf_nn")] + [sc.run("hinf", "hinf-2")]
     assert len({r.group_key() for r in runs}) == 3  # the two hinf runs are one batch
@@ -340,10 +340,15 @@ def test_groups_simulated_at_once_equal_them_one_after_the_other():
     from hinfnn.sim import batch as B
 
     assert B.default_workers(1) == 1 and 1 <= B.default_workers(100) <= B.MAX_WORKERS
-    for bad in (0, -2, 1.5, "2", True):
+    for bad in (0, -2, 1.5, "2", True, np.True_, np.float64(2.0)):
         with pytest.raises(H.ConfigError, match="workers") as err:
             H.simulate_many(runs, workers=bad)
         assert repr(bad) in str(err.value)
+    # a NumPy integer is a whole number like Python's
+    numpy_workers = H.simulate_many(runs, workers=np.int64(2))
+    for name in numpy_workers:
+        a, b = serial[name].arrays, numpy_workers[name].arrays
+        assert all(np.array_equal(a[k], b[k], equal_nan=True) for k in a), name
 
 
 # --- storage: decimated records, exact step statistics, field selection ------------------------

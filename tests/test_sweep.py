@@ -164,6 +164,15 @@ def test_shipped_specs_load_by_name():
     assert pm.grid_keys == ["plant.contact.stiffness", "plant.arm.m2"] and pm.controllers == ("hinf", "hinf_nn")
     quick = load_spec("paper-uncertainty", samples=8, overrides=["simulation.t_final=0.5"])
     assert quick.n_runs == 24 and quick.base.simulation.t_final == 0.5
+    # counts and overrides as NumPy gives them are Python's
+    from hinfnn.sweep.backends import check_workers
+
+    numpy_given = load_spec("paper-uncertainty", samples=np.int64(8), overrides={"simulation.t_final": np.float64(0.5)})
+    assert numpy_given.n_runs == 24 and type(numpy_given.samples) is int and numpy_given.base == quick.base
+    assert check_workers(np.int64(2)) == 2 and type(check_workers(np.int64(2))) is int
+    for bad in (np.True_, 0, 1.0):
+        with pytest.raises(ConfigError, match="--workers"):
+            check_workers(bad)
 
 
 BAD = [  # (spec body after the header, key named, words)

@@ -2,6 +2,20 @@
 
 from __future__ import annotations
 
+import numbers
+
+
+def is_integer(value) -> bool:
+    """A whole number as a user may give one: a Python or NumPy integer (``np.int64(2)``), not a
+    bool. The checks that take counts (threads, draws, steps) use it, then ``int(value)``."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def is_real(value) -> bool:
+    """A real number as a user may give one: a Python or NumPy int or float (``np.float32(0.05)``),
+    not a bool (``np.True_`` is not a number either). The checks then take ``float(value)``."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
 
 class HinfnnError(Exception):
     """Base class of every error hinfnn raises on purpose."""

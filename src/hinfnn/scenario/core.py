@@ -270,9 +270,13 @@ def parse_override(item: str) -> tuple[str, Any]:
 
 
 def override_items(overrides) -> list[tuple[str, Any]]:
+    """``(key, value)`` pairs of a dict, of ``"key=value"`` strings or of pairs, the values as TOML
+    would give them (:func:`~hinfnn.scenario.schema.plain`: NumPy values as Python's)."""
     if isinstance(overrides, dict):
-        return list(overrides.items())
-    return [parse_override(o) if isinstance(o, str) else tuple(o) for o in overrides]
+        items = list(overrides.items())
+    else:
+        items = [parse_override(o) if isinstance(o, str) else tuple(o) for o in overrides]
+    return [(k, schema.plain(v)) for k, v in items]
 
 
 def set_key(data: dict, key: str, value: Any) -> None:

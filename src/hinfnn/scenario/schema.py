@@ -27,7 +27,7 @@ import types
 import typing
 from typing import Any, Literal, NewType, Union
 
-from ..errors import ConfigError
+from ..errors import ConfigError, is_integer, is_real
 
 #: A number (times the identity), a flat list (the diagonal) or a square matrix given as a list of
 #: equal-length rows.
@@ -179,9 +179,9 @@ def allowed(tp, meta) -> str:
 
 
 def _number(key, value, meta, tp_words, integer=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if not is_real(value):
         raise ConfigError(f"must be {tp_words}, got {value!r} ({type(value).__name__})", key=key)
-    if integer and not isinstance(value, int):
+    if integer and not is_integer(value):
         raise ConfigError(f"must be an integer, got {value!r}", key=key)
     if not math.isfinite(value):
         raise ConfigError(f"must be finite, got {value}", key=key)
@@ -192,8 +192,23 @@ def _number(key, value, meta, tp_words, integer=False):
     return int(value) if integer else float(value)
 
 
+def plain(value):
+    """A value given from Python as TOML would give it: NumPy (or JAX) scalars and arrays as
+    Python numbers, bools and lists (``.tolist()``), tuples as lists, at any depth of lists and
+    tables. Overrides are kept this way (:attr:`hinfnn.Scenario.overrides`, written to
+    ``metrics.json``)."""
+    if hasattr(value, "dtype") and hasattr(value, "tolist"):
+        return value.tolist()
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if isinstance(value, dict):
+        return {k: plain(v) for k, v in value.items()}
+    return value
+
+
 def _value(key: str, value, tp, meta):
     """Check one value against its type and bounds; returns the normalised value."""
+    value = plain(value)
     words = allowed(tp, meta)
     if isinstance(value, dict):
         raise ConfigError(f"must be {words}, got a section", key=key)
@@ -244,7 +259,7 @@ def _value(key: str, value, tp, meta):
                 return _value(key, value, a, {**meta, "allowed": None})
             except ConfigError as err:
                 # a number out of a number branch's range: that branch's message (it names the range)
-                if a is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+                if a is float and is_real(value):
                     raise err from None
         raise ConfigError(f"must be {words}, got {value!r}", key=key)
     raise AssertionError(f"unsupported field type {tp!r} at {key}")

@@ -10,7 +10,7 @@ import threading
 from typing import Any
 
 from .._pytree import structure_key
-from ..errors import ConfigError
+from ..errors import ConfigError, is_integer
 from .plan import DEFAULT_SAVE_INTERVAL, StepPlan
 from .simulate import Limits, lower_ahead_batch, simulate, simulate_batch
 from .trajectory import RunInfo, Trajectory
@@ -97,9 +97,10 @@ def simulate_many(runs: list[Run], *, progress=None, save_every: int | None = No
         groups.setdefault(run.group_key(), []).append(run)
     total = sum(r.n_steps for r in runs)
     jobs = [(items, sum(r.n_steps for r in items)) for items in groups.values()]
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+    if workers is not None and (not is_integer(workers) or workers < 1):
         raise ConfigError(f"must be a whole number of threads >= 1 (or None: one per core), got {workers!r}",
                           key="workers")
+    workers = None if workers is None else int(workers)
     n_workers = default_workers(len(jobs)) if workers is None else min(workers, len(jobs))
     out: dict[str, Trajectory] = {}
     if n_workers == 1:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from ..errors import ConfigError
+from ..errors import ConfigError, is_integer, is_real
 
 #: Default interval between stored samples, s (``simulation.output_interval``).
 DEFAULT_SAVE_INTERVAL = 1e-3
@@ -42,7 +42,7 @@ class StepPlan:
         ``discrete`` plant (one that steps itself) always runs the sampled-data path, at least
         every step."""
         for name, v in (("t_final", t_final), ("dt", dt)):
-            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0):
+            if not (is_real(v) and math.isfinite(v) and v > 0):
                 raise ConfigError(f"must be a finite number > 0, got {v!r}", key=f"simulation.{name}")
         n_steps = round(t_final / dt)
         if n_steps < 1 or abs(n_steps * dt - t_final) > 1e-9 * max(1.0, t_final):
@@ -50,9 +50,10 @@ class StepPlan:
                               key="simulation.t_final")
         if save_every is None:
             save_every = save_every_for(n_steps, dt, DEFAULT_SAVE_INTERVAL if save_interval is None else save_interval)
-        if not (isinstance(save_every, int) and save_every >= 1 and n_steps % save_every == 0):
+        if not (is_integer(save_every) and save_every >= 1 and n_steps % save_every == 0):
             raise ConfigError(f"must be a whole number of steps dividing the {n_steps} steps, got {save_every!r}",
                               key="simulation.output_interval")
+        save_every = int(save_every)
         n_hold = 0
         if control_period is None and discrete:
             control_period = dt
@@ -121,7 +122,7 @@ def records_per_chunk(save_every: int) -> int:
 def save_every_for(n_steps: int, dt: float, save_interval: float) -> int:
     """The largest divisor s of ``n_steps`` with s·dt ≤ ``save_interval`` (at least 1): samples
     stay uniform and the last one falls on t_final."""
-    if not (isinstance(save_interval, (int, float)) and math.isfinite(save_interval) and save_interval > 0):
+    if not (is_real(save_interval) and math.isfinite(save_interval) and save_interval > 0):
         raise ConfigError(f"must be a finite number > 0, got {save_interval!r}", key="simulation.output_interval")
     limit = max(1, min(n_steps, int(math.floor(save_interval / dt * (1 + 1e-9)))))
     return max(s for s in range(1, limit + 1) if n_steps % s == 0)

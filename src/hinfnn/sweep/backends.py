@@ -18,7 +18,7 @@ import multiprocessing
 import os
 import queue as queue_module
 
-from ..errors import ConfigError
+from ..errors import ConfigError, is_integer
 from .worker import check_runs, execute_batch, fault_once
 
 #: Seconds between the driver's looks at the workers' progress.
@@ -61,9 +61,9 @@ def check_workers(workers) -> int | None:
     """``workers`` as given to the local backend: None (one per core) or a whole number >= 1."""
     if workers is None:
         return None
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+    if not is_integer(workers) or workers < 1:
         raise ConfigError(f"must be a whole number >= 1, got {workers!r}", key="--workers")
-    return workers
+    return int(workers)
 
 
 # --- the worker processes ---------------------------------------------------------------------------

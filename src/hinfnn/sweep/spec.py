@@ -38,7 +38,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
-from ..errors import ConfigError
+from ..errors import ConfigError, is_integer, is_real
 from ..metrics import METRIC_KEYS
 from ..scenario import schema
 from ..scenario.schema import param, section
@@ -372,9 +372,9 @@ def spec_from_dict(raw: dict, *, samples: int | None = None, overrides=(), sourc
     set_table = raw.pop("set", {})
     vary_table = raw.pop("vary", {})
     if samples is not None:
-        if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+        if not is_integer(samples) or samples < 1:
             raise ConfigError(f"must be a whole number >= 1, got {samples!r}", key="--samples")
-        raw["samples"] = samples
+        raw["samples"] = int(samples)
     spec = schema.load(SweepSpec, raw)
     if not isinstance(set_table, dict):
         raise ConfigError(f"must be a table of scenario keys and values, got {set_table!r}", key="set")
@@ -487,7 +487,7 @@ def _check_varied(key: str, how: VarySpec, tp, base_value, base) -> Varied:
     elif how.kind in ("linspace", "logspace") and not numeric:
         raise ConfigError(f"{key} is {'a whole number' if tp is int else 'not a number'}; use values = [...]",
                           key=f"{where}.{how.kind}")
-    elif how.values is not None and list_valued and not all(isinstance(v, (int, float)) for v in how.values):
+    elif how.values is not None and list_valued and not all(is_real(v) for v in how.values):
         raise ConfigError(f"{key} is a list of numbers; give numbers (each sets every entry)", key=f"{where}.values")
 
     # values checked by the scenario's own schema (type and range)

@@ -28,7 +28,7 @@ import numpy as np
 
 from ... import _linalg as la
 from ..._pytree import pytree_dataclass
-from ...errors import ConfigError
+from ...errors import ConfigError, is_real
 from ...protocols import DiscretePlant, Measurement, PlantRecord
 from ..limits import limit_record
 from . import scene as S
@@ -463,10 +463,10 @@ class MujocoPlant(DiscretePlant):
 
     @staticmethod
     def _periods(control_period, timestep):
-        if not (isinstance(control_period, (int, float)) and math.isfinite(control_period) and control_period > 0):
+        if not (is_real(control_period) and math.isfinite(control_period) and control_period > 0):
             raise ConfigError(f"must be a number > 0 (s), got {control_period!r}", key="simulation.control_period")
         ts = control_period if timestep is None else timestep
-        if not (isinstance(ts, (int, float)) and math.isfinite(ts) and ts > 0):
+        if not (is_real(ts) and math.isfinite(ts) and ts > 0):
             raise ConfigError(f"must be a number > 0 (s), got {timestep!r}", key="plant.timestep")
         _check_divides(float(ts), float(control_period), "plant.timestep", "control period")
         return float(control_period), float(ts)

@@ -34,7 +34,7 @@ import threading
 
 import numpy as np
 
-from ...errors import ConfigError
+from ...errors import ConfigError, is_real
 
 #: Constant constraint impedance d of the contact (MuJoCo's smallest, mjMINIMP). With d → 0 the
 #: soft constraint is a penalty spring-damper; what remains of MuJoCo's constraint behaviour is
@@ -461,7 +461,7 @@ def build_scene(surface, contact, *, rows=(0, 1), arm_xml: str | None = None, ar
     mujoco = require_mujoco()
     if integrator not in INTEGRATORS:
         raise ConfigError(f"must be one of {INTEGRATORS}, got {integrator!r}", key="plant.integrator")
-    if not (isinstance(timestep, (int, float)) and math.isfinite(timestep) and timestep > 0):
+    if not (is_real(timestep) and math.isfinite(timestep) and timestep > 0):
         raise ConfigError(f"must be a number > 0 (s), got {timestep!r}", key="plant.timestep")
     _check_number("plant.contact.stiffness", contact.stiffness)
     _check_number("plant.contact.damping", contact.damping)
