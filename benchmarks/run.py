@@ -746,11 +746,25 @@ def case_ur5_batch(args) -> dict:
     """The UR5 (ur5-table, H∞ + NN) as batches of B plants (``simulate_batch``, the same plant B
     times, stacked: every member computes the whole arithmetic), fields="metrics": for each B of
     ``--arm-batches`` a first ``--arm-batch-horizon``-s run (compile included, empty cache) and a
-    second one, timed: trajectory-steps per second and the time per member-step."""
+    second one, timed: trajectory-steps per second and the time per member-step. The first run's
+    compiling is JAX's own account of it (its monitoring events: tracing, lowering to StableHLO,
+    XLA's compile), summed over the programs the first run builds; the first run's time less the
+    second's is kept beside it, but it carries the run's own noise (±20 % of a 35-s run at
+    B = 4,096 is ±7 s)."""
+    import jax.monitoring as mon
     import numpy as np
 
     import hinfnn as H
 
+    spent = {"s": 0.0}
+    phases = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration",
+              "/jax/core/compile/backend_compile_duration")
+
+    def on_duration(event, seconds, **_):
+        if event in phases:
+            spent["s"] += seconds
+
+    mon.register_event_duration_secs_listener(on_duration)
     loop = _loop_options(args)
     sc = _ur5()
     plant, ctrl, ref = sc.build_plant(), sc.build_controller("hinf_nn"), sc.build_reference()
@@ -758,14 +772,15 @@ def case_ur5_batch(args) -> dict:
     out = {}
     for B in args.arm_batches:
         kw = dict(dt=DT, q0=[q0] * B, fields="metrics", loop=loop)
+        spent["s"] = 0.0
         t0 = time.perf_counter()  # the first run of the timed horizon: compiled (a batch's chunk size follows it)
         H.simulate_batch([plant] * B, ctrl, ref, t_final=args.arm_batch_horizon, **kw)
-        compile_s = time.perf_counter() - t0
+        compile_s, jax_compile_s = time.perf_counter() - t0, spent["s"]
         t0 = time.perf_counter()
         traj = H.simulate_batch([plant] * B, ctrl, ref, t_final=args.arm_batch_horizon, **kw)
         wall = time.perf_counter() - t0
         rate = B * round(args.arm_batch_horizon / DT) / wall
-        out[str(B)] = dict(compile_s=compile_s, wall_s=wall, traj_steps_per_s=rate, us_per_member_step=1e6 / rate,
+        out[str(B)] = dict(compile_s=compile_s, jax_compile_s=jax_compile_s, wall_s=wall, traj_steps_per_s=rate, us_per_member_step=1e6 / rate,
                            failed=int((np.asarray(traj.status) != 0).sum()), peak_rss_gb=peak_rss_gb())
         print(f"ur5_batch B={B}: {json.dumps(out[str(B)])}", file=sys.stderr, flush=True)  # kept if killed
     return out
@@ -892,15 +907,16 @@ def _print_ur5(c: dict) -> None:
             print(f"{'':<22}(plant alone: RK4 of the true plant with the torque held, no controller, record or checks: "
                   "the floor under a sampled run's step)")
     if "ur5_batch" in c and "error" not in c["ur5_batch"]:
-        hdr = (f"{'batch B':<16}{'1st run s':>10}{'wall s':>9}{'compile s':>10}{'traj-steps/s':>14}{'µs/member-step':>16}"
-               f"{'× anchor':>9}{'peak GB':>8}{'failed':>7}")
+        hdr = (f"{'batch B':<16}{'1st run s':>10}{'wall s':>9}{'1st-2nd s':>10}{'compile s':>10}{'traj-steps/s':>14}"
+               f"{'µs/member-step':>16}{'× anchor':>9}{'peak GB':>8}{'failed':>7}")
         print(hdr + "\n" + "-" * len(hdr))
-        print("(compile s: the first run's time less the second's, the same horizon: what the first run paid "
-              "beyond running)")
+        print("(compile s: JAX's tracing, lowering and XLA compiling in the first run, by its monitoring events; "
+              "1st-2nd s: the first run's time less the second's, the same horizon, which also carries the run's noise)")
         for B, r in c["ur5_batch"].items():
             if not isinstance(r, dict):
                 continue
             print(f"{B:<16}{r['compile_s']:>10.1f}{r['wall_s']:>9.2f}{r['compile_s'] - r['wall_s']:>10.1f}"
+                  f"{r.get('jax_compile_s', float('nan')):>10.1f}"
                   f"{r['traj_steps_per_s']:>14,.0f}"
                   f"{r['us_per_member_step']:>16.1f}{ratio(r['us_per_member_step']):>9}"
                   f"{r.get('peak_rss_gb', float('nan')):>8.2f}{r['failed']:>7}")
@@ -1079,8 +1095,12 @@ def targets(c: dict) -> dict:
     for B, r in c.get("ur5_batch", {}).items():
         if isinstance(r, dict) and int(B) >= 256:
             add(f"UR5 B={B}: traj-steps/s", r["traj_steps_per_s"], ">=", TARGETS["ur5_batch_traj_steps_per_s"])
-            add(f"UR5 B={B}: compile s (1st run - 2nd)", r["compile_s"] - r["wall_s"], "<=",
-                TARGETS["ur5_batch_compile_s"])
+            if "jax_compile_s" in r:
+                add(f"UR5 B={B}: compile s (trace, lower, compile)", r["jax_compile_s"], "<=",
+                    TARGETS["ur5_batch_compile_s"])
+            else:  # results written before the compile was measured by JAX's own events
+                add(f"UR5 B={B}: compile s (1st run - 2nd)", r["compile_s"] - r["wall_s"], "<=",
+                    TARGETS["ur5_batch_compile_s"])
     if "median_us" in c.get("ur5_latency", {}):
         add("UR5 sampled update: median µs", c["ur5_latency"]["median_us"], "<=", TARGETS["ur5_latency_median_us"])
         add("UR5 sampled update: p99 µs", c["ur5_latency"]["p99_us"], "<=", TARGETS["ur5_latency_p99_us"])

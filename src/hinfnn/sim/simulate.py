@@ -666,7 +666,13 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
         check_protocols(member(plants, i), member(controllers, i))
     q0s = q0 if isinstance(q0, (list, tuple)) else [q0] * B
     u1s = u1_0 if isinstance(u1_0, (list, tuple, np.ndarray)) else [u1_0] * B
-    y0s = [initial_state(member(plants, i), member(controllers, i), q0=q0s[i], u1_0=u1s[i]) for i in range(B)]
+    inits: dict = {}  # a controller's initial state once per object, not once per member that shares it
+    for i in range(B):
+        c = member(controllers, i)
+        if id(c) not in inits:
+            inits[id(c)] = c.init()
+    y0s = [initial_state(member(plants, i), member(controllers, i), q0=q0s[i], u1_0=u1s[i],
+                         xc0=inits[id(member(controllers, i))]) for i in range(B)]
     for i in range(B):
         member(controllers, i).check_start(member(plants, i).joints(y0s[i].plant)[0])
         y0s[i] = start(member(plants, i), member(controllers, i), member(references, i), y0s[i])
