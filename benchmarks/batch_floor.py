@@ -1,7 +1,7 @@
 """The arithmetic floor of a UR5 batch on one core: what its compiled step computes per member,
 priced at the rate XLA's CPU code reaches on each kind of operation over a member axis.
 
-    python benchmarks/batch_floor.py [--members 256] [--horizon 0.05] [--repeats 2]
+    python benchmarks/batch_floor.py [--members 256] [--horizon 0.05] [--repeats 2] [--perf]
 
 1. The batch (``ur5-table``, H∞ + NN, ``fields="metrics"``, B members, the shipped loop options)
    is compiled with the compilation cache off and XLA's optimised HLO dumped; the step loop's
@@ -20,6 +20,10 @@ priced at the rate XLA's CPU code reaches on each kind of operation over a membe
    memory, added to the floor: the bound if reading and writing the kernels' buffers did not
    overlap their arithmetic (a batch of 256 UR5 members passes about 40 MB through its kernels per
    step, more than this machine's 32-MiB L3).
+5. ``--perf``: Linux ``perf record`` attached to one more batch run; its CPU samples split between
+   the compiled kernels (XLA's JIT code), XLA's runtime and libraries, libm, Python and the
+   operating system. The kernels' share of the measured time is what the batch would take if
+   everything but its kernels were free: a floor that does not rest on the operation count.
 
 No assertions: speed is measured here, never in tests/.
 """
@@ -30,6 +34,7 @@ import argparse
 import glob
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -230,6 +235,12 @@ def main(argv=None) -> None:
                     help="also profile one batch run with perf record: where its CPU samples fall")
     ap.add_argument("--_dump", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.members < 2:
+        ap.error(f"--members must be at least 2 (one member runs the unbatched program), got {args.members}")
+    if not args.horizon > 0:
+        ap.error(f"--horizon must be > 0 s, got {args.horizon}")
+    if args.perf and shutil.which("perf") is None:
+        ap.error("--perf needs Linux perf (the `perf` command) on PATH")
     if args._dump is None:  # XLA reads its flags once, at start: the batch runs in a child process
         with tempfile.TemporaryDirectory() as tmp:
             env = {**os.environ, "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_dump_to={tmp}".strip()}

@@ -780,8 +780,9 @@ def case_ur5_batch(args) -> dict:
         traj = H.simulate_batch([plant] * B, ctrl, ref, t_final=args.arm_batch_horizon, **kw)
         wall = time.perf_counter() - t0
         rate = B * round(args.arm_batch_horizon / DT) / wall
-        out[str(B)] = dict(compile_s=compile_s, jax_compile_s=jax_compile_s, wall_s=wall, traj_steps_per_s=rate, us_per_member_step=1e6 / rate,
-                           failed=int((np.asarray(traj.status) != 0).sum()), peak_rss_gb=peak_rss_gb())
+        out[str(B)] = dict(compile_s=compile_s, jax_compile_s=jax_compile_s, wall_s=wall, traj_steps_per_s=rate,
+                           us_per_member_step=1e6 / rate, failed=int((np.asarray(traj.status) != 0).sum()),
+                           peak_rss_gb=peak_rss_gb())
         print(f"ur5_batch B={B}: {json.dumps(out[str(B)])}", file=sys.stderr, flush=True)  # kept if killed
     return out
 
