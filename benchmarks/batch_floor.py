@@ -47,18 +47,8 @@ sys.path.insert(0, str(HERE))
 import hlo  # noqa: E402
 
 KINDS = ("tanh", "divide", "sine", "cosine", "sqrt", "other")
-_ARITH = re.compile(r"= (?:f64|f32|pred|s32|s64)\[([\d,]*)\]\S* (add|subtract|multiply|divide|tanh|sine|cosine|"
-                    r"sqrt|rsqrt|maximum|minimum|select|compare|negate|exponential|atan2|abs|power|log|and|or|"
-                    r"not|clamp)\(")
 _SHAPE = re.compile(r"\b(f64|s64|u64|f32|s32|u32|pred|u8|s8)\[([\d,]*)\]")
 _BYTES = {"f64": 8, "s64": 8, "u64": 8, "f32": 4, "s32": 4, "u32": 4, "pred": 1, "u8": 1, "s8": 1}
-
-
-def _size(dims: str) -> int:
-    n = 1
-    for d in filter(None, dims.split(",")):
-        n *= int(d)
-    return n
 
 
 def _ops(comps, name, seen=()) -> dict:
@@ -66,10 +56,10 @@ def _ops(comps, name, seen=()) -> dict:
     computations it calls)."""
     out = dict.fromkeys(KINDS, 0)
     for line in comps.get(name, ()):
-        m = _ARITH.search(line)
+        m = hlo.ARITH.search(line)
         if m:
             kind = m.group(2) if m.group(2) in KINDS else "other"
-            out[kind] += _size(m.group(1))
+            out[kind] += hlo.size(m.group(1))
         for callee in hlo._CALLS.findall(line):
             if callee not in seen:
                 for k, v in _ops(comps, callee, seen + (name,)).items():
@@ -79,7 +69,7 @@ def _ops(comps, name, seen=()) -> dict:
 
 def _kernel_bytes(line: str) -> int:
     line = line.split(", metadata=")[0].split(", backend_config=")[0]
-    return sum(_size(dims) * _BYTES[dt] for dt, dims in _SHAPE.findall(line))
+    return sum(hlo.size(dims) * _BYTES[dt] for dt, dims in _SHAPE.findall(line))
 
 
 def walk(comps, name) -> tuple[dict, int]:

@@ -53,6 +53,19 @@ def whiles(lines):
 
 
 _OP = re.compile(r"= f64\[([\d,]*)\]\S* (tanh|sine|cosine|divide|exponential|sqrt)\(")
+#: An elementwise instruction: (its shape's dimensions, its operation).
+ARITH = re.compile(r"= (?:f64|f32|pred|s32|s64)\[([\d,]*)\]\S* (add|subtract|multiply|divide|tanh|sine|cosine|"
+                   r"sqrt|rsqrt|maximum|minimum|select|compare|negate|exponential|atan2|abs|power|log|and|or|"
+                   r"not|clamp)\(")
+
+
+def size(dims: str) -> int:
+    """Values in a shape of dimensions ``dims`` ("6,256"; "" for a scalar)."""
+    n = 1
+    for d in dims.split(","):
+        if d:
+            n *= int(d)
+    return n
 _CALLS = re.compile(r"(?:calls|to_apply)=%?([\w.\-]+)")
 
 

@@ -26,22 +26,11 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import hlo  # noqa: E402
 
-_ARITH = re.compile(r"= (?:f64|f32|pred|s32|s64)\[([\d,]*)\]\S* (add|subtract|multiply|divide|tanh|sine|cosine|"
-                    r"sqrt|rsqrt|maximum|minimum|select|compare|negate|exponential|atan2|abs|power|log|and|or|"
-                    r"not|clamp)\(")
 _CALLS = hlo._CALLS  # the computations an instruction calls (fusions, reductions)
 #: Helpers of hinfnn's small algebra: a kernel is attributed to the first caller outside them.
 HELPERS = re.compile(r"^(mm|store|stored|_stored|chol|chol_solve|_stored_columns|cross|dot|add|sub|scale|matvec|"
                      r"matmul|crm|crf|inertia_apply|_masked_sum|prefix|suffix|assemble|sdot|keep|grid_stack|table|"
                      r"table_column|prefix_sums|sincos|runtime_one)(\.<locals>.*)?$")
-
-
-def _size(dims: str) -> int:
-    n = 1
-    for d in dims.split(","):
-        if d:
-            n *= int(d)
-    return n
 
 
 def _table(lines: list, name: str) -> dict:
@@ -93,9 +82,9 @@ def kernel_table(text: str, loop: str = "stage") -> list:
         if name not in memo:
             n = 0
             for line in comps.get(name, ()):
-                m = _ARITH.search(line)
+                m = hlo.ARITH.search(line)
                 if m:
-                    n += _size(m.group(1))
+                    n += hlo.size(m.group(1))
                 n += sum(ops(c) for c in _CALLS.findall(line))
             memo[name] = n
         return memo[name]
@@ -112,7 +101,7 @@ def kernel_table(text: str, loop: str = "stage") -> list:
             continue
         calls = _CALLS.findall(line)
         shape = re.search(r"= (\(.*?\)|\S+) ", line).group(1)
-        out = sum(_size(m) for m in re.findall(r"\[([\d,]*)\]", shape))
+        out = sum(hlo.size(m) for m in re.findall(r"\[([\d,]*)\]", shape))
         src = collections.Counter()
         for c in calls:
             for x in comps.get(c, ()):
