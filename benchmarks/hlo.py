@@ -66,6 +66,8 @@ def size(dims: str) -> int:
         if d:
             n *= int(d)
     return n
+
+
 _CALLS = re.compile(r"(?:calls|to_apply)=%?([\w.\-]+)")
 
 
@@ -76,10 +78,7 @@ def _ops(comps: dict, name: str, seen=()) -> dict:
     for line in comps.get(name, ()):
         m = _OP.search(line)
         if m:
-            size = 1
-            for d in filter(None, m.group(1).split(",")):
-                size *= int(d)
-            out[m.group(2)] = out.get(m.group(2), 0) + size
+            out[m.group(2)] = out.get(m.group(2), 0) + size(m.group(1))
         for callee in _CALLS.findall(line):
             if callee not in seen:
                 for k, v in _ops(comps, callee, seen + (name,)).items():

@@ -755,13 +755,12 @@ def case_ur5_batch(args) -> dict:
     import numpy as np
 
     import hinfnn as H
+    from hinfnn._startup import StartupTrace
 
     spent = {"s": 0.0}
-    phases = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration",
-              "/jax/core/compile/backend_compile_duration")
 
     def on_duration(event, seconds, **_):
-        if event in phases:
+        if event in StartupTrace._NAMES:  # JAX's trace, lower and compile events
             spent["s"] += seconds
 
     mon.register_event_duration_secs_listener(on_duration)

@@ -667,12 +667,12 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     q0s = q0 if isinstance(q0, (list, tuple)) else [q0] * B
     u1s = u1_0 if isinstance(u1_0, (list, tuple, np.ndarray)) else [u1_0] * B
     inits: dict = {}  # a controller's initial state once per object, not once per member that shares it
+    y0s = []
     for i in range(B):
         c = member(controllers, i)
         if id(c) not in inits:
             inits[id(c)] = c.init()
-    y0s = [initial_state(member(plants, i), member(controllers, i), q0=q0s[i], u1_0=u1s[i],
-                         xc0=inits[id(member(controllers, i))]) for i in range(B)]
+        y0s.append(initial_state(member(plants, i), c, q0=q0s[i], u1_0=u1s[i], xc0=inits[id(c)]))
     for i in range(B):
         member(controllers, i).check_start(member(plants, i).joints(y0s[i].plant)[0])
         y0s[i] = start(member(plants, i), member(controllers, i), member(references, i), y0s[i])
