@@ -1,6 +1,6 @@
 """A persistent compilation cache, so that a new process reuses the XLA programs of earlier ones.
 
-Each new process would otherwise compile the simulator's programs again (4–7 s).
+Each new process would otherwise compile the simulator's programs again.
 :func:`hinfnn.configure` (which the ``hinfnn`` command calls; importing hinfnn does not) turns on
 JAX's own persistent compilation cache through its public options
 (``jax_compilation_cache_dir``, ``jax_persistent_cache_min_compile_time_secs``,
@@ -39,8 +39,8 @@ ENV_VAR = "HINFNN_CACHE_DIR"
 #: Values of ``HINFNN_CACHE_DIR`` (compared case-insensitively, spaces stripped) that disable it.
 DISABLE_VALUES = frozenset({"", "off", "0", "none", "false", "no"})
 #: Programs that compile faster than this are not written (JAX's default is 1 s). 0: every
-#: program is cached: besides the simulator's chunk program (2–6 s to compile), a run compiles
-#: about 20 small programs (start pose, checks, design), 20–30 ms each.
+#: program is cached: besides the simulator's chunk program, a run compiles
+#: about 20 small programs (start pose, checks, design), each quick to compile.
 MIN_COMPILE_TIME_SECS = 0.0
 
 _ENTRY_SUFFIX = "-cache"  # JAX's LRUCache naming: <module name>-<sha256>-cache

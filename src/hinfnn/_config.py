@@ -16,8 +16,8 @@ def configure(*, x64: bool = True, cache: bool = True, async_dispatch: bool | No
     leaves it off). ``async_dispatch=False``: JAX's CPU async dispatch off, the setting of a
     process that runs a robot loop (:class:`hinfnn.SampledLoop`): every compiled call then runs on
     the calling thread, where with it on (JAX's default, ``None`` leaves it) a program above 1,000
-    flops is handed to a worker thread and back (the UR5's sampled update: median 187 against 68 µs
-    per call, docs/performance.md). Call it once, before the first computation. Returns the cache
+    flops is handed to a worker thread and back, which costs a robot loop's update more than its
+    arithmetic (docs/performance.md). Call it once, before the first computation. Returns the cache
     folder in use, or None."""
     import jax
 

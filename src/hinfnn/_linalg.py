@@ -134,7 +134,7 @@ def member_minor(x):
     member's 6 × 6 matrix is 36 adjacent values and the kernels that read it vectorise over a
     row of 6; member-minor, each entry is a contiguous vector over the members and every kernel
     around it runs on whole SIMD registers. A constraint on every value would cut XLA's fusions
-    (tried: 4 times slower); on the stored values, which are written to memory anyway, XLA's layout
+    (tried: slower); on the stored values, which are written to memory anyway, XLA's layout
     assignment carries the layout to the kernels around them."""
     if not _loop.current().member_minor:
         return x
@@ -158,8 +158,8 @@ def store(x, one):
     when every buffer is that small). XLA may rewrite the division by the broadcast scalar into a
     product with its reciprocal, which it then copies into the readers like any product (a 6 × 6
     product read by six kernels was computed six times): for such a value use :func:`stored`.
-    (Making this function :func:`stored` was measured and is slower: 1,427 against 1,403 UR5
-    kernels per step, 40.4 against 37.4 µs.) Laid out by :func:`member_minor`."""
+    (Making this function :func:`stored` was measured and is slower: more kernels per UR5 step.)
+    Laid out by :func:`member_minor`."""
     return member_minor(x / one)
 
 

@@ -1,9 +1,9 @@
 """How the compiled simulation loop is written for XLA's CPU runtime: the loop options, a value.
 
 Each option changes how XLA executes the loop, never what it computes (the numbers agree to
-rounding); docs/performance.md ("Why the compiled loop is written as it is") has the benchmark
-line that justifies each (``python benchmarks/run.py --cases devices arm_devices batch_devices``
-turns each off in turn).
+rounding, most of them bit for bit). docs/performance.md ("The loop's devices") names the benchmark
+line that shows what each one buys; ``python benchmarks/run.py --cases devices arm_devices
+batch_devices arm_batch_devices arm_sampled_devices`` turns each off in turn, in fresh processes.
 
 :class:`LoopOptions` is passed to :func:`hinfnn.simulate` (``loop=``) and is part of the key of
 the compiled program: a program traced with some options is never reused with others. While a
@@ -29,29 +29,25 @@ Outside a trace the defaults apply.
     force it): products of small matrices with contractions of 3 to
     :data:`hinfnn._linalg.SMALL_MM` terms written as a sum of products term by term (no reduction:
     a reduction is a kernel of its own in XLA's CPU compiler, the elementwise sum fuses with its
-    neighbours), and the written-out Cholesky factorisation and solves of :mod:`hinfnn._linalg`
+    neighbours), the written-out Cholesky factorisation and solves of :mod:`hinfnn._linalg`
     with their columns computed once and kept (:func:`hinfnn._linalg.store`), and the products that
     several kernels read computed once (:func:`hinfnn._linalg.stored`: the nominal reduced-order
-    model's Ĵ⁻¹, B̄, M̂Ĵ⁻¹, Ĵ⁻¹S, the task map's relative rotation; UR5 1,673 → 1,429 kernels per
-    step, about 52 → 45 µs, 2026-12-03, fifth pass). The paper's 2-joint arm keeps its reductions
-    (its numbers bit for bit).
+    model's Ĵ⁻¹, B̄, M̂Ĵ⁻¹, Ĵ⁻¹S, the task map's relative rotation), so fewer kernels run per step.
+    The paper's 2-joint arm keeps its reductions (its numbers bit for bit).
 ``rolled_stages``
     With RK4 rolled: 4 (default), all four stages a loop (the record computed at the first stage,
     ``record_once``); 3, stage 1 (the one that gives the record) written out and stages 2–4 a
     loop (the record computed once per step, but the plant and the controller twice in the
     program). XLA's CPU runtime pays for each kernel it launches more the more distinct kernels a
     loop holds (``benchmarks/run.py --cases launch_floor``), so the program with fewer distinct
-    kernels runs faster although it launches more: UR5 1,641 launches of 546 distinct kernels per
-    RK4 step against 1,219 of 687, 114 against 131 µs per step, and it compiles in about half the
-    time (docs/performance.md).
+    kernels runs faster although it launches more, and it compiles in less time.
 ``record_once``
     With RK4's four stages one loop: the step's function cut in two
     (:func:`hinfnn.sim.integrate.split_aux`), the operations only the record needs (the plant's
     and the controller's recorded signals, the fault measures) under a ``lax.cond`` taken at the
     first stage, the rest at every stage. The program still holds the plant and the controller
-    once; the record is computed once per step instead of four times. UR5 77.0 → 63.2 µs per
-    step, Panda 323.8 → 256.0 µs (docs/performance.md); the numbers to rounding (2.8e-14
-    relative), not bit for bit, since XLA fuses the operations otherwise. At the steps that store
+    once; the record is computed once per step instead of four times. The numbers agree to
+    rounding, not bit for bit, since XLA fuses the operations otherwise. At the steps that store
     no sample only the record's entries every step reads are computed
     (:data:`hinfnn.sim.simulate.EVERY_STEP`, the ``take`` of
     :func:`~hinfnn.sim.integrate.rk4_step`). False: the record computed at every stage and the
@@ -70,21 +66,16 @@ Outside a trace the defaults apply.
     other only when no kernel touches a larger buffer; the body that writes one sample into the
     chunk's stacked records (200 × 6 values for a UR5's τ) otherwise sends its kernels (the sample
     update of sampled control, σ_min's SVD, the record's copies) through its dataflow scheduler and
-    its thread pool, once per sample: about 70 µs per stored sample for the UR5, 10 µs for the
-    paper's arm (2026-12-03, sixth pass). False: one scan over the samples.
+    its thread pool, once per sample. False: one scan over the samples.
 ``batch_group``
     A batch of more than this many members runs as equal groups of at most that many, one after
     the other, through one compiled program (the last group padded with copies of its first
     member, whose results are dropped); 0: one group. ``None`` (the default): chosen by the arm,
     :data:`BATCH_GROUP_PLANAR` members for 2 joints, :data:`BATCH_GROUP_ARM` from
     :data:`ROLL_FROM_JOINTS` joints. The two-link arm's step is a few hundred kernels of little
-    arithmetic, and past about a hundred members its vmapped arrays leave the cache (B = 1,000 in
-    groups of 64–125: 474,000–490,000 trajectory-steps/s, of 500: 428,000–440,000, 2026-12-04);
-    a 6-DOF arm's batch runs faster in larger groups, because XLA spreads a kernel over the cores
-    once its arrays are large enough (UR5 on this project's 2-core machine: 38,000 at 128 members,
-    50,000 at 512, 58,000 at 1,024, 63,000 at 2,048 and 4,096; pinned to one core, 42,000 in groups
-    of 256 against 38,800 in one of 1,024).
-
+    arithmetic, and past about a hundred members its vmapped arrays leave the cache; a 6-DOF arm's
+    thousand kernel launches per step cost the same for any number of members, so larger groups
+    amortise them.
 ``member_minor``
     In a batch (``jax.vmap``) of at least :data:`MEMBER_MINOR_FROM` members of an arm of at least
     :data:`ROLL_FROM_JOINTS` joints (``None``, the default): every stored value (:func:`hinfnn._linalg.store`, :func:`~hinfnn._linalg.stored`,
@@ -92,19 +83,16 @@ Outside a trace the defaults apply.
     (:func:`hinfnn._linalg.member_minor`), the programs' outputs in the default layout
     (:func:`hinfnn._linalg.default_layout`). ``vmap`` puts the member axis first: a member's
     6 × 6 matrix is then 36 adjacent values and a kernel that reads it vectorises over a row of 6;
-    member-minor, each entry is a vector over the members. UR5 (H∞ + NN) at B = 64 / 256 / 1,024:
-    33,900 / 40,900 / 60,300 → 40,700 / 50,600 / 67,500 trajectory-steps/s (2026-12-04, eighth
-    pass), at about 6 s more to compile a batch program (XLA converts layouts in about 1,200 fused
-    copies), which a batch of a few runs (an experiment's pair of laws) would not earn back. No
-    effect on a single run (no member axis) or on the two-link arm (nothing stored).
+    member-minor, each entry is a vector over the members. It costs compile time (XLA converts
+    layouts in many fused copies), which a batch of a few runs (an experiment's pair of laws)
+    would not earn back. No effect on a single run (no member axis) or on the two-link arm
+    (nothing stored).
 ``frozen_law``
     Under sampled control (a zero-order hold, ``control_period``) the law's state is frozen between
     samples, its rate zero: RK4's four stages integrate the plant and the theorems' accumulators
     alone and the law's state passes through, instead of RK4 adding dt/6 · 0 to every weight of the
-    networks at every stage (the same numbers bit for bit). UR5 at 1 kHz (``ur5-table-stable``,
-    H∞ + NN), compiled side by side and run alternately: 29.0 → 24.4 µs per step without the
-    theorems' bookkeeping, 48.9 → 46.8 with it (2026-12-04, tenth pass); kernels per step 1,191 → 1,021.
-    No effect under continuous control.
+    networks at every stage (the same numbers bit for bit, fewer kernels per step). No effect under
+    continuous control.
 
 The controller's own layout (the networks' weights carried in blocks of at most 64 values, so that
 XLA runs the loop's kernels inline) is the controller's business

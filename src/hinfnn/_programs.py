@@ -66,7 +66,7 @@ class KeptFunction:
     """``fn`` (a function of pytrees whose result is arrays in tuples, lists or dicts) jit-compiled,
     with its lowered form kept on disk between processes (see the module docstring): the setup
     programs every process of an arm runs once (the start pose's Newton solve, the path checks, the
-    final state), whose tracing took 3.4 of the 5.1 s of a warm UR5 ``hinfnn run`` before the chunk.
+    final state), whose tracing was most of a warm UR5 ``hinfnn run``'s time before the chunk.
     ``settings``: what else decides the program (hashable, its repr part of the key);
     ``compiler_options``: XLA's compile options (None: XLA's defaults), part of the key. Called
     inside another trace, it is ``jax.jit(fn)`` as usual."""
@@ -173,10 +173,8 @@ class KeptFunction:
 
 #: XLA options added, for an arm of 3 or more joints, to those of the simulator
 #: (:func:`jit_by_joints`): LLVM's optimisation level 0. A design's programs run a few times each
-#: and are compiled once: ``hinfnn design ur5-polish`` (H∞-only law, empty cache) 39.5 -> 34.2 s;
-#: ``panda-table`` under the test suite's XLA flags 42.4 -> 37.3 s, its closed loop's Jacobian
-#: 16.1 -> 12.4 s to compile; the same printed design (the UR5's loop Jacobian to 7e-16), the
-#: programs about twice as slow to run (that Jacobian 1.2 -> 2.2 ms; docs/performance.md).
+#: and are compiled once, so their compile time is their cost: the same printed design (the UR5's
+#: loop Jacobian to 7e-16), compiled in less time, the programs slower to run.
 ANALYSIS_OPTIONS = {"xla_backend_optimization_level": 0}
 
 
@@ -197,11 +195,10 @@ def jit_by_joints(fn=None, *, static_argnames=None):
     simulator uses for the joints of its first argument (a plant or an arm, ``.n``;
     :meth:`hinfnn._loop.LoopOptions.compiler_options`) and :data:`ANALYSIS_OPTIONS`: for arms of 3
     or more joints XLA's older loop emitters (its default emitters compile the rigid-body
-    algorithms written out for fusion several times slower: the UR5 closed loop's Jacobian 17.7
-    against 13.3 s, the same matrix to 3e-16) and no LLVM optimisation, and traced with a URDF
-    chain's kinematics by array products (:func:`hinfnn._loop.by_products`: the layout written
-    for the compiled loop is a third of the loop Jacobian's program); XLA's defaults for the
-    two-link arm. Called inside another trace, it is ``jax.jit(fn)``."""
+    algorithms written out for fusion several times slower; the same matrix to 3e-16) and no LLVM
+    optimisation, and traced with a URDF chain's kinematics by array products
+    (:func:`hinfnn._loop.by_products`: the layout written for the compiled loop is a third of the
+    loop Jacobian's program); XLA's defaults for the two-link arm. Called inside another trace, it is ``jax.jit(fn)``."""
     if fn is None:
         return functools.partial(jit_by_joints, static_argnames=static_argnames)
     from ._loop import ROLL_FROM_JOINTS, LoopOptions
@@ -216,11 +213,9 @@ def kept(name: str):
     """Decorator: :class:`KeptFunction` of the function, under ``name`` (unique in hinfnn), chosen
     by the joints of its first argument (a plant or an arm, ``.n``): for an arm of 3 or more joints
     traced by array products (:func:`hinfnn._loop.by_products`) and compiled with XLA's older
-    loop emitters, as the simulator's programs (``ur5-table``'s four setup programs, empty cache:
-    10–11 s to compile with XLA's defaults, 7–8 s so; the same start poses, or one ulp off). Not
-    at LLVM -O0 as the design's programs (5 s to compile): a sweep checks every draw with them,
-    0.09 s a UR5 draw that -O0 made 0.18 s (docs/performance.md). XLA's defaults for the two-link
-    arm."""
+    loop emitters, as the simulator's programs (they compile faster so; the same start poses, or
+    one ulp off). Not at LLVM -O0 as the design's programs: a sweep checks every draw with them,
+    and -O0 would make each check slower to run. XLA's defaults for the two-link arm."""
     from ._loop import ROLL_FROM_JOINTS, LoopOptions
 
     def decorate(fn):
@@ -279,7 +274,7 @@ def _committed(x):
     """``x`` committed to its device. ``Exported.call`` returns committed arrays, and ``jax.jit``
     compiles a second program for the same function when an argument once uncommitted (the first
     chunk's carry, from a jitted initialiser) comes back committed (every later chunk's carry):
-    a run of more than one chunk compiled its chunk program twice (a UR5 chunk, 25 s each) until
+    a run of more than one chunk compiled its chunk program twice until
     every JAX array was committed before the call. NumPy arrays and Python numbers stay as they are
     (they are the same kind at every call)."""
     if isinstance(x, jax.Array) and not x.committed:

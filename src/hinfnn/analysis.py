@@ -67,7 +67,7 @@ def _simulator_rhs(plant, ctrl, ref, t, plant_state, xc, held=None, sampled=Fals
     held = jnp.zeros(n) if held is None else held
     y = SimState(plant=plant_state, xc=xc, acc=Accumulators.zero())
     # book=False: the accumulators' rates are not returned, so their integrands are not traced (nor
-    # differentiated) only for XLA to drop them (the UR5's loop Jacobian traced in 4.8 s instead of 5.6)
+    # differentiated) only for XLA to drop them (the loop Jacobian traces faster)
     dy, _ = rhs(plant, ctrl, ref, t, y, jnp.zeros(n), held, sampled, book=False)
     return dy.plant, dy.xc
 
@@ -223,8 +223,7 @@ def rest_state(ctrl, q_eq) -> np.ndarray:
 def _loop_jacobian(plant, ctrl, ref, y0):
     """(A, f(y0)): A column by column, one forward-mode product A e_i per step of a ``lax.map``
     (the program holds one right-hand side's JVP, where ``jax.jacfwd`` holds it batched over
-    every column: the same matrix to 2e-16, compiled in less time (Panda 25 against 35 s, UR5
-    20 against 23 s, tracing included, on a 2-core AMD host; the run is a few milliseconds)."""
+    every column: the same matrix to 2e-16, compiled in less time)."""
     def f(y):
         ps, xc = _unflatten(plant, ctrl, y)
         dps, dxc = _simulator_rhs(plant, ctrl, ref, 0.0, ps, xc)
@@ -506,7 +505,7 @@ def _held_plant_jacobian(plant, y_p, tau):
     """(∂(q̇, q̈)/∂(q, q̇), ∂(q̇, q̈)/∂τ, (q̇, q̈)) of the simulator's right-hand side in its sampled
     mode (the torque held at ``tau``, the controller's output not applied) at the plant state y_p;
     column by column as :func:`_loop_jacobian`. The plant alone (:func:`hinfnn.sim.simulate.plant_rhs`):
-    the whole right-hand side, controller included, took 10.2 s to trace for the UR5, the plant 1.3 s."""
+    the whole right-hand side, controller included, takes several times longer to trace."""
     from .sim.simulate import plant_rhs
 
     n = plant.n

@@ -83,9 +83,8 @@ exit codes:
 @functools.cache
 def _parser() -> argparse.ArgumentParser:
     """The command line's parser, built once per process: it holds only constants (parsing does
-    not change it; ``--set``'s list default is copied, not appended to), and building its 13
-    subcommands takes about 5 ms, which every ``main()`` called from Python (a test, a notebook)
-    paid again."""
+    not change it; ``--set``'s list default is copied, not appended to), and building its
+    subcommands is not free, so every ``main()`` called from Python (a test, a notebook) reuses it."""
     from .. import __version__
 
     fmt = argparse.RawDescriptionHelpFormatter

@@ -286,8 +286,7 @@ class SampledController:
         """``jax.jit(fn)``, traced with the loop options the simulator traces this arm with
         (:meth:`hinfnn._loop.LoopOptions.for_joints`: on arms of 3 or more joints the written-out
         factorisations and the products computed once, ``arm_kernels``) and compiled with its
-        compile options (XLA's older loop emitters on arms, as the simulator's programs). UR5
-        update, async dispatch off: median 59.3 → 46.0 µs (docs/performance.md, fifth pass); the
+        compile options (XLA's older loop emitters on arms, as the simulator's programs); the
         paper's arm is traced and compiled as before."""
         self._check_parts()
         opts = _loop.LoopOptions().for_joints(self.n_joints)
@@ -426,11 +425,10 @@ class SampledLoop:
     sample buffer ``[t, h, q, q̇, force]``, fills it in place, calls the update and returns τ as a
     NumPy array. Arms of at least :data:`hinfnn._loop.ROLL_FROM_JOINTS` joints call
     :meth:`SampledController.step_leaves_kept` with the controller state's leaves, kept on the
-    device between calls (UR5: median 141 → 68 µs per call with JAX's CPU async dispatch off), their
-    buffers donated to the outputs and the program compiled as the simulator's (about 43 → 36 µs,
-    p99 94–103 → 79–85 µs: docs/performance.md, sixth pass); the
+    device between calls, their
+    buffers donated to the outputs and the program compiled as the simulator's; the
     paper's 2-joint arm calls :meth:`SampledController.update_packed` with the state in the same
-    packed buffer (one buffer in and one out: 20 µs against 26 µs with the leaves). q, q̇
+    packed buffer (one buffer in and one out: faster than the leaves for its small state). q, q̇
     are NumPy-convertible vectors of shape (n,), force of shape (d,): the contact force the tool
     exerts on the surface at the tool point, in the base frame's Cartesian axes (for the paper's
     planar arm: in N, in the plane's coordinates). A wrong shape raises :class:`MeasurementError`

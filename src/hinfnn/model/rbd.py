@@ -4,7 +4,7 @@ kinematics, the frame Jacobian and its rate, CRBA, RNEA, gravity and the Christo
 motion vectors (linear, angular) at the base origin, in base-frame axes, as Pinocchio's
 LOCAL_WORLD_ALIGNED).
 
-How the arithmetic is laid out, and why (``docs/performance.md`` has the measurements):
+How the arithmetic is laid out, and why (``docs/architecture.md``, "Writing code the loop runs"):
 
 * **Components first, bodies last.** A 3-vector is a Python tuple of three arrays, a rotation a
   3 × 3 tuple of tuples, a spatial vector a 6-tuple; each array holds one component for every
@@ -18,7 +18,7 @@ How the arithmetic is laid out, and why (``docs/performance.md`` has the measure
   (:func:`keep`: the values stacked in one buffer of at most 64 numbers and divided by a one
   XLA cannot see through): each stage is one fused kernel, and nothing is recomputed across
   stages. Buffers stay at most 512 bytes: XLA's CPU runtime runs a loop body's kernels inline
-  only when every buffer they touch is that small (:mod:`hinfnn._devices`, ``blocks``). In a
+  only when every buffer they touch is that small (:data:`hinfnn._loop.SEQUENTIAL_VALUES`). In a
   batch each stored buffer is laid out with the member axis minor
   (:func:`hinfnn._linalg.member_minor`).
 * **The chain's structure is unrolled** at trace time: the Python loop over the (static) joints
@@ -49,7 +49,8 @@ import numpy as np
 from .. import _loop
 from .._linalg import member_minor
 
-#: Largest number of float64 values in one stored buffer (512 bytes, :mod:`hinfnn._devices`).
+#: Largest number of float64 values in one stored buffer (512 bytes,
+#: :data:`hinfnn._loop.SEQUENTIAL_VALUES`).
 BUFFER = 64
 #: Widest concatenation of one row in :func:`grid_stack` (XLA's CPU compiler fuses a
 #: concatenation of at most 8 operands, and one along the fastest-varying axis only below 64 bytes).
@@ -341,9 +342,8 @@ def placements(chain, q) -> Placements:
     """The forward kinematics of :func:`frames` by 3 × 3 array products, for the programs that run
     once (the start pose's and the reference path's Newton solves, the design's equilibria): their
     compile time is their cost, and the component-by-component layout of :func:`frames`, written
-    for the compiled loop's speed, is about five times the program (the UR5's start-pose solve:
-    14,021 StableHLO lines and 24.6 s to trace and compile on a 2-core host, against 2,752 lines and
-    7.1 s so; docs/performance.md). The same placements to rounding (tested)."""
+    for the compiled loop's speed, is about five times the program. The same placements to
+    rounding (tested)."""
     Rw = jnp.eye(3, dtype=q.dtype)
     p = jnp.zeros(3, dtype=q.dtype)
     s, c = jnp.sin(q), jnp.cos(q)
@@ -371,9 +371,8 @@ def frames_by_products(chain, q) -> Frames:
     """:func:`frames` (the same fields, in its components-first layout, so that every algorithm
     below reads it) from :func:`placements`, by 3 × 3 array products and nothing stored: the
     design's programs (the closed loop's Jacobian, the held plant's, the rest poses), compiled once
-    and run a few times, trace the rigid-body algorithms on it. The UR5's loop Jacobian
-    (``ur5-polish``): 28,479 → 19,032 StableHLO lines, 20.2 → 14.3 s to compile, the same matrix
-    (docs/performance.md). The same values to rounding (tests/test_urdf.py)."""
+    and run a few times, trace the rigid-body algorithms on it: their programs are about two
+    thirds the size and compile faster, the same matrix. The same values to rounding (tests/test_urdf.py)."""
     pl = placements(chain, q)
     prismatic = np.array([kind == "prismatic" for kind in chain.joint_types])[:, None]
     lin = jnp.where(prismatic, pl.axes, jnp.cross(pl.p, pl.axes))  # S_i = (p_i × a_i, a_i) or (a_i, 0)

@@ -186,7 +186,7 @@ class RigidBodyPlant(ContinuousPlant):
     def initial_q(self, u1_0, elbow_up: bool = True, q_guess=None, within_limits: bool = True):
         """Joint angles with the TRUE end-effector at x1 = u1_0 on the TRUE surface, zero
         penetration (docs/paper-conventions.md, Initial state: elbow up, q2 < 0). One compiled
-        program (a new process lowers each eager operation separately, about 5 ms apiece).
+        program (a new process lowers each eager operation separately).
 
         Cartesian surfaces: the first n − 1 task coordinates of the TRUE arm equal ``u1_0`` and
         the tool point is on the true surface (signed distance 0), solved by damped Newton

@@ -1,7 +1,7 @@
 """Figures and tables of runs, from Trajectories, their tags and results documents only: never a
 controller, a plant or a scenario (a workflow composes its own report text from these).
 
-The figure functions are imported on first use (matplotlib takes 0.5–0.7 s to import), so that
+The figure functions are imported on first use (matplotlib is slow to import), so that
 ``from hinfnn.report.markdown import metrics_table`` or a run without figures does not pay it.
 """
 

@@ -547,7 +547,7 @@ def _log_limits(ax, series, t_end: float):
 
 
 #: ``savefig`` keywords of every PNG hinfnn writes: zlib level 1 instead of matplotlib's 6, the same
-#: pixels in files about 15 % larger, encoded in half the time (docs/performance.md).
+#: pixels in somewhat larger files, encoded in about half the time.
 PNG_OPTIONS = {"pil_kwargs": {"compress_level": 1}}
 
 

@@ -195,7 +195,7 @@ def _path_joints(arm, surf, ref, t, q0):
 def _path_joints_program():
     """The jitted program of :func:`_path_joints`, made once per process (JAX imported on first
     use), so a scenario of a known structure is not traced again: a sweep checks every draw, and a
-    program defined inside the check was traced anew for each (2.2 s per UR5 draw)."""
+    program defined inside the check was traced anew for each."""
     import jax
     import jax.numpy as jnp
 

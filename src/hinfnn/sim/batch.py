@@ -85,9 +85,8 @@ def simulate_many(runs: list[Run], *, progress=None, save_every: int | None = No
     The groups' programs (each group its own) are compiled at once by ``workers`` threads
     (default :func:`default_workers`: one per core; 1: each group compiled and run after the
     other): XLA compiles without Python's lock, so while one group runs or compiles the next
-    compiles. The groups still run one at a time (:data:`_RUNNING`). A scenario's three controllers
-    on a UR5 (three programs, 0.05-s runs, empty cache) take 54–59 s instead of 72–73 on 2 cores,
-    with the same numbers bit for bit (docs/performance.md). Each thread runs in a copy of the caller's
+    compiles. The groups still run one at a time (:data:`_RUNNING`). The numbers are the same bit for
+    bit as compiled one after the other. Each thread runs in a copy of the caller's
     context (:mod:`contextvars`: the loop options). If a group fails or the caller is interrupted,
     the others stop after their current chunk (a compile in progress finishes first) and the error
     is raised.

@@ -574,8 +574,7 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     none of it is computed or recorded, the final J, J_aug and supply are NaN, and the metrics of
     the dissipation inequality are not reported; everything else is the same run (to rounding).
     Under sampled control it is most of what a step costs besides the plant (the law evaluated at
-    RK4's four stages between samples): a 1 kHz UR5 step takes 2.2–2.45 times the plant alone's
-    without it, 4.5–6.3 times with it (docs/performance.md, tenth pass).
+    RK4's four stages between samples; docs/performance.md, "The limits").
     """
     from .._config import require_x64
 
@@ -625,7 +624,7 @@ def stack(items):
 def _stack_leaves(*xs):
     """One leaf of :func:`stack`: by NumPy on the host when every member's leaf is a value (one
     copy to the device), else by ``jnp.stack``. ``jnp.stack`` of B values compiles a program of B
-    operands for each leaf shape: 33 s of a B = 2,048 UR5 batch's first run, 126 s at B = 4,096."""
+    operands for each leaf shape, which took most of a large UR5 batch's first run."""
     if any(isinstance(x, jax.core.Tracer) for x in xs):
         return jnp.stack([jnp.asarray(x) for x in xs])
     return jnp.asarray(np.stack([np.asarray(x) for x in xs]))
@@ -780,7 +779,7 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
     ``single``: the run is simulated alone (:func:`simulate`, or a group of one in
     :func:`~hinfnn.sim.simulate_many`), and its own chunk program is what is traced: ``jax.jit``
     keeps that trace, so the run's first chunk does not trace it again (the memory plan costs no
-    trace; it cost 0.15 s before the paper's H∞ + NN run, 0.3-0.5 s before a UR5 run). Otherwise
+    trace of its own). Otherwise
     (members of a batch, whose program is another) it is one step with RK4's stages rolled (plant
     and controller traced once, not four times: the shapes are the same). Either way the result is
     kept for the process's later runs of the same structure (the same pytree structure and array

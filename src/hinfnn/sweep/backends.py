@@ -4,9 +4,9 @@ worker processes, one per core, or one after the other in this process) or the R
 Each has the same four methods: ``describe``, ``check`` (the draws, in chunks), ``run`` (the
 batch jobs) and ``close``.
 
-Why processes: XLA's CPU runtime runs one batched program on about one core (a UR5 batch of 256
-at 38,000 trajectory-steps/s pinned to one core and unpinned alike; two such processes side by
-side 37,600 and 38,000 each, docs/performance.md), and two executions of a program at once in
+Why processes: XLA's CPU runtime runs one batched program on about one core (a UR5 batch runs
+as fast pinned to one core as unpinned, and two such processes side by side each as fast as one
+alone: docs/performance.md), and two executions of a program at once in
 one process deadlocked in XLA's runtime (tried: threads), so the cores are used by processes.
 """
 
@@ -37,7 +37,7 @@ def available_cores() -> int:
 
 #: Seconds of simulation in one process from which the local backend, left to choose, starts
 #: worker processes: each worker's start (the interpreter, JAX and hinfnn, and its programs found
-#: in the compilation cache) costs about 5–10 s, a loss for a quick trial.
+#: in the compilation cache) costs seconds, a loss for a quick trial.
 PROCESSES_FROM_S = 60.0
 
 

@@ -37,8 +37,7 @@ from .sampling import RunSpec
 from .spec import PER_COORDINATE_METRICS
 
 #: Largest batch by default: past a few hundred members the throughput gains little on one core
-#: (docs/performance.md: a UR5 batch pinned to one core at 42,000 trajectory-steps/s in groups of
-#: 256, 38,800 in one of 1,024; larger batches gain only where XLA spreads their kernels over the
+#: (docs/performance.md; larger batches gain only where XLA spreads their kernels over the
 #: cores that the local backend's workers already use) and a killed sweep loses at most one batch
 #: per worker.
 DEFAULT_MAX_BATCH = 256

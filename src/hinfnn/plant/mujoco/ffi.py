@@ -4,7 +4,7 @@ from JAX's persistent compilation cache like any other (docs/mujoco.md, "How the
 
 A program that calls Python through :func:`jax.pure_callback` (or JAX's internal Python-callback
 custom call) embeds a pointer into this process's table of Python callbacks: JAX never caches it,
-and every process compiles it again (a UR5 run's chunk program: 40–110 s on this machine). An FFI
+and every process compiles it again (a UR5 run's chunk program takes minutes). An FFI
 custom call names its handler instead; XLA finds the handler by that name in the process that runs
 the program. Here the handler is a :mod:`ctypes` function (XLA's C API for FFI handlers, read
 with ctypes structures mirroring ``xla/ffi/api/c_api.h``, API version 0.3) that hands the input
