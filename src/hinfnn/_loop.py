@@ -2,8 +2,8 @@
 
 Each option changes how XLA executes the loop, never what it computes (the numbers agree to
 rounding, most of them bit for bit). docs/performance.md ("The loop's devices") names the benchmark
-line that shows what each one buys; ``python benchmarks/run.py --cases devices arm_devices
-batch_devices arm_batch_devices arm_sampled_devices`` turns each off in turn, in fresh processes.
+line that shows what each one buys; ``python benchmarks/run.py --cases device_run --disable NAME``
+(the paper's arm) or ``--cases arm_run --disable NAME`` (the UR5) turns one off, in a fresh process.
 
 :class:`LoopOptions` is passed to :func:`hinfnn.simulate` (``loop=``) and is part of the key of
 the compiled program: a program traced with some options is never reused with others. While a
