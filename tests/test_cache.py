@@ -294,7 +294,7 @@ def test_cache_command_usage_errors_and_help(capsys):
     assert "examples:" in text and "HINFNN_CACHE_DIR" in text and "--clear" in text
 
 
-# --- the kept programs (hinfnn.sim.programs) ------------------------------------------------------
+# --- the kept programs (hinfnn._programs) ---------------------------------------------------------
 
 
 def test_a_kept_program_is_used_and_one_that_cannot_be_read_is_traced_again(tmp_path, cache_state):

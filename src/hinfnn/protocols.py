@@ -38,7 +38,7 @@ class Measurement:
     3 for a spatial one), in N: what a force/torque sensor at the tool gives once moved to the tool
     point and turned into the base frame. A point contact has no moment about the tool point, so
     this is the whole wrench there. The controller maps it into its own task coordinates with its
-    NOMINAL kinematics (:meth:`hinfnn.model.arm.Arm.task_force`).
+    NOMINAL kinematics (:func:`hinfnn.controllers.law.measured_force`).
     """
 
     q: jax.Array
