@@ -7,8 +7,8 @@ hinfnn function that wrote most of its instructions (read off the module's stack
 ``CHUNK.hlo`` is the text of a compiled chunk (``benchmarks/run.py``'s ``chunk_text``, or XLA's
 ``*.cpu_after_optimizations.txt`` dump). ``--loop stage`` (default) is the body of RK4's rolled
 stages (arms), ``step`` the body of the steps between two samples. It prints the kernels with the
-most operations per output value (a product copied into several consumers shows up there: the
-fifth pass's ``la.stored`` was found this way), then kernels and operations per function.
+most operations per output value (a product copied into several consumers shows up there: that
+is how the need for ``la.stored`` was found), then kernels and operations per function.
 
 The operations are counted per HLO instruction at its full shape: a kernel that slices a fused
 product is charged the whole product, although XLA computes only the elements it reads. The

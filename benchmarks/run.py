@@ -1048,7 +1048,7 @@ def print_report(res: dict) -> None:
         for name, t in res["targets"].items():
             print(f"  {name:<38}{t['measured']:>14,.3f}  target {t['op']} {t['target']:,g}  {mark(t['met'])}")
         if not all(t["met"] for t in res["targets"].values()):
-            print("  (docs/performance.md: where the time of each missed target goes, with the profiles)")
+            print("  (docs/performance.md, \"The limits\": what keeps each missed target missed)")
     for case, r in c.items():
         if "error" in r:
             print(f"\n{case}: {r['error']}")
