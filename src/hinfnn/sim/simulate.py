@@ -681,7 +681,7 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     fields = select(fields)
     info = tuple(infos) if infos else tuple(RunInfo(kind=member(controllers, i).kind) for i in range(B))
     limits = limits if limits is not None else Limits()
-    if B == 1:  # the unbatched program (a vmap over one member runs about 6x slower), then a batch axis
+    if B == 1:  # the unbatched program (a vmap over one member runs slower), then a batch axis
         args, y0, axes = (member(plants, 0), member(controllers, 0), member(references, 0), member(limits, 0)), y0s[0], None
     else:
         args, axes = [], []
