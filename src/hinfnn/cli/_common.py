@@ -16,8 +16,9 @@ class Progress:
     file, a pipe) one line every 10 s, ``LABEL: 12.0 % (10 s, about 73 s left)``. The time left is
     the steps left at the rate since the part's first call, which comes after its first chunk:
     the tracing and compiling before that chunk (most of an arm's first minute) would otherwise be
-    taken for the pace of the run (a short run would say minutes left with seconds to go); until a second call there is no estimate. A call with another total
-    starts a new part of the work (its own bar, rate and time left)."""
+    taken for the pace of the run (a short run would say minutes left with seconds to go); until
+    a second call there is no estimate. A call with another total starts a new part of the work
+    (its own bar, rate and time left)."""
 
     def __init__(self, quiet: bool, label: str, stream=None):
         self.quiet = quiet
