@@ -147,7 +147,8 @@ def test_every_file_path_in_the_docs_and_docstrings_exists():
 
 def test_the_architecture_lists_every_module():
     text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
-    section = text.split("## Module map", 1)[1].split("\n## ", 1)[0]
+    assert "\n## Module map\n" in text, "docs/architecture.md has no section '## Module map'"
+    section = text.split("\n## Module map\n", 1)[1].split("\n## ", 1)[0]
     listed = {p for p in re.findall(r"`([\w/]+\.py)`", section) if not p.startswith("tests/")}
     modules = {str(p.relative_to(SRC)) for p in SRC.rglob("*.py")}
     assert not modules - listed, f"modules missing from docs/architecture.md's module map: {sorted(modules - listed)}"
