@@ -215,7 +215,7 @@ def check_writable(path, *, key: str = "--out") -> None:
     created (its nearest existing parent is checked then)."""
     from ..errors import ConfigError
 
-    path = Path(os.path.abspath(os.path.expanduser(os.fspath(path))))
+    path = Path(os.path.expanduser(os.fspath(path)))
     p = path
     while not p.exists():
         if p.is_symlink():
