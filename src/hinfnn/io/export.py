@@ -86,8 +86,7 @@ def export_target(folder, fmt: str, *, run: str | None = None, out=None) -> Path
         target = target / default_name(fmt, run)
     if target.is_symlink():
         if not target.exists():
-            raise ConfigError(f"{target} is a broken symbolic link (it points to {target.readlink()}); give a new "
-                              "file's path", key=key)
+            check_writable(target, key=key)  # a broken link: refused, saying so
         target = target.resolve()  # the link stays; the file it points to is what is written
     if not target.parent.is_dir():
         raise ConfigError(f"{target.parent} is not an existing folder", key=key)

@@ -7,6 +7,13 @@ SIGTERM) leaves the target as it was. A folder is reserved before anything runs
 (:func:`reserve_output`): a lock file beside it (:class:`FolderLock`) that no second hinfnn process
 can take, for results and sweeps alike. ``.hinfnn-result`` marks a folder hinfnn wrote (and which
 files), so that ``--force`` replaces only such a folder.
+
+The same contract holds for every command that writes (results, sweeps, ``plot``, ``export``):
+reserve and check first (:func:`check_writable`: a read-only disk or a broken link is refused
+before any work), write aside, commit in one step, never touch a file hinfnn did not write
+(:func:`foreign_files`, :func:`owns`). Where a folder cannot be renamed, a mount point or a
+symbolic link to a folder (:func:`commits_inside`), the result is written in a hidden folder
+inside it and committed there (:func:`replace_folder`).
 """
 
 from __future__ import annotations
@@ -81,10 +88,10 @@ MARKER_FORMAT = "hinfnn-result-1"
 #: Longest folder name hinfnn makes from a scenario name, and accepts as the last part of --out.
 MAX_NAME = 80
 _MAX_OUT_NAME = 200
-#: Files a result folder written before the marker existed may hold (recognised by metrics.json).
 #: Prefix of the temporary folder hinfnn writes into inside a folder it cannot rename (a mount
 #: point, a symbolic link): see :func:`replace_folder`.
 INSIDE_PREFIX = ".hinfnn-partial-"
+#: Files a result folder written before the marker existed may hold (recognised by metrics.json).
 _LEGACY_FILES = re.compile(r"(metrics\.json|trajectory\.npz|scenario\.toml|report\.md|[^/]+\.png)\Z")
 
 
@@ -393,8 +400,7 @@ def reserve_output(out, *, command: str = "run", name: str = "result", force: bo
     if path.exists() and not path.is_dir():
         raise _out_error(f"output path {shown} exists and is not a folder")
     if path.is_symlink() and not path.exists():
-        raise _out_error(f"{shown} is a broken symbolic link (it points to {os.readlink(path)}, which does not "
-                         "exist); give an existing folder or a new path")
+        check_writable(shown)  # says it is a broken link
     created = _make_parents(path.parent, shown)
     note = None
     res = None
