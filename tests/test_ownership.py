@@ -124,6 +124,23 @@ def test_export_replaces_its_own_file_and_checks_every_format_first(tmp_path, re
     assert _cli(["export", r, "--csv", "--out", out], capsys)[0] == 0 and out.read_text() == first
 
 
+def test_export_never_overwrites_a_file_that_appears_while_it_writes(tmp_path, result, monkeypatch):
+    from hinfnn.io import export as ex
+
+    out = tmp_path / "t.csv"
+    real = ex.csv_text
+
+    def late(*a, **k):
+        out.write_text("the user's, saved meanwhile")
+        return real(*a, **k)
+
+    monkeypatch.setattr(ex, "csv_text", late)
+    with pytest.raises(H.ConfigError, match="appeared while the table was written"):
+        ex.export(result, "csv", out=out)
+    assert out.read_text() == "the user's, saved meanwhile"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.csv"]
+
+
 def test_export_and_plot_to_a_broken_link_or_a_read_only_disk_exit_2_naming_it(tmp_path, result, capsys):
     r = _copy(result, tmp_path / "r")
     (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")

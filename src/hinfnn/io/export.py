@@ -24,7 +24,7 @@ import io
 from pathlib import Path
 
 from ..errors import ConfigError, LoadError
-from .folders import MARKER, add_to_marker, atomic_write_bytes, atomic_write_text, check_writable, owns
+from .folders import MARKER, add_to_marker, atomic_write, check_writable, owns
 from .formats import table
 from .load import load
 
@@ -109,11 +109,12 @@ def export(folder, fmt: str, *, run: str | None = None, out=None, target: Path |
     result = load(folder)
     target = export_target(folder, fmt, run=run, out=out) if target is None else Path(target)
     data = csv_text(result, run) if fmt == "csv" else parquet_bytes(result, run)
-    try:
-        if fmt == "csv":
-            atomic_write_text(target, data)
-        else:
-            atomic_write_bytes(target, data)
+    data = data.encode("utf-8") if isinstance(data, str) else data
+    try:  # only a file hinfnn wrote is replaced: one that appeared meanwhile is kept
+        atomic_write(target, lambda p: p.write_bytes(data), replace=target.exists() and owns(target))
+    except FileExistsError:
+        raise ConfigError(f"{target} appeared while the table was written; it is kept: give a new file's path",
+                          key="--out" if out is not None else "export") from None
     except OSError as err:
         raise ConfigError(f"cannot write {target}: {err.strerror or err}",
                           key="--out" if out is not None else "export") from None

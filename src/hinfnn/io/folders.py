@@ -45,8 +45,10 @@ def version() -> str:
 # --- atomic files and folders ------------------------------------------------------------------
 
 
-def atomic_write(path: Path, write: Callable[[Path], None]) -> Path:
-    """Call ``write(tmp)`` for a temporary file beside ``path``, then rename it to ``path``."""
+def atomic_write(path: Path, write: Callable[[Path], None], *, replace: bool = True) -> Path:
+    """Call ``write(tmp)`` for a temporary file beside ``path``, then rename it to ``path``.
+    ``replace=False``: ``path`` must not exist when the file is put in place (FileExistsError if
+    one appeared meanwhile: it is never overwritten)."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
     os.close(fd)
@@ -54,11 +56,27 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> Path:
     try:
         write(tmp)
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual mode
-        os.replace(tmp, path)
+        if replace:
+            os.replace(tmp, path)
+        else:
+            _link_new(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
     return path
+
+
+def _link_new(tmp: Path, path: Path) -> None:
+    """Put ``tmp`` at ``path`` only if nothing is there (a hard link fails on an existing name);
+    where the file system has no hard links, a rename after a last look."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise
+    except OSError:
+        if os.path.lexists(path):
+            raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), os.fspath(path)) from None
+        os.replace(tmp, path)
 
 
 def _umask() -> int:
