@@ -321,6 +321,16 @@ def test_a_full_disk_before_the_first_part_leaves_nothing_resume_refuses(tmp_pat
         run_sweep(spec, tmp_path / "empty", max_batch=2)
     assert list((tmp_path / "empty").iterdir()) == []  # the user's folder is kept, empty
     monkeypatch.setattr(store, "write_table", real)
+
+    def no_parts(folder):
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        full()
+
+    monkeypatch.setattr(store, "prepare_folder", no_parts)  # the disk fills up at parts/ itself
+    with pytest.raises(OSError):
+        run_sweep(spec, tmp_path / "s", max_batch=2)
+    assert not (tmp_path / "s").exists()
+    monkeypatch.undo()
     # killed at that moment instead (nothing cleaned up): --resume starts it
     left = tmp_path / "left"
     (left / store.PARTS).mkdir(parents=True)

@@ -218,11 +218,11 @@ def _run(spec, folder, *, backend, address, resume, max_batch, progress, log, co
     be = make_backend(backend, address, workers)  # before writing anything: a missing Ray leaves no folder behind
     ready: dict = {}
     try:
-        store.prepare_folder(folder)
         if manifest is None:
             from ..io import atomic_write_text
 
             try:
+                store.prepare_folder(folder)
                 atomic_write_text(folder / "sweep.toml", spec.to_toml(resolved=True))
                 atomic_write_text(folder / "scenario.toml", spec.base.to_toml())
                 manifest, ready = _plan(spec, runs, by_id, folder, be, n_joints, fingerprint,
@@ -230,9 +230,11 @@ def _run(spec, folder, *, backend, address, resume, max_batch, progress, log, co
             except OSError:  # a full disk, say, before the manifest: leave no folder --resume would refuse
                 store.remove_started(folder, remove_folder=not existed)
                 raise
-        elif max_batch is not None and max_batch != manifest.get("max_batch"):
-            log(f"resuming with the stored plan (batches of at most {manifest.get('max_batch')} runs); "
-                "--batch-size is ignored")
+        else:
+            store.prepare_folder(folder)
+            if max_batch is not None and max_batch != manifest.get("max_batch"):
+                log(f"resuming with the stored plan (batches of at most {manifest.get('max_batch')} runs); "
+                    "--batch-size is ignored")
         result = _execute(spec, manifest, by_id, ready, folder, be, n_joints, progress, log, command, on_part,
                           resume, t_start)
     finally:
