@@ -42,6 +42,9 @@ def _interrupted_exit(code: int, argv) -> int:
 
         sys.stdout.flush()
         sys.stderr.flush()
+        mp = sys.modules.get("multiprocessing.util")
+        if mp is not None:  # a sweep's worker processes: their semaphores released, as a normal exit does
+            mp._run_finalizers(0)
         os._exit(code)
     return code
 

@@ -36,7 +36,7 @@ def plot(args) -> int:
 def export(args) -> int:
     from ..errors import ConfigError
     from ..io import load
-    from ..io.export import csv_text, export
+    from ..io.export import csv_text, export, export_target
 
     formats = [f for f, on in (("csv", args.csv), ("parquet", args.parquet)) if on]
     if not formats:
@@ -49,8 +49,9 @@ def export(args) -> int:
         return 0
     if args.out is not None and len(formats) > 1 and not Path(args.out).is_dir():
         raise ConfigError("with both --csv and --parquet, --out must be a folder", key="--out")
+    targets = {fmt: export_target(folder, fmt, run=args.run, out=args.out) for fmt in formats}  # all, first
     for fmt in formats:
-        print(export(folder, fmt, run=args.run, out=args.out))
+        print(export(folder, fmt, run=args.run, out=args.out, target=targets[fmt]))
     return 0
 
 

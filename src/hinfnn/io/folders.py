@@ -7,6 +7,13 @@ SIGTERM) leaves the target as it was. A folder is reserved before anything runs
 (:func:`reserve_output`): a lock file beside it (:class:`FolderLock`) that no second hinfnn process
 can take, for results and sweeps alike. ``.hinfnn-result`` marks a folder hinfnn wrote (and which
 files), so that ``--force`` replaces only such a folder.
+
+The same contract holds for every command that writes (results, sweeps, ``plot``, ``export``):
+reserve and check first (:func:`check_writable`: a read-only disk or a broken link is refused
+before any work), write aside, commit in one step, never touch a file hinfnn did not write
+(:func:`foreign_files`, :func:`owns`). Where a folder cannot be renamed, a mount point or a
+symbolic link to a folder (:func:`commits_inside`), the result is written in a hidden folder
+inside it and committed there (:func:`replace_folder`).
 """
 
 from __future__ import annotations
@@ -38,8 +45,10 @@ def version() -> str:
 # --- atomic files and folders ------------------------------------------------------------------
 
 
-def atomic_write(path: Path, write: Callable[[Path], None]) -> Path:
-    """Call ``write(tmp)`` for a temporary file beside ``path``, then rename it to ``path``."""
+def atomic_write(path: Path, write: Callable[[Path], None], *, replace: bool = True) -> Path:
+    """Call ``write(tmp)`` for a temporary file beside ``path``, then rename it to ``path``.
+    ``replace=False``: ``path`` must not exist when the file is put in place (FileExistsError if
+    one appeared meanwhile: it is never overwritten)."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
     os.close(fd)
@@ -47,11 +56,27 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> Path:
     try:
         write(tmp)
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual mode
-        os.replace(tmp, path)
+        if replace:
+            os.replace(tmp, path)
+        else:
+            _link_new(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
     return path
+
+
+def _link_new(tmp: Path, path: Path) -> None:
+    """Put ``tmp`` at ``path`` only if nothing is there (a hard link fails on an existing name);
+    where the file system has no hard links, a rename after a last look."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise
+    except OSError:
+        if os.path.lexists(path):
+            raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), os.fspath(path)) from None
+        os.replace(tmp, path)
 
 
 def _umask() -> int:
@@ -81,6 +106,9 @@ MARKER_FORMAT = "hinfnn-result-1"
 #: Longest folder name hinfnn makes from a scenario name, and accepts as the last part of --out.
 MAX_NAME = 80
 _MAX_OUT_NAME = 200
+#: Prefix of the temporary folder hinfnn writes into inside a folder it cannot rename (a mount
+#: point, a symbolic link): see :func:`replace_folder`.
+INSIDE_PREFIX = ".hinfnn-partial-"
 #: Files a result folder written before the marker existed may hold (recognised by metrics.json).
 _LEGACY_FILES = re.compile(r"(metrics\.json|trajectory\.npz|scenario\.toml|report\.md|[^/]+\.png)\Z")
 
@@ -137,19 +165,39 @@ def _legacy_result(folder: Path) -> bool:
     return isinstance(doc, dict) and str(doc.get("format", "")).startswith("hinfnn-metrics")
 
 
+def marker_damaged(folder: Path) -> bool:
+    """Whether ``folder`` has a marker file that hinfnn cannot read (cut, or not hinfnn's)."""
+    folder = Path(folder)
+    return (folder / MARKER).is_file() and read_marker(folder) is None
+
+
+def _temporary(name: str) -> bool:
+    """hinfnn's own temporary entries inside a folder it commits into (:func:`replace_folder`)."""
+    return name.rstrip("/").startswith(INSIDE_PREFIX)
+
+
 def foreign_files(folder: Path) -> list[str]:
     """The entries of ``folder`` that hinfnn did not write (folders end with ``/``): all of them
     for a folder without a marker, those the marker does not list otherwise. A result folder
-    written before markers existed is recognised by its metrics.json and hinfnn's file names."""
+    written before markers existed, or whose marker is damaged (cut), is recognised by its
+    metrics.json and hinfnn's file names. The marker itself and hinfnn's temporary folders of
+    an interrupted commit are hinfnn's."""
     folder = Path(folder)
-    names = _entries(folder)
+    names = [n for n in _entries(folder) if not _temporary(n)]
     marker = read_marker(folder)
     if marker is not None:
         owned = {str(f) for f in marker["files"]} | {MARKER}
         return [n for n in names if n not in owned]
     if _legacy_result(folder):
-        return [n for n in names if not _LEGACY_FILES.match(n)]
+        return [n for n in names if not _LEGACY_FILES.match(n) and not (n == MARKER and marker_damaged(folder))]
     return names
+
+
+def owns(path: Path) -> bool:
+    """Whether the file ``path`` is one hinfnn wrote: listed in its folder's marker (or, in a
+    result folder written before markers, one of hinfnn's file names)."""
+    path = Path(path)
+    return path.parent.is_dir() and path.name not in foreign_files(path.parent)
 
 
 def write_marker(folder: Path, *, kind: str, command: str, files=None) -> Path:
@@ -183,6 +231,37 @@ def _out_error(message: str) -> Exception:
     from ..errors import ConfigError
 
     return ConfigError(message, key="--out")
+
+
+def check_writable(path, *, key: str = "--out") -> None:
+    """Refuse, before any work, a place hinfnn could not write to (:class:`~hinfnn.errors.ConfigError`
+    keyed ``key``): a broken symbolic link, a path inside a file, a folder on a read-only disk or
+    without write permission. ``path`` is a folder that will be written into (if it exists) or
+    created (its nearest existing parent is checked then)."""
+    from ..errors import ConfigError
+
+    path = Path(os.path.expanduser(os.fspath(path)))
+    p = path
+    while not p.exists():
+        if p.is_symlink():
+            raise ConfigError(f"{p} is a broken symbolic link (it points to {os.readlink(p)}, which does not "
+                              "exist); give an existing folder or a new path", key=key)
+        p = p.parent
+    if not p.is_dir():
+        raise ConfigError(f"{p} is a file, not a folder" + (f" (in {path})" if p != path else ""), key=key)
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".hinfnn-probe-", dir=p))  # made and removed: we can write there
+    except OSError as err:
+        raise ConfigError(f"cannot write in {p}: {err.strerror or err}; give a folder hinfnn may write to",
+                          key=key) from None
+
+
+def commits_inside(target: Path) -> bool:
+    """Whether a complete folder is put at ``target`` by moving its files into it rather than by
+    renaming the folder: ``target`` is a mount point (a rename over it fails with EBUSY, one
+    into it with EXDEV) or a symbolic link to a folder (the link is kept, its folder written)."""
+    target = Path(target)
+    return target.is_dir() and (target.is_symlink() or os.path.ismount(target))
 
 
 def _pid_alive(pid: int) -> bool:
@@ -338,6 +417,8 @@ def reserve_output(out, *, command: str = "run", name: str = "result", force: bo
         raise _out_error(f"the folder name is {len(path.name)} characters long; at most {_MAX_OUT_NAME}")
     if path.exists() and not path.is_dir():
         raise _out_error(f"output path {shown} exists and is not a folder")
+    if path.is_symlink() and not path.exists():
+        check_writable(shown)  # says it is a broken link
     created = _make_parents(path.parent, shown)
     note = None
     res = None
@@ -373,12 +454,16 @@ def reserve_output(out, *, command: str = "run", name: str = "result", force: bo
                 res.release(keep_parents=True)
                 res = None
                 listed = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
-                raise _out_error(f"{shown} holds files hinfnn did not write ({listed}); --force replaces only a "
-                                 "folder hinfnn wrote: choose another --out, or move those files away")
+                damaged = (f" (its {MARKER}, which lists what hinfnn wrote, is damaged: only hinfnn's usual "
+                           "file names count as hinfnn's)") if marker_damaged(cand) else ""
+                raise _out_error(f"{shown} holds files hinfnn did not write ({listed}){damaged}; --force replaces "
+                                 "only a folder hinfnn wrote: choose another --out, or move those files away")
             res.release(keep_parents=True)
             res = None
             if note is None:
                 note = f"{shown} is not empty; writing to " + "{new} instead (use --force to replace it)"
+        if commits_inside(cand):  # the result is written inside it: that must be possible
+            check_writable(cand)
     except BaseException:
         if res is not None:
             res.release(keep_parents=True)
@@ -452,7 +537,14 @@ class OutputFolder:
     def __enter__(self) -> "OutputFolder":
         try:
             self.target.parent.mkdir(parents=True, exist_ok=True)
-            self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.partial-", dir=self.target.parent))
+            if commits_inside(self.target):
+                self.path = Path(tempfile.mkdtemp(prefix=INSIDE_PREFIX, dir=self.target))
+            else:
+                self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.partial-", dir=self.target.parent))
+        except OSError as err:
+            if self.reservation is not None:
+                self.reservation.release()
+            raise _out_error(f"cannot write in {err.filename or self.target.parent}: {err.strerror or err}") from None
         except BaseException:
             if self.reservation is not None:
                 self.reservation.release()
@@ -485,7 +577,7 @@ class OutputFolder:
             # someone put files there while we computed: keep them, take the next free name
             res = reserve_output(self.target, force=False)
             try:
-                os.replace(self.path, res.target)
+                _move_entry(self.path, Path(res.target))
             finally:
                 res.release(keep_parents=True)
             self.moved_to = res.target
@@ -496,24 +588,85 @@ class OutputFolder:
 def replace_folder(new: Path, target: Path) -> None:
     """Put the complete folder ``new`` at ``target`` in one step: renamed in, or over an existing
     folder swapped with it atomically (the old one is then deleted), with SIGINT and SIGTERM
-    blocked meanwhile."""
+    blocked meanwhile. Where the folder cannot be renamed (``target`` a mount point or a symbolic
+    link, :func:`commits_inside`, or a rename that fails with EBUSY or EXDEV), the result is
+    committed inside it instead (:func:`_commit_into`)."""
+    new, target = Path(new), Path(target)
     blocked = {signal.SIGINT, signal.SIGTERM}
     old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, blocked)
     try:
-        if not target.exists():
-            os.replace(new, target)
-        elif _exchange(new, target):
-            shutil.rmtree(new, ignore_errors=True)  # now the old one
-        else:
-            backup = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
-            backup.rmdir()
-            os.replace(target, backup)
-            os.replace(new, target)
-            shutil.rmtree(backup, ignore_errors=True)
+        if commits_inside(target) or new.parent.resolve() == target.resolve():
+            _commit_into(new, target)
+            return
+        try:
+            if not os.path.lexists(target):
+                os.replace(new, target)
+            elif _exchange(new, target):
+                shutil.rmtree(new, ignore_errors=True)  # now the old one
+            else:
+                backup = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
+                backup.rmdir()
+                os.replace(target, backup)
+                os.replace(new, target)
+                shutil.rmtree(backup, ignore_errors=True)
+        except OSError as err:
+            if err.errno not in (errno.EBUSY, errno.EXDEV) or not target.is_dir():
+                raise
+            _commit_into(new, target)  # a mount point os.path.ismount does not see (a bind mount)
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
 
 
+def _commit_into(new: Path, dest: Path) -> None:
+    """Commit the complete folder ``new`` inside the existing folder ``dest`` (which hinfnn holds
+    the lock of, and whose entries are all hinfnn's): a marker listing the old and the new files
+    first (so that an interruption leaves a folder ``--force`` still recognises), then the old
+    entries removed, the new ones moved in, the new marker last."""
+    dest = Path(dest)
+    new = Path(new)
+    names = sorted(p.name for p in new.iterdir() if p.name != MARKER)
+    inside = new.parent.resolve() == dest.resolve()
+    old = [p for p in dest.iterdir() if p.name != MARKER and not (inside and p.name == new.name)]
+    marker = read_marker(new)
+    if marker is not None and old:
+        both = {n for n in _entries(dest) if n != MARKER and not _temporary(n)} | set(marker["files"])
+        atomic_write_text(dest / MARKER, json.dumps({**marker, "files": sorted(both)}, indent=2) + "\n")
+    for p in old:
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        else:
+            p.unlink()
+    for name in names + ([MARKER] if marker is not None else []):
+        _move_entry(new / name, dest / name)
+    shutil.rmtree(new, ignore_errors=True)
+
+
+def _move_entry(src: Path, dst: Path) -> None:
+    """Rename ``src`` to ``dst`` (which does not exist, or is a file); across file systems
+    (EXDEV) a copy beside ``dst`` is renamed into place and ``src`` deleted."""
+    try:
+        os.replace(src, dst)
+        return
+    except OSError as err:
+        if err.errno != errno.EXDEV:
+            raise
+    tmp = Path(tempfile.mkdtemp(prefix=INSIDE_PREFIX, dir=dst.parent))
+    try:
+        copy = tmp / dst.name
+        if src.is_dir() and not src.is_symlink():
+            shutil.copytree(src, copy, symlinks=True)
+        else:
+            shutil.copy2(src, copy, follow_symlinks=False)
+        os.replace(copy, dst)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    if src.is_dir() and not src.is_symlink():
+        shutil.rmtree(src)
+    else:
+        src.unlink()
+
+
 __all__ = ["atomic_write", "atomic_write_text", "atomic_write_bytes", "safe_name", "timestamp", "default_output",
            "MARKER", "read_marker", "write_marker", "add_to_marker", "foreign_files", "FolderLock", "Reservation",
-           "reserve_output", "OutputFolder", "replace_folder", "version"]
+           "reserve_output", "OutputFolder", "replace_folder", "version", "check_writable", "commits_inside", "owns",
+           "marker_damaged"]

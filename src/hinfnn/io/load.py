@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -135,6 +136,23 @@ def load(path: str | Path) -> SavedResult:
     return SavedResult(trajectories=runs, scenario=scenario, metrics=metrics, version=ver, path=path)
 
 
+def _check_metrics_format(m_file: Path, fmt) -> None:
+    """A metrics document hinfnn can read: no ``format`` (hand-written), or ``hinfnn-metrics-N``
+    with N at most this hinfnn's; a newer one (or another format) is refused, not read silently."""
+    from ..results import FORMAT as METRICS_FORMAT
+
+    if fmt is None:
+        return
+    mine = int(METRICS_FORMAT.rsplit("-", 1)[1])
+    m = re.fullmatch(r"hinfnn-metrics-(\d+)", str(fmt))
+    if m is None:
+        raise LoadError(f"{m_file} is not a hinfnn metrics file (format {fmt!r}; this hinfnn reads "
+                        f"hinfnn-metrics-1 to {METRICS_FORMAT})")
+    if int(m.group(1)) > mine:
+        raise LoadError(f"{m_file} was written by a newer hinfnn (format {fmt}; this hinfnn reads up to "
+                        f"{METRICS_FORMAT}): upgrade hinfnn to read it")
+
+
 def load_metrics(path: str | Path) -> dict:
     """The results document (``metrics.json``) of a result folder, or of the file given, checked
     for the layout hinfnn writes (a ``runs`` list of objects with ``name`` and ``metrics``).
@@ -152,6 +170,7 @@ def load_metrics(path: str | Path) -> dict:
         raise LoadError(f"{m_file} cannot be read: {err.strerror or err}") from None
     if not isinstance(metrics, dict) or not isinstance(metrics.get("runs"), list):
         raise LoadError(f"{m_file} is not a hinfnn metrics file (no \"runs\" list)")
+    _check_metrics_format(m_file, metrics.get("format"))
     for i, run in enumerate(metrics["runs"]):
         if not isinstance(run, dict) or not isinstance(run.get("name"), str) or not isinstance(run.get("metrics"), dict):
             raise LoadError(f"{m_file} is not a hinfnn metrics file (run {i} has no \"name\" and \"metrics\")")

@@ -28,7 +28,8 @@ def replot(folder, *, only: Sequence[str] | None = None, out=None,
     replaced); ``zoom_windows``: the two (start, end) times of the zoom panels. Returns the
     paths written. The study's own figures were drawn from every step; redrawn ones use the
     stored samples (``simulation.output_interval``)."""
-    from ..io import add_to_marker, foreign_files, load
+    from ..io import MARKER, add_to_marker, foreign_files, load
+    from ..io.folders import check_writable
 
     folder = Path(folder)
     result = load(folder)
@@ -40,19 +41,22 @@ def replot(folder, *, only: Sequence[str] | None = None, out=None,
             raise ConfigError(f"unknown figure(s) {', '.join(unknown)}; this {'study' if study else 'result'} "
                               f"has {', '.join(names)}", key="--figures")
     dest = Path(out) if out is not None else (folder if folder.is_dir() else folder.parent)
-    same = dest.exists() and dest.resolve() == (folder if folder.is_dir() else folder.parent).resolve()
-    if not same and dest.exists():
+    key = "--out" if out is not None else "plot"
+    if dest.exists() or dest.is_symlink():
         if not dest.is_dir():
-            raise ConfigError(f"{dest} exists and is not a folder", key="--out")
-        pngs = {f"{n}{s}.png" for n in names for s in (("", "_damped") if study else ("",))}
+            raise ConfigError(f"{dest} exists and is not a folder" + (" (a broken symbolic link)" if not dest.exists()
+                                                                      else ""), key=key)
+        pngs = {f"{n}{s}.png" for n in (only or names) for s in (("", "_damped") if study else ("",))}
         clash = sorted(set(foreign_files(dest)) & pngs)
         if clash:
-            raise ConfigError(f"{dest} holds {', '.join(clash)} that hinfnn did not write; choose another --out",
-                              key="--out")
+            raise ConfigError(f"{dest} holds {', '.join(clash)} that hinfnn did not write (not listed in its "
+                              f"{MARKER}); plot replaces only figures hinfnn drew: choose another --out, or move "
+                              "them away", key=key)
+    check_writable(dest, key=key)
     try:
         dest.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        raise ConfigError(f"cannot create folder {dest}: {err.strerror or err}", key="--out") from None
+        raise ConfigError(f"cannot create folder {dest}: {err.strerror or err}", key=key) from None
     if study:  # the study's runs by their contact tag (their ``figures`` tag says which figures)
         written = []
         for contact, suffix in (("undamped", ""), ("damped", "_damped")):

@@ -73,17 +73,23 @@ def prepare_output(out, spec: SweepSpec, *, resume: bool = False, force: bool = 
     sweep goes to ``OUT-2``, ``OUT-3`` … (said in ``note``), unless ``force``: then a folder a sweep
     wrote is replaced, like every other command's result, only once the new sweep is complete (the
     new one runs in ``.OUT.hinfnn-new`` beside it; an interrupted ``--force`` sweep is continued by
-    the same command), and a folder with files a sweep did not write is refused, naming them."""
+    the same command), and a folder with files a sweep did not write is refused, naming them. Where
+    ``out`` cannot be renamed (a mount point, a symbolic link: :func:`hinfnn.io.commits_inside`), the
+    new sweep runs in a hidden folder inside it and is committed there. A place that cannot be written
+    (a read-only disk, a broken link) is refused here, as is a missing pyarrow."""
     from ..io import reserve_output
+    from ..io.folders import INSIDE_PREFIX, check_writable, commits_inside
 
     if resume and force:
         raise ConfigError("--resume continues the sweep in OUT, --force replaces it: give one", key="--force")
+    store.require_pyarrow()
     out = Path(out) if out is not None else Path("results") / spec.name
     if str(out).strip() in ("", ".") or out.resolve() in (Path.cwd(), *Path.cwd().parents):
         raise ConfigError(f"{str(out)!r} is the current folder or one that contains it; give a new folder's name",
                           key="--out")
     if out.exists() and not out.is_dir():
         raise ConfigError(f"output path {out} exists and is not a folder", key="--out")
+    check_writable(out)
     if resume:
         if not out.exists():
             raise ConfigError(f"nothing to resume: {out} does not exist (run the sweep without --resume to start it)",
@@ -100,7 +106,7 @@ def prepare_output(out, spec: SweepSpec, *, resume: bool = False, force: bool = 
             shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
             raise ConfigError(f"{out} holds files a sweep did not write ({shown}); --force replaces only a sweep's "
                               "folder: choose another --out, or move those files away", key="--out")
-        work = out.with_name(f".{out.name}.hinfnn-new")
+        work = out / f"{INSIDE_PREFIX}sweep" if commits_inside(out) else out.with_name(f".{out.name}.hinfnn-new")
         again = store.is_sweep_folder(work) and store.read_manifest(work).get("fingerprint") == spec.fingerprint()
         if work.exists() and not again:
             import shutil
@@ -115,8 +121,10 @@ def prepare_output(out, spec: SweepSpec, *, resume: bool = False, force: bool = 
 
 
 def _interrupted_start(folder: Path, spec: SweepSpec) -> bool:
-    """A sweep killed while checking its draws (sweep.toml and scenario.toml written, no manifest)."""
-    return (folder / "scenario.toml").exists() and _same_base(folder, spec)
+    """A sweep stopped before its manifest was written (killed while checking its draws, or a full
+    disk): the folder holds only what a sweep writes first (:func:`hinfnn.sweep.store.started_only`),
+    and its scenario.toml, if written, is this sweep's."""
+    return store.started_only(folder) and (not (folder / "scenario.toml").exists() or _same_base(folder, spec))
 
 
 def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str | None = None, resume: bool = False,
@@ -143,26 +151,37 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
     """
     from .._config import require_x64
     from ..io import FolderLock
+    from ..io.folders import check_writable
 
     require_x64()
+    store.require_pyarrow()
     t_start = time.perf_counter()
     folder = Path(folder)
     log = log or (lambda m: None)
     progress = progress or (lambda done, total, what="": None)
     if folder.exists() and not folder.is_dir():
         raise ConfigError(f"output path {folder} exists and is not a folder", key="--out")
-    locks = [FolderLock(folder)] + ([FolderLock(replaces)] if replaces is not None else [])
+    check_writable(folder)
+    inside = replaces is not None and folder.parent.resolve() == Path(replaces).resolve()
+    locks = ([] if inside else [FolderLock(folder)]) + ([FolderLock(replaces)] if replaces is not None else [])
+    existed = folder.exists()
     try:
-        folder.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            folder.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise ConfigError(f"cannot create {folder.parent}: {err.strerror or err}", key="--out") from None
         for lock in locks:
-            owner = lock.acquire()
+            try:
+                owner = lock.acquire()
+            except OSError as err:
+                raise ConfigError(f"cannot write in {lock.path.parent}: {err.strerror or err}", key="--out") from None
             if owner is not None:
                 raise ConfigError(f"{lock.target} is in use by another hinfnn process"
                                   + (f" (pid {owner})" if owner > 0 else "") + "; wait for it to finish or stop it first",
                                   key="--out")
         result = _run(spec, folder, backend=backend, address=address, resume=resume, max_batch=max_batch,
                       progress=progress, log=log, command=command, report=report, on_part=on_part, t_start=t_start,
-                      workers=workers)
+                      workers=workers, existed=existed)
         if replaces is not None:
             store.replace_folder(folder, replaces)
             result.folder = Path(replaces)
@@ -173,7 +192,7 @@ def run_sweep(spec: SweepSpec, folder, *, backend: str = "local", address: str |
 
 
 def _run(spec, folder, *, backend, address, resume, max_batch, progress, log, command, report, on_part,
-         t_start, workers=None) -> SweepResult:
+         t_start, workers=None, existed=True) -> SweepResult:
     from .. import __version__
 
     runs = all_runs(spec)
@@ -199,17 +218,23 @@ def _run(spec, folder, *, backend, address, resume, max_batch, progress, log, co
     be = make_backend(backend, address, workers)  # before writing anything: a missing Ray leaves no folder behind
     ready: dict = {}
     try:
-        store.prepare_folder(folder)
         if manifest is None:
             from ..io import atomic_write_text
 
-            atomic_write_text(folder / "sweep.toml", spec.to_toml(resolved=True))
-            atomic_write_text(folder / "scenario.toml", spec.base.to_toml())
-            manifest, ready = _plan(spec, runs, by_id, folder, be, n_joints, fingerprint,
-                                    max_batch or DEFAULT_MAX_BATCH, progress, log, command, __version__)
-        elif max_batch is not None and max_batch != manifest.get("max_batch"):
-            log(f"resuming with the stored plan (batches of at most {manifest.get('max_batch')} runs); "
-                "--batch-size is ignored")
+            try:
+                store.prepare_folder(folder)
+                atomic_write_text(folder / "sweep.toml", spec.to_toml(resolved=True))
+                atomic_write_text(folder / "scenario.toml", spec.base.to_toml())
+                manifest, ready = _plan(spec, runs, by_id, folder, be, n_joints, fingerprint,
+                                        max_batch or DEFAULT_MAX_BATCH, progress, log, command, __version__)
+            except OSError:  # a full disk, say, before the manifest: leave no folder --resume would refuse
+                store.remove_started(folder, remove_folder=not existed)
+                raise
+        else:
+            store.prepare_folder(folder)
+            if max_batch is not None and max_batch != manifest.get("max_batch"):
+                log(f"resuming with the stored plan (batches of at most {manifest.get('max_batch')} runs); "
+                    "--batch-size is ignored")
         result = _execute(spec, manifest, by_id, ready, folder, be, n_joints, progress, log, command, on_part,
                           resume, t_start)
     finally:
@@ -287,6 +312,8 @@ def _execute(spec, manifest, by_id, ready, folder, be, n_joints, progress, log, 
         raise LoadError(f"{folder / store.PLAN} does not belong to {folder / store.MANIFEST}")
     batches = [Batch(id=i, group=g, size=n, runs=tuple(r), shared=bool(sh)) for i, g, n, r, sh in plan["batches"]]
     done = store.done_batches(folder)
+    if resume:
+        store.check_parts(folder, done)  # a damaged part stops here, before any work, saying what to do
     pending = [b for b in batches if b.id not in done]
     total = sum(len(b.runs) for b in batches)
     finished = sum(len(b.runs) for b in batches if b.id in done)

@@ -31,6 +31,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from ..io import LoadError, atomic_write, atomic_write_text, dumps_json
+from ..io.folders import INSIDE_PREFIX
 from ..metrics import METRIC_KEYS, UNITS
 from .spec import BOOL_METRICS, PER_COORDINATE_METRICS, PER_JOINT_METRICS
 
@@ -176,13 +177,83 @@ def write_plan(folder: Path, plan: dict) -> None:
 
 
 def read_plan(folder: Path) -> dict:
+    """The plan of a sweep folder (LoadError if missing, cut or not a plan: the sweep cannot be
+    resumed then, only started again)."""
     path = Path(folder) / PLAN
+    again = "; the sweep's batches are unknown without it: start the sweep again (--force)"
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        doc = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise LoadError(f"{folder} has no {PLAN}") from None
+        raise LoadError(f"{folder} has no {PLAN}{again}") from None
     except (json.JSONDecodeError, UnicodeDecodeError, OSError) as err:
-        raise LoadError(f"{path} is not valid JSON: {err}") from None
+        raise LoadError(f"{path} is damaged (not valid JSON: {err}){again}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("batches"), list) or \
+            not all(isinstance(b, list) and len(b) == 5 for b in doc["batches"]):
+        raise LoadError(f"{path} is not a sweep's plan (no list of batches){again}")
+    return doc
+
+
+def require_pyarrow() -> None:
+    """Refuse a sweep before anything is created when pyarrow, which writes its table, is missing."""
+    try:
+        import pyarrow  # noqa: F401
+        import pyarrow.parquet  # noqa: F401
+    except ImportError:
+        raise ConfigError("a sweep writes its table with pyarrow, which is not installed: pip install "
+                          "'hinfnn[sweep]'", key="sweep") from None
+
+
+def check_parts(folder: Path, batches) -> None:
+    """Every finished part of ``batches`` readable (its Parquet footer intact), or a LoadError that
+    names the damaged part and says that deleting it lets ``--resume`` compute its batch again."""
+    import pyarrow.parquet as pq
+
+    for b in sorted(batches):
+        p = Path(folder) / PARTS / part_name(b)
+        try:
+            pq.read_metadata(p)
+        except Exception as err:  # noqa: BLE001 - pyarrow raises several types for damaged files
+            raise LoadError(_damaged_part(p, err)) from None
+
+
+def _damaged_part(p: Path, err: Exception) -> str:
+    fix = ("delete it and run the same command with --resume: its batch is computed again"
+           if p.name.startswith("batch-") else "start the sweep again (--force)")
+    return f"{p} is damaged (cut, or not Parquet: {type(err).__name__}: {err}); {fix}"
+
+
+#: What a sweep writes before its manifest (a sweep stopped then holds nothing else).
+_STARTED = {"sweep.toml", "scenario.toml", PLAN, PARTS}
+
+
+def started_only(folder: Path) -> bool:
+    """Whether ``folder`` holds only what a sweep writes before its manifest (and no manifest)."""
+    folder = Path(folder)
+    if not folder.is_dir() or is_sweep_folder(folder):
+        return False
+    names = {p.name for p in folder.iterdir() if not p.name.endswith(".part")}
+    parts = folder / PARTS
+    inside = {p.name for p in parts.iterdir() if not p.name.endswith(".part")} if parts.is_dir() else set()
+    return bool(names) and names <= _STARTED and inside <= {INVALID_PART}
+
+
+def remove_started(folder: Path, *, remove_folder: bool) -> None:
+    """Remove what a sweep wrote before its manifest (and the folder, if it made it)."""
+    folder = Path(folder)
+    if not started_only(folder) and not (folder.is_dir() and not any(folder.iterdir())):
+        return
+    clean_temporaries(folder)
+    for name in ("sweep.toml", "scenario.toml", PLAN, f"{PARTS}/{INVALID_PART}", PARTS):
+        p = folder / name
+        try:
+            p.rmdir() if p.is_dir() else p.unlink()
+        except OSError:
+            pass
+    if remove_folder:
+        try:
+            folder.rmdir()
+        except OSError:
+            pass
 
 
 def done_batches(folder: Path) -> set[int]:
@@ -224,7 +295,7 @@ def read_parts(folder: Path):
         try:
             tables.append(pq.read_table(p))
         except Exception as err:  # noqa: BLE001 - pyarrow raises several types for damaged files
-            raise LoadError(f"{p} is not a readable Parquet part: {type(err).__name__}: {err}") from None
+            raise LoadError(_damaged_part(p, err)) from None
     if not tables:
         return None
     table = pa.concat_tables(tables, promote_options="none")
@@ -263,6 +334,7 @@ def load_sweep(path):
             except Exception as err:  # noqa: BLE001
                 raise LoadError(f"{results} is not readable: {type(err).__name__}: {err}") from None
         else:
+            read_plan(folder)  # an unfinished sweep's rows are only as good as its plan: a damaged one says so
             table = read_parts(folder)
             if table is None:
                 raise LoadError(f"{folder} holds no finished runs yet")
@@ -285,7 +357,8 @@ def foreign_files(folder: Path) -> list[str]:
     any): a sweep writes its manifest, plan, parts, table, report, figures, scenario and spec."""
     ours = {MANIFEST, PLAN, PARTS, RESULTS, INVALID_PART, "report.md", "scenario.toml", "sweep.toml"}
     return sorted(p.name for p in Path(folder).iterdir()
-                  if p.name not in ours and not (p.suffix == ".png" and p.is_file()) and not p.name.startswith(".tmp"))
+                  if p.name not in ours and not (p.suffix == ".png" and p.is_file()) and not p.name.startswith(".tmp")
+                  and not p.name.startswith(INSIDE_PREFIX))
 
 
 def prepare_folder(folder: Path) -> None:

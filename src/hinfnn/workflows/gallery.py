@@ -32,8 +32,8 @@ GALLERY = ("planar3-drum", "ur5-table", "ur5-sphere")
 
 def gallery_scenarios(overrides=(), only=None) -> list[Scenario]:
     """The gallery's scenarios with ``overrides`` applied to each (every check run first, so a bad
-    override fails before anything is simulated)."""
-    names = list(only) if only else list(GALLERY)
+    override fails before anything is simulated). A name given twice in ``only`` is run once."""
+    names = list(dict.fromkeys(only)) if only else list(GALLERY)
     unknown = [n for n in names if n not in GALLERY]
     if unknown:
         from ..errors import ConfigError
