@@ -74,7 +74,7 @@ def prepare_output(out, spec: SweepSpec, *, resume: bool = False, force: bool = 
     wrote is replaced, like every other command's result, only once the new sweep is complete (the
     new one runs in ``.OUT.hinfnn-new`` beside it; an interrupted ``--force`` sweep is continued by
     the same command), and a folder with files a sweep did not write is refused, naming them. Where
-    ``out`` cannot be renamed (a mount point, a symbolic link: :func:`hinfnn.io.commits_inside`), the
+    ``out`` cannot be renamed (a mount point, a symbolic link: :func:`hinfnn.io.folders.commits_inside`), the
     new sweep runs in a hidden folder inside it and is committed there. A place that cannot be written
     (a read-only disk, a broken link) is refused here, as is a missing pyarrow."""
     from ..io import reserve_output
