@@ -125,7 +125,10 @@ class Carry:
     ``tau_peak``/``tau_tv``/``tau_prev``: max |τ_i| and Σ|τ_i(t_k) − τ_i(t_{k−1})| over the steps
     since the last record, and τ at the previous step (NaN before the first); ``sums``/``maxes``:
     the recorder's step summaries over those steps. Records taken every ``save_every`` steps thus
-    still give the exact peak, total variation and RMS values over every step.
+    still give the exact peak, total variation and RMS values over every step. A run that stops
+    counts the step that stopped it and none after it: the first record after the stop summarises
+    the steps from the previous record up to the stop (its other entries are the frozen state, the
+    state at the start of that step), so the metrics of a partial run cover every step it ran.
     """
 
     y: SimState
@@ -214,10 +217,16 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         y_in = c.y
         y_new, aux = advance(t, y_in, plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt), c.held, take=first)
         tau = aux["tau"]
-        rec = dict(aux, tau_abs_max=jnp.maximum(c.tau_peak, jnp.abs(tau)),
-                   tau_variation=c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev)),
-                   **{name: c.sums[name] + fn(aux) for name, fn in STEP_SUMS.items()},
-                   **{name: jnp.maximum(c.maxes[name], fn(aux)) for name, fn in STEP_MAXES.items()})
+        running = c.status == 0
+
+        def own(new, old):  # a stopped run's steps (its frozen state) add nothing to the summaries
+            return jnp.where(running, new, old)
+
+        rec = dict(aux, tau_abs_max=own(jnp.maximum(c.tau_peak, jnp.abs(tau)), c.tau_peak),
+                   tau_variation=own(c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev)),
+                                     c.tau_tv),
+                   **{name: own(c.sums[name] + fn(aux), c.sums[name]) for name, fn in STEP_SUMS.items()},
+                   **{name: own(jnp.maximum(c.maxes[name], fn(aux)), c.maxes[name]) for name, fn in STEP_MAXES.items()})
         tau_peak = jnp.max(jnp.abs(tau))
         pen = aux["penetration"]
         finite_parts = (all_finite(y_new.plant), all_finite(y_new.xc), all_finite(y_new.acc))
@@ -231,7 +240,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         first_fail = (status == 0) & (code != 0)
         status = jnp.where(status == 0, code, status)
         keep_old = (status != 0) | ~active
-        count = active & ~first
+        count = active & ~first & running  # the step that stops the run is counted, none after it
 
         def stat(new, old):  # restart at a record, else accumulate over the counted steps
             return jnp.where(first, jnp.zeros_like(old), jnp.where(count, new, old))
