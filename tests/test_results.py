@@ -496,6 +496,13 @@ def test_plot_redraws_the_same_figures(tmp_path, result, capsys):
     assert sorted(p.name for p in other.iterdir()) == ["lambda.png", "tau.png"]
     assert cli.main(["plot", str(out), "--zoom", "0.02:0.01,1:2"]) == 2
     assert "--zoom: must be two time windows" in capsys.readouterr().err
+    # a window outside the 0.05-s runs would draw empty panels: refused, one line, nothing drawn
+    (other / "tau.png").unlink()
+    assert cli.main(["plot", str(out), "--zoom", "0.01:0.02,1:2", "--out", str(other), "--figures", "tau"]) == 2
+    err = capsys.readouterr().err
+    assert _one_line(err) == ("hinfnn: ConfigError: --zoom: the window 1:2 s holds no stored sample of the runs "
+                              "(they cover 0 to 0.05 s); give windows inside the runs")
+    assert not (other / "tau.png").exists()
     assert cli.main(["plot", str(out), "--figures", "nope"]) == 2
     assert "--figures: unknown figure(s) nope" in capsys.readouterr().err
     (tmp_path / "mine").mkdir()

@@ -73,6 +73,7 @@ def check(sc) -> None:
     constraint = setup.constraint
     m, k = constraint.m, constraint.k
     _check_reference_lengths(sc, m, k)
+    _check_force_reference(sc, k, constraint.lambda_unit)
     q0 = setup.q0
     if not np.all(np.isfinite(q0)):
         if cartesian:
@@ -119,6 +120,24 @@ def _check_reference_lengths(sc, m: int, k: int) -> None:
                 raise ConfigError(f"must be a number or a list of {'m' if what == 'motion' else 'k'} = {want} numbers (one per {what} coordinate"
                                   f"{listed}), got {len(value)}: [{', '.join(f'{float(v):g}' for v in value)}]",
                                   key=f"reference.{key}")
+
+
+def _check_force_reference(sc, k: int, unit: str) -> None:
+    """λd ≥ 0 over its whole period: every contact hinfnn simulates can only push (λ > 0 presses
+    on the surface, docs/paper-conventions.md), so a negative force reference cannot be tracked.
+    λd_j = r(t)(lam_offset_j + lam_amplitude_j cos(...)) with r(t) ≥ 0 reaches
+    lam_offset_j − |lam_amplitude_j|: a ConfigError naming reference.lam_offset when it is < 0."""
+    ref = sc.reference
+    if not hasattr(ref, "lam_offset") or not hasattr(ref, "lam_amplitude"):
+        return
+    offset, amplitude = (np.broadcast_to(np.atleast_1d(np.asarray(getattr(ref, key), dtype=float)), (k,))
+                         for key in ("lam_offset", "lam_amplitude"))
+    low = offset - np.abs(amplitude)
+    for j in np.flatnonzero(low < 0)[:1]:
+        which = f" (force coordinate {j + 1})" if k > 1 else ""
+        raise ConfigError(f"λd = lam_offset + lam_amplitude·cos(...) reaches {low[j]:g} {unit}{which}, got lam_offset = "
+                          f"{offset[j]:g} and lam_amplitude = {amplitude[j]:g}: the contact can only push (λ > 0 presses "
+                          "on the surface); give lam_offset >= |lam_amplitude| (λd >= 0)", key="reference.lam_offset")
 
 
 def _joint_names(plant) -> list[str]:
