@@ -533,15 +533,19 @@ def test_export_csv_equals_the_npz_exactly(tmp_path, result, capsys):
     names = [str(n) for n in npz["__runs__"]]
     assert [r[0] for r in body] == [n for n in names for _ in range(len(npz[f"{n}/t"]))]
     col = {h: i for i, h in enumerate(head)}
+    from hinfnn.fields import component_units
+
     for name in names:
         mine = [r for r in body if r[0] == name]
+        tags = json.loads(str(npz[f"{name}/__tags__"]))  # each component's unit as the run declares it
         for key, arr in npz.items():
             if not key.startswith(f"{name}/") or "/__" in key:
                 continue
             field = key.split("/", 1)[1]
             arr = arr.reshape(len(arr), -1)
+            units = component_units(field, arr.shape[1], tags) or [unit(field)] * arr.shape[1]
             for j in range(arr.shape[1]):
-                header = f"{field}{'' if arr.shape[1] == 1 else f'_{j + 1}'} [{unit(field)}]"
+                header = f"{field}{'' if arr.shape[1] == 1 else f'_{j + 1}'} [{units[j]}]"
                 got = np.array([float(r[col[header]]) for r in mine])
                 assert np.array_equal(got, arr[:, j], equal_nan=True), header  # bit for bit
     # the same table in Python, and as Parquet
