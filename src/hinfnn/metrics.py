@@ -79,7 +79,8 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
     metrics cover; for a run that stopped early (``partial``) it is the step that stopped it: its
     metrics cover every step it ran, the one that stopped it included (the step summaries of the
     first sample after the stop, :class:`hinfnn.sim.simulate.Carry`), so ``peak_abs_tau`` holds the
-    torque its reason names and ``min_joint_limit_margin`` the margin that stopped it.
+    torque its reason names and ``min_joint_limit_margin`` the margin that stopped it (a trajectory
+    stored without the step summaries: the samples up to t_fail).
     ``verdict["out_of_contact_after"]`` is None when no step came after ``contact_after``.
 
     ``verdict`` (:data:`VERDICT_KEYS`, :func:`verdicts`) judges the run against ``tolerances``
