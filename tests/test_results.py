@@ -496,6 +496,13 @@ def test_plot_redraws_the_same_figures(tmp_path, result, capsys):
     assert sorted(p.name for p in other.iterdir()) == ["lambda.png", "tau.png"]
     assert cli.main(["plot", str(out), "--zoom", "0.02:0.01,1:2"]) == 2
     assert "--zoom: must be two time windows" in capsys.readouterr().err
+    # a window outside the 0.05-s runs would draw empty panels: refused, one line, nothing drawn
+    (other / "tau.png").unlink()
+    assert cli.main(["plot", str(out), "--zoom", "0.01:0.02,1:2", "--out", str(other), "--figures", "tau"]) == 2
+    err = capsys.readouterr().err
+    assert _one_line(err) == ("hinfnn: ConfigError: --zoom: the window 1:2 s holds no stored sample of the runs "
+                              "(they cover 0 to 0.05 s); give windows inside the runs")
+    assert not (other / "tau.png").exists()
     assert cli.main(["plot", str(out), "--figures", "nope"]) == 2
     assert "--figures: unknown figure(s) nope" in capsys.readouterr().err
     (tmp_path / "mine").mkdir()
@@ -519,22 +526,26 @@ def test_export_csv_equals_the_npz_exactly(tmp_path, result, capsys):
     rows = list(csv.reader(path.open(encoding="utf-8")))
     head, body = rows[0], rows[1:]
     assert head[:2] == ["run", "t [s]"]
-    assert {"tau_1 [N·m]", "tau_2 [N·m]", "lam [λ units]", "J [-]", "q_1 [rad]", "u1 [m]"} <= set(head)
+    assert {"tau_1 [N·m]", "tau_2 [N·m]", "lam [N]", "J [-]", "q_1 [rad]", "u1 [m]"} <= set(head)
     npz = _npz(out / "trajectory.npz")
     units = json.loads(str(npz["__units__"]))
     assert units["tau"] == "N·m" and units["t"] == "s" and units["lam"] == "λ units"
     names = [str(n) for n in npz["__runs__"]]
     assert [r[0] for r in body] == [n for n in names for _ in range(len(npz[f"{n}/t"]))]
     col = {h: i for i, h in enumerate(head)}
+    from hinfnn.fields import component_units
+
     for name in names:
         mine = [r for r in body if r[0] == name]
+        tags = json.loads(str(npz[f"{name}/__tags__"]))  # each component's unit as the run declares it
         for key, arr in npz.items():
             if not key.startswith(f"{name}/") or "/__" in key:
                 continue
             field = key.split("/", 1)[1]
             arr = arr.reshape(len(arr), -1)
+            units = component_units(field, arr.shape[1], tags) or [unit(field)] * arr.shape[1]
             for j in range(arr.shape[1]):
-                header = f"{field}{'' if arr.shape[1] == 1 else f'_{j + 1}'} [{unit(field)}]"
+                header = f"{field}{'' if arr.shape[1] == 1 else f'_{j + 1}'} [{units[j]}]"
                 got = np.array([float(r[col[header]]) for r in mine])
                 assert np.array_equal(got, arr[:, j], equal_nan=True), header  # bit for bit
     # the same table in Python, and as Parquet
@@ -549,6 +560,36 @@ def test_export_csv_equals_the_npz_exactly(tmp_path, result, capsys):
     assert set(back["run"]) == {"hinf"}
     pd.testing.assert_frame_equal(back.reset_index(drop=True), one.reset_index(drop=True), check_dtype=False)
     assert foreign_files(out) == []
+
+
+def test_export_labels_each_component_in_the_unit_its_run_declares():
+    """Column labels from the run's tags (the arm's joints, the task coordinates, the constraint):
+    a prismatic joint's q in m and τ in N, rotation coordinates in rad and their moments in N·m, λ
+    in N (or a user's θ's unit); without the tags, the field's unit. The UR5 on its table: the tags
+    describe() gives."""
+    from hinfnn.fields import component_units
+    from hinfnn.io.formats import field_columns
+    from hinfnn.scenario.setup import describe
+
+    tags = {"joint_units": ["rad", "m"], "coordinates": [["s", "m"], ["phi", "rad"], ["d", "m"]], "lambda_unit": "N"}
+    x = np.zeros((4, 2))
+    assert [c for c, _ in field_columns("q", x, tags)] == ["q_1 [rad]", "q_2 [m]"]
+    assert [c for c, _ in field_columns("qd", x, tags)] == ["qd_1 [rad/s]", "qd_2 [m/s]"]
+    assert [c for c, _ in field_columns("tau", x, tags)] == ["tau_1 [N·m]", "tau_2 [N]"]
+    assert [c for c, _ in field_columns("tau_sq", x, tags)] == ["tau_sq_1 [(N·m)²]", "tau_sq_2 [N²]"]
+    assert [c for c, _ in field_columns("e_u1", x, tags)] == ["e_u1_1 [m]", "e_u1_2 [rad]"]
+    assert [c for c, _ in field_columns("f_p", x, tags)] == ["f_p_1 [m/s²]", "f_p_2 [rad/s²]"]
+    assert [c for c, _ in field_columns("v_p", x, tags)] == ["v_p_1 [m/s²]", "v_p_2 [rad/s²]"]  # a term's signal
+    assert [c for c, _ in field_columns("F", np.zeros((4, 3)), tags)] == ["F_1 [N]", "F_2 [N·m]", "F_3 [N]"]
+    assert [c for c, _ in field_columns("lam", np.zeros(4), tags)] == ["lam [N]"]
+    assert [c for c, _ in field_columns("e_lam_sq", np.zeros((4, 1)), tags)] == ["e_lam_sq [N²]"]
+    assert [c for c, _ in field_columns("v_rate", np.zeros(4), {"lambda_unit": "N·m/θ"})] == ["v_rate [N·m/θ]"]
+    assert [c for c, _ in field_columns("q", x, None)] == ["q_1 [rad]", "q_2 [rad]"]  # no tags: the field's unit
+    assert component_units("q", 3, tags) is None  # tags for another arm: the field's unit
+    ur5 = describe(H.load_scenario("ur5-table", {"controller.kind": "hinf"}, check=False))
+    assert ur5["joint_units"] == ["rad"] * 6 and ur5["lambda_unit"] == "N"
+    assert component_units("e_u1", 5, ur5) == ["m", "m", "rad", "rad", "rad"]
+    assert component_units("F", 6, ur5) == ["N", "N", "N·m", "N·m", "N·m", "N"]
 
 
 def test_export_to_stdout_and_errors(tmp_path, result, capsys):

@@ -1044,3 +1044,24 @@ def test_numpy_and_tuple_values_from_python_load_as_their_python_equal():
     with pytest.raises(H.ConfigError) as err:
         Scenario.load("ur5-table", {"plant.arm.gravity": np.array([0.0, np.nan, -9.81])})
     assert err.value.key == "plant.arm.gravity[1]" and "finite" in str(err.value)
+
+
+def test_a_force_reference_that_would_pull_is_refused(tmp_path):
+    """Every contact hinfnn simulates can only push (λ > 0 presses): λd below zero anywhere on its
+    period is a ConfigError naming reference.lam_offset, the least λd and what is allowed; on the
+    CLI one line, exit 2, nothing written. λd touching zero is accepted."""
+    with pytest.raises(H.ConfigError) as err:
+        H.load_scenario("paper", {"reference.lam_offset": -20.0, "reference.lam_amplitude": 0.0})
+    assert err.value.key == "reference.lam_offset" and "reaches -20 N" in str(err.value)
+    with pytest.raises(H.ConfigError, match=r"reaches -10 N, got lam_offset = 10 and lam_amplitude = -20"):
+        H.load_scenario("paper", {"reference.lam_offset": 10.0})
+    H.load_scenario("paper", {"reference.lam_offset": 20.0})  # 20 − 20 cos(πt) ≥ 0
+    with pytest.raises(H.ConfigError, match=r"^reference.lam_offset: λd = .* reaches -20 N, "):  # a spatial arm's too
+        H.load_scenario("ur5-table", {"reference.lam_offset": -20.0})
+    code, out, stderr = _run_cli(["run", "paper", "--set", "reference.lam_offset=-20", "--set",
+                                  "reference.lam_amplitude=0", "--out", tmp_path / "r", "--no-figures"])
+    assert code == 2 and out == "" and not (tmp_path / "r").exists()
+    assert stderr.strip().splitlines() == [
+        "hinfnn: ConfigError: reference.lam_offset: λd = lam_offset + lam_amplitude·cos(...) reaches -20 N, got "
+        "lam_offset = -20 and lam_amplitude = 0: the contact can only push (λ > 0 presses on the surface); give "
+        "lam_offset >= |lam_amplitude| (λd >= 0)"]

@@ -387,3 +387,34 @@ def test_configure_turns_async_dispatch_off_for_a_robot_process():
     assert [g.returncode for g in got] == [0, 0], [g.stderr for g in got]
     assert [g.stdout.split()[-1] for g in got] == ["True", "False"]
     assert "async_dispatch=False" in H.SampledLoop.__doc__
+
+
+def test_sampled_runs_record_the_law_as_it_acted():
+    """paper-stable (force-rate term, adaptive law) at 1 kHz, stiffest contact 1e5 N/m: every
+    stored row between two samples, and the sample itself, holds the signals of the state the held
+    torque was computed from (v_rate, s_lam, z, nn_f, nn_p, the torque), evaluated at that row's
+    measurement: recomputed by replaying the run through the robot's entry points, to 1e-10. The
+    force-rate term acted (v_rate is not zero), and the last row keeps the torque that acted."""
+    sc = H.load_scenario("paper-stable", {"controller.force_rate.stiffness_max": 1e5, "simulation.control": "sampled",
+                                          "simulation.control_period": PERIOD})
+    plant, ctrl, ref = sc.build_plant(), sc.build_controller(), sc.build_reference()
+    traj = H.simulate(plant, ctrl, ref, t_final=0.05, dt=DT, q0=sc.initial_q(plant), control_period=PERIOD,
+                      save_every=1)
+    a = traj.arrays
+    sampled = H.SampledController(ctrl, ref)
+    names = ("v_rate", "s_lam", "z", "nn_f", "nn_p", "tau")
+    scale = {n: max(float(np.max(np.abs(a[n]))), 1e-300) for n in names}
+    assert scale["v_rate"] > 1e-3  # the term acted
+    assert ctrl.needs_start  # the filter starts at the first e_λ, as the simulator starts it
+    state = sampled.start(0.0, sampled.init(), _meas(a, 0))
+    n_steps = round(0.05 / DT)
+    for k in range(0, n_steps + 1):
+        if k % HOLD == 0 and k < n_steps:
+            acting = state
+            tau_k, state = sampled.update(float(a["t"][k]), PERIOD, state, _meas(a, k))
+        _, sig = sampled.torque_and_signals(float(a["t"][k]), acting, _meas(a, k))
+        sig = dict(sig, tau=tau_k)  # the held torque, the last row's too
+        for n in names:
+            np.testing.assert_allclose(np.asarray(a[n][k]).ravel(), np.asarray(sig[n]).ravel(), rtol=0,
+                                       atol=RTOL * scale[n], err_msg=f"{n} at step {k}")
+    _assert_state_close(state, traj.final)  # the final state: the last sample's update

@@ -209,6 +209,33 @@ def test_penetration_limit_stops_a_run(paper_plant, nominal_arm, nominal_surface
     assert int(tr.status) == 3 and 0 < float(tr.t_fail) < 0.2
 
 
+def test_a_stopped_runs_metrics_include_the_step_that_stopped_it(paper_plant, nominal_arm, nominal_surface,
+                                                                  reference):
+    """Stopped by the torque limit between two stored samples (every 50th step): the metrics cover
+    the steps up to the stop, so peak |τ| is the one the reason names, t_end the stop; the samples
+    after the stop summarise nothing more."""
+    ctrl = H.HinfController.design(nominal_arm, nominal_surface)
+    tr = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.2, dt=1e-4, save_every=50,
+                    limits=H.Limits(torque=170.0), raise_on_failure=False)
+    assert tr.run_status is H.RunStatus.TORQUE_LIMIT
+    stop = round(float(tr.t_fail) / 1e-4)
+    assert stop % 50 != 0  # between two samples
+    m = H.compute_metrics(tr)
+    bad = float(tr.fail_details["tau_peak"])
+    assert bad > 170.0 and max(m["peak_abs_tau"]) == bad and f"{bad:.4g}" in tr.reason
+    assert m["t_end"] == pytest.approx(float(tr.t_fail)) and m["partial"]
+    assert np.max(np.abs(tr.arrays["tau"][:tr.valid_samples()])) < bad  # the stored samples alone miss it
+    after = tr.arrays["tau_abs_max"][tr.valid_samples() + 1:]
+    assert np.all(after == 0.0)  # nothing counted after the stop
+    # the same run stored at every step: the same peak and the same RMS error over the same steps
+    every = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.2, dt=1e-4, save_every=1,
+                       limits=H.Limits(torque=170.0), raise_on_failure=False)
+    m1 = H.compute_metrics(every)
+    assert float(every.t_fail) == float(tr.t_fail) and m1["peak_abs_tau"] == m["peak_abs_tau"]
+    np.testing.assert_allclose(m1["rms_e_u1"], m["rms_e_u1"], rtol=1e-12)
+    np.testing.assert_allclose(m1["fraction_out_of_contact"], m["fraction_out_of_contact"], rtol=1e-12)
+
+
 def test_sampled_control_at_high_rate_approaches_continuous(true_arm, true_surface, nominal_arm,
                                                           nominal_surface, reference):
     """Zero-order hold at 10 kHz (every step) vs 1 kHz vs continuous, damped contact."""

@@ -225,6 +225,28 @@ def test_singularity_guard_checks_the_path_of_any_arm():
     assert err.value.key == "reference.u1_amplitude" and "singular value" in str(err.value)
 
 
+def test_the_design_does_not_depend_on_the_runs_horizon():
+    """ur5-table-stable's path (a 1-s fade-in and a 4-s circle) is designed over 0..5 s, whatever
+    simulation.t_final: a 0.3-s smoke test and a 10-s run get the same κ, continuous and at 1 kHz,
+    and `hinfnn design` says what span it covered."""
+    from hinfnn.scenario.checks import design_span
+
+    for over in ({}, {"simulation.control": "sampled"}):
+        kappas = {t: _design("ur5-table-stable", **{"controller.kind": "hinf", "simulation.t_final": t, **over})["kappa"]
+                  for t in (0.3, 10.0)}
+        assert kappas[0.3] == kappas[10.0], (over, kappas)
+    sc = H.load_scenario("ur5-table-stable", {"simulation.t_final": 0.3})
+    assert design_span(sc) == (5.0, "the 1-s fade-in and one 4-s period of u1d")
+    rep = A.design_report(sc.single("hinf"))
+    assert "u1d(t) on 0..5 s: the 1-s fade-in and one 4-s period of u1d" in A.format_design_report(rep)
+    # cosines of periods 2 and 3 s repeat every 6 s; of 1 and √2 s never: 100 periods of the slowest
+    two = sc.with_overrides({"reference.u1_period": [2.0, 3.0, 4.0, 4.0, 4.0]})
+    assert design_span(two)[0] == 7.0
+    odd = sc.with_overrides({"reference.u1_period": [1.0, math.sqrt(2), 4.0, 4.0, 4.0]})
+    assert design_span(odd) == (1.0 + 100 * math.sqrt(2), "the 1-s fade-in and 100 periods of its slowest cosine "
+                                "(its cosines have no common period up to 141.421 s)")
+
+
 # --------------------------------------------------------------------------------------------
 # `hinfnn design` on every shipped scenario
 # --------------------------------------------------------------------------------------------

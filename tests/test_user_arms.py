@@ -441,11 +441,31 @@ def test_verdicts_judge_each_coordinate_in_its_unit():
     tight = H.compute_metrics(tr, coordinates=coords, tolerances={"position_tolerance": 0.001, "force_tolerance": 0.01,
                                                                    "angle_tolerance": 0.05, "contact_after": 3.0})
     tight = tight["verdict"]
-    assert tight["contact_held"] is True
-    assert tight["notes"] == ["s: RMS error 0.003 m over the last 2 s (allowed: 0.001 m)",
+    assert tight["contact_held"] is None and tight["out_of_contact_after"] is None  # no step after 3 s: not judged
+    assert tight["notes"] == ["contact not judged: no step after 3 s (verdict.contact_after)",
+                              "s: RMS error 0.003 m over the last 2 s (allowed: 0.001 m)",
                                       "force: RMS error over the last 2 s 5.0% of the mean |λd| (allowed: 1%)"]
     stopped = H.compute_metrics(_fake_run(e_u1 * 0, np.zeros(n), np.full(n, 20.0), np.zeros(n), status=2))
     assert stopped["verdict"]["tracking_within_tolerance"] is False and stopped["partial"]
+
+
+def test_contact_is_not_judged_without_a_step_after_contact_after():
+    """A 0.2-s run 99.5 % of its samples off the surface: no step after contact_after (0.5 s), so
+    contact_held is None (null in metrics.json), with a note; the run summary says so. One step
+    after it is judged."""
+    from hinfnn.report.markdown import job_done
+
+    n = 201
+    pen = np.full(n, -1e-3)
+    pen[0] = 0.0
+    short = H.compute_metrics(_fake_run(np.zeros((n, 1)), np.zeros(n), np.full(n, 20.0), pen))["verdict"]
+    assert short["contact_held"] is None and short["out_of_contact_after"] is None
+    assert short["notes"][0] == "contact not judged: no step after 0.5 s (verdict.contact_after)"
+    assert job_done({"verdict": short}) == "yes (contact not judged)"
+    judged = H.compute_metrics(_fake_run(np.zeros((n, 1)), np.zeros(n), np.full(n, 20.0), pen),
+                               tolerances={"contact_after": 0.199})["verdict"]
+    assert judged["contact_held"] is False and judged["out_of_contact_after"] == 1.0
+    assert job_done({"verdict": judged}) == "no: contact lost"
 
 
 def test_verdict_section_and_metrics_json(tmp_path):
@@ -458,7 +478,9 @@ def test_verdict_section_and_metrics_json(tmp_path):
     tr = sc.simulate()
     e = run_entry("hinf", tr)
     assert e["verdict"]["tracking_within_tolerance"] is False
-    assert e["verdict"]["notes"][0].startswith("u1: RMS error") and "(allowed: 1e-09 m)" in e["verdict"]["notes"][0]
+    # t_final = contact_after = 0.5 s: contact not judged (null), said in the first note
+    assert e["verdict"]["contact_held"] is None and e["verdict"]["notes"][0].startswith("contact not judged")
+    assert e["verdict"]["notes"][1].startswith("u1: RMS error") and "(allowed: 1e-09 m)" in e["verdict"]["notes"][1]
     assert e["verdict"]["within_joint_limits"] is None  # the two_link arm records no limits
     out = tmp_path / "run"
     assert cli.main(["run", "paper", "--set", "controller.kind=hinf", "--set", "simulation.t_final=0.2",
@@ -470,12 +492,13 @@ def test_verdict_section_and_metrics_json(tmp_path):
     (run,) = doc["runs"]
     assert list(run)[:8] == ["name", "controller", "label", "overrides", "tags", "status", "t_fail", "reason"]
     v = run["verdict"]
+    # 0.2 s: no step after verdict.contact_after (0.5 s), contact not judged (null)
     assert (v["contact_held"], v["tracking_within_tolerance"], v["within_joint_limits"], v["notes"]) == (
-        True, True, None, [])
+        None, True, None, ["contact not judged: no step after 0.5 s (verdict.contact_after)"])
     assert "verdict" not in run["metrics"] and v["min_joint_limit_margin"] is None
     from hinfnn.report.markdown import metrics_table
 
-    assert "did its job" in metrics_table(doc, markdown=False) and "| yes |" in metrics_table(doc)
+    assert "did its job" in metrics_table(doc, markdown=False) and "| yes (contact not judged) |" in metrics_table(doc)
 
 
 def test_disturbance_effect_is_the_constrained_acceleration_over_K_p():

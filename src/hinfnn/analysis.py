@@ -608,12 +608,14 @@ def path_report(scenario, ctrl, q0) -> dict:
     σ_min(Ĵ) (the singularity guard's measure) and the normal mass m_n (its extreme eigenvalues
     for k > 1), their extremes and where; and the start pose's checks (σ_min(Ĵ(q0)), |det Ĵ(q0)|)."""
     from .controllers.force_rate import path_poses, pose_measures
-    from .scenario.checks import design_path
+    from .scenario.checks import design_path, design_span
 
     poses = path_poses(ctrl.arm, ctrl.surface, design_path(scenario), q0)
     rows = [(u1, *(float(v) for v in pose_measures(ctrl.arm, ctrl.surface, jnp.asarray(q)))) for u1, q in poses]
     found = [r for r in rows if all(math.isfinite(v) for v in r[1:])]
-    out = dict(points=len(rows), found=len(found), singularity_stop=float(ctrl.sigma_stop))
+    span, words = design_span(scenario)
+    out = dict(points=len(rows), found=len(found), singularity_stop=float(ctrl.sigma_stop), span=span,
+               span_words=words)
     if found:
         worst = min(found, key=lambda r: r[3])
         heavy = max(found, key=lambda r: r[2])
@@ -781,7 +783,10 @@ def format_design_report(rep: dict) -> str:
                                  f"({'stable' if m['stable'] else 'UNSTABLE'}; kappa {m['kappa']:.4g} s, m_s {m['m_s']:.4g})")
     p = rep.get("path") or {}
     if p:
+        covered = (f"u1d(t) on 0..{p['span']:g} s: {p['span_words']}" if p.get("span") is not None
+                   else p.get("span_words"))
         lines.append(f"path: {p['found']} of {p['points']} poses of the reference on the nominal model"
+                     + (f" ({covered})" if covered else "")
                      + (f"; sigma_min(J) >= {p['sigma_min']:.4g} (at u1 = {_fmt_list(p['u1_sigma_min'])}), normal mass "
                         f"{p['m_n_min']:.4g}..{p['m_n_max']:.4g} kg (heaviest at u1 = {_fmt_list(p['u1_m_n_max'])})"
                         if "sigma_min" in p else ""))

@@ -12,7 +12,8 @@ practical claim that the controllers track well. For the FL-like controller it i
 not claimed.
 
 All quantities come from a :class:`~hinfnn.sim.Trajectory`; nothing here runs a controller.
-A run that stopped early (diverged) gets its metrics over [0, t_fail], marked ``partial``.
+A run that stopped early (diverged) gets its metrics over [0, t_fail] (the step that stopped it
+included), marked ``partial``. A verdict is None ("not judged") where nothing was judged.
 """
 
 from __future__ import annotations
@@ -75,7 +76,12 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
     true pose's task coordinates came to their singularities (rad or m; None when not recorded).
     ``dissipation_min_margin`` is min over t > 0 of ρ²∫₀ᵗ(‖f_p‖²+‖f_f‖²) − (J(t) + V(t) − V(0)): the
     theorems claim the inequality for every T, not only the final one. ``t_end`` is the time the
-    metrics cover; for a run that stopped early (``partial``) it is the last sample before t_fail.
+    metrics cover; for a run that stopped early (``partial``) it is the step that stopped it: its
+    metrics cover every step it ran, the one that stopped it included (the step summaries of the
+    first sample after the stop, :class:`hinfnn.sim.simulate.Carry`), so ``peak_abs_tau`` holds the
+    torque its reason names and ``min_joint_limit_margin`` the margin that stopped it (a trajectory
+    stored without the step summaries: the samples up to t_fail).
+    ``verdict["out_of_contact_after"]`` is None when no step came after ``contact_after``.
 
     ``verdict`` (:data:`VERDICT_KEYS`, :func:`verdicts`) judges the run against ``tolerances``
     (keys of :data:`DEFAULT_TOLERANCES`) with the motion coordinates' ``coordinates`` ((name, unit)
@@ -88,21 +94,32 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
     arr = {k: np.asarray(v)[:end] for k, v in traj.arrays.items()}
     t = arr["t"]
     partial = int(traj.status) != 0
-    window = t >= t[-1] - last - 1e-9 * max(1.0, t[-1])
-    first = int(np.argmax(window))  # the first sample of the window
     n = len(t)
+    summaries = all(k in arr for k in STEP_FIELDS)
+    # a run that stopped between two samples: the next sample summarises the steps up to the stop
+    # (hinfnn.sim.simulate.Carry), and holds the state at the stopping step (its joint-limit margin)
+    stop, per = _stopping_step(traj), int(traj.save_every)
+    tail = bool(summaries and stop is not None and stop > (n - 1) * per and len(traj.arrays["t"]) > n)
+    steps = np.full(n + tail, per, dtype=float)  # the steps each sample summarises
+    steps[0] = 1
+    if tail:
+        steps[-1] = stop - (n - 1) * per
+        arr.update({k: np.asarray(traj.arrays[k])[:n + 1] for k in (*STEP_FIELDS, "joint_limit_margin")
+                    if k in traj.arrays})
+    t_end = stop * float(traj.dt) if tail else float(t[-1])
+    window = t >= t_end - last - 1e-9 * max(1.0, t_end)
+    first = int(np.argmax(window))  # the first sample of the window
     e_u1 = np.linalg.norm(arr["e_u1"].reshape(n, -1), axis=1)
     e_lam = np.linalg.norm(arr["e_lam"].reshape(n, -1), axis=1)
     tau = arr["tau"]
     dt_s = t[1] - t[0] if n > 1 else 1.0
-    span = max(t[-1] - t[first], dt_s)
-    if all(k in arr for k in STEP_FIELDS):
+    span = max(t_end - t[first], dt_s)
+    if summaries:
         # Every step, whatever the storage: sample i summarises the steps in (t_{i-1}, t_i].
-        per = int(traj.save_every)
-        n_all, n_win = (n - 1) * per + 1, (n - 1 - first) * per + 1
+        n_all, n_win = np.sum(steps), np.sum(steps[first + 1:]) + 1
 
         def ms(name, own):  # mean squares per component; own: the window's first sample's own contribution
-            x = arr[name].reshape(n, -1)
+            x = arr[name].reshape(len(steps), -1)
             return np.sum(x, axis=0) / n_all, (own + np.sum(x[first + 1:], axis=0)) / n_win
 
         (u1_ms, u1_ms_w), (lam_ms, lam_ms_w) = (ms(f"e_{s}_sq", arr[f"e_{s}"].reshape(n, -1)[first] ** 2)
@@ -145,18 +162,21 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
     margin_task = float(np.min(arr["task_margin"])) if "task_margin" in arr else None
     # contact after the build-up, the force error relative to the force asked, the joints' limits
     tol, coords = _judging(traj, tolerances, coordinates, arr["e_u1"].reshape(n, -1).shape[1])
-    after = t > tol["contact_after"] + 1e-9 * max(1.0, abs(tol["contact_after"]))
-    if "steps_out_of_contact" in arr:
-        steps_after = int(np.sum(after)) * int(traj.save_every)
-        out_after = float(np.sum(arr["steps_out_of_contact"][after]) / steps_after) if steps_after else 0.0
+    # None when no step came after contact_after: nothing was judged
+    if summaries:
+        t_sum = np.append(t, t_end) if tail else t  # the last step each sample summarises
+        after = t_sum > tol["contact_after"] + 1e-9 * max(1.0, abs(tol["contact_after"]))
+        steps_after = float(np.sum(steps[after]))
+        out_after = float(np.sum(arr["steps_out_of_contact"][after]) / steps_after) if steps_after else None
     elif "penetration" in arr:
-        out_after = float(np.mean(arr["penetration"][after] < -1e-9)) if after.any() else 0.0
+        after = t > tol["contact_after"] + 1e-9 * max(1.0, abs(tol["contact_after"]))
+        out_after = float(np.mean(arr["penetration"][after] < -1e-9)) if after.any() else None
     else:
         out_after = math.nan
     lam_scale = float(np.mean(np.linalg.norm(arr["lam_d"].reshape(n, -1)[first:], axis=1))) if "lam_d" in arr else math.nan
     ratio = float(rms_lam_w / lam_scale) if lam_scale > 0 else None
     if "joint_limit_margin" in arr:
-        each = np.min(arr["joint_limit_margin"].reshape(n, -1), axis=0)
+        each = np.min(arr["joint_limit_margin"].reshape(len(arr["joint_limit_margin"]), -1), axis=0)
         margin_joints = [float(v) if math.isfinite(v) else None for v in each]
         finite = [v for v in margin_joints if v is not None]
         margin_joint = min(finite) if finite else None
@@ -185,13 +205,25 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
         "dissipation_holds": holds,
         "dissipation_min_margin": margin,
         "dissipation_holds_for_all_t": bool(margin >= 0) if np.isfinite(margin) else None,
-        "t_end": float(t[-1]),
+        "t_end": t_end,
         "partial": partial,
         "verdict": {**verdicts(u1_each_w, out_after, ratio, margin_joint, partial=partial, status=int(traj.status),
                                tolerances=tol, coordinates=coords),
                     "out_of_contact_after": out_after, "force_error_ratio_last2s": ratio,
                     "min_joint_limit_margin": margin_joint, "min_joint_limit_margin_each": margin_joints},
     }
+
+
+def _stopping_step(traj) -> int | None:
+    """The index of the step that stopped a (single) run (the last step its summaries count), or
+    None for a run that completed or whose stop time is unknown. A non-finite state is found after
+    its step (t_fail = t_k + dt); the other stops at the step's start (t_fail = t_k)."""
+    code = int(traj.status)
+    tf = float(np.asarray(traj.t_fail).reshape(()))
+    if code == 0 or not math.isfinite(tf):
+        return None
+    k = int(round(tf / float(traj.dt)))
+    return k - 1 if code == int(RunStatus.NONFINITE) else k
 
 
 def _judging(traj, tolerances, coordinates, m: int):
@@ -217,7 +249,9 @@ def verdicts(rms_each_last, out_after, force_ratio, joint_margin, *, partial: bo
     """Whether a run did its job, next to its status:
 
     * ``contact_held``: the share of steps with the tool off the true surface after
-      ``contact_after`` is at most ``out_of_contact``;
+      ``contact_after`` is at most ``out_of_contact``; None (not judged) when the run has no step
+      after ``contact_after`` (``out_after`` None: a run shorter than it, or one that stopped
+      before it) or no contact measure (NaN);
     * ``tracking_within_tolerance``: over the last 2 s, the RMS error of each motion coordinate is
       at most ``position_tolerance`` (coordinates in m) or ``angle_tolerance`` (rad), and the RMS
       force error at most ``force_tolerance`` times the mean |λd| there; False for a run that
@@ -227,7 +261,9 @@ def verdicts(rms_each_last, out_after, force_ratio, joint_margin, *, partial: bo
     and ``notes``, one line per failed criterion with its numbers."""
     notes = []
     tol = tolerances
-    contact = bool(out_after <= tol["out_of_contact"]) if math.isfinite(out_after) else None
+    contact = bool(out_after <= tol["out_of_contact"]) if out_after is not None and math.isfinite(out_after) else None
+    if out_after is None:
+        notes.append(f"contact not judged: no step after {tol['contact_after']:g} s (verdict.contact_after)")
     if contact is False:
         notes.append(f"off the surface for {out_after:.2%} of the steps after {tol['contact_after']:g} s (allowed: "
                      f"{tol['out_of_contact']:.2%})")

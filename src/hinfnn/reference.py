@@ -7,6 +7,8 @@ Controllers and the simulator evaluate it; both import it from here (not from ea
 from __future__ import annotations
 
 import dataclasses
+import math
+from fractions import Fraction
 
 import jax
 import jax.numpy as jnp
@@ -108,4 +110,18 @@ class CosineReference:
             u1_d_ddot=ddr * wave + 2.0 * dr * dwave + r * ddwave,
             lam_d=rl * (self.lam_offset + self.lam_amplitude * c_lam),
         )
+
+
+def common_period(periods, limit: float) -> float | None:
+    """The shortest T > 0 that is a whole number of each of ``periods`` (s; each read as a ratio
+    of integers with a denominator up to 10⁶, and checked to 1e-9 relative), or None when there
+    is none up to ``limit`` s: the period of a sum of cosines of these periods."""
+    periods = [float(p) for p in periods]
+    if not periods:
+        return None
+    ratios = [Fraction(p).limit_denominator(10**6) for p in periods]
+    T = float(Fraction(math.lcm(*(r.numerator for r in ratios)), math.gcd(*(r.denominator for r in ratios))))
+    if T > limit or any(abs(T / p - round(T / p)) > 1e-9 * T / p for p in periods):
+        return None
+    return T
 

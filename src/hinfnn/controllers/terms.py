@@ -79,7 +79,10 @@ class Term:
             from ..fields import declare
 
             for name, (unit, doc) in cls.fields.items():
-                declare(name, unit, doc)
+                # a position-side signal in m (m/s², ...) has one component per motion coordinate,
+                # each in its coordinate's unit; λ units: per constraint (hinfnn.fields.declare)
+                motion = cls.side == "position" and unit.startswith("m")
+                declare(name, unit, doc, per=("motion", "{}" + unit[1:]) if motion else None)
 
     def state_sizes(self, m: int, k: int) -> dict[str, int]:
         """Sizes of its state arrays (flat), by name; {} for a static term."""

@@ -2,9 +2,11 @@
 
 One row per stored sample; the first column is ``run`` (the run's name), then ``t [s]`` and one
 column per component of every stored field, named with the field, the component (1-based, as
-the paper's τ1, τ2; none for a field of one number per sample) and the unit of
-:data:`hinfnn.fields.FIELDS`: ``tau_1 [N·m]``, ``tau_2 [N·m]``, ``lam [N]``, ``J [-]``
-(:func:`hinfnn.io.formats.table`). Runs are stacked in the folder's order; a field one run does
+the paper's τ1, τ2; none for a field of one number per sample) and the component's unit as the
+run declares it (:func:`hinfnn.fields.component_units`: a joint's rad or m and its effort N·m or
+N, a task coordinate's m or rad and the force or moment conjugate to it, λ's unit from the
+constraint), else the field's unit of :data:`hinfnn.fields.FIELDS`: ``tau_1 [N·m]``, ``q_7 [m]``,
+``e_u1_3 [rad]``, ``F_4 [N·m]``, ``lam [N]``, ``J [-]`` (:func:`hinfnn.io.formats.table`). Runs are stacked in the folder's order; a field one run does
 not store is empty (NaN) in the others' rows. A run that stopped early (diverged) is exported up
 to its last sample at or before ``t_fail`` (the simulator repeats the last good state after it),
 as its metrics and figures are.
@@ -53,8 +55,8 @@ def parquet_bytes(result, run: str | None = None) -> bytes:
         raise ConfigError("needs pyarrow (pip install 'hinfnn[export]')", key="--parquet") from None
     runs, cols, data = table(result, run)
     tbl = pa.table({"run": pa.array(runs, type=pa.string()), **{c: pa.array(data[c]) for c in cols}})
-    tbl = tbl.replace_schema_metadata({"hinfnn.units": "column names end with [unit]; λ units: see "
-                                                        "docs/paper-conventions.md"})
+    tbl = tbl.replace_schema_metadata({"hinfnn.units": "column names end with [unit], each component's from the run's "
+                                                        "joints, task coordinates and constraint"})
     buf = io.BytesIO()
     pq.write_table(tbl, buf)
     return buf.getvalue()

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, LoadError
-from ..fields import unit
+from ..fields import component_units, unit
 
 FORMAT = "hinfnn-trajectory-1"
 
@@ -94,16 +94,20 @@ def trajectory_npz_bytes(runs: dict, max_interval: float | None = 1e-3, fields=N
 # --- the table of a saved run's samples ------------------------------------------------------
 
 
-def field_columns(name: str, arr: np.ndarray) -> list[tuple[str, np.ndarray]]:
+def field_columns(name: str, arr: np.ndarray, tags: dict | None = None) -> list[tuple[str, np.ndarray]]:
     """The columns of one field: ``name [unit]`` for one number per sample (a scalar or a
     vector of one, as u1 and λ of the planar arm), else ``name_i [unit]`` (``name_i_j`` for
-    matrices) for each component, 1-based."""
+    matrices) for each component, 1-based. Each component's unit is the one the run's ``tags``
+    declare for it (:func:`hinfnn.fields.component_units`: a joint's rad or m, a task coordinate's,
+    λ's), else the field's unit."""
     arr = np.asarray(arr)
-    u = unit(name)
-    if arr.ndim == 1 or math.prod(arr.shape[1:]) == 1:
-        return [(f"{name} [{u}]", arr.reshape(arr.shape[0]))]
+    count = math.prod(arr.shape[1:])
+    units = component_units(name, count, tags) if arr.ndim == 2 or count == 1 else None
+    units = units or [unit(name)] * count
+    if arr.ndim == 1 or count == 1:
+        return [(f"{name} [{units[0]}]", arr.reshape(arr.shape[0]))]
     flat = arr.reshape(arr.shape[0], -1)
-    return [(f"{name}_{'_'.join(str(i + 1) for i in idx)} [{u}]", flat[:, k])
+    return [(f"{name}_{'_'.join(str(i + 1) for i in idx)} [{units[k]}]", flat[:, k])
             for k, idx in enumerate(np.ndindex(arr.shape[1:]))]
 
 
@@ -126,7 +130,7 @@ def table(result, run: str | None = None) -> tuple[list[str], list[str], dict[st
         cols = {}
         keys = ["t"] + [k for k in traj.arrays if k != "t"]
         for k in keys:
-            for col, values in field_columns(k, np.asarray(traj.arrays[k])[:n]):
+            for col, values in field_columns(k, np.asarray(traj.arrays[k])[:n], dict(traj.info.tags or {})):
                 cols[col] = values
                 if col not in order:
                     order.append(col)

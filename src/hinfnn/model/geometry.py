@@ -62,6 +62,8 @@ class Geometry:
     fittable: bool = False
     #: True when θ is the exact signed distance (every kind but the profile and a user's θ)
     exact_theta: bool = True
+    #: λ's unit when θ is the constraint (hinfnn.model.surface.Surface.lambda_unit): θ is a length
+    lambda_unit = "N"
 
     def theta(self, p):
         raise NotImplementedError
@@ -440,6 +442,7 @@ class UserSurface(Geometry):
     dim: int = static_field(default=3)
     iterations: int = static_field(default=20)
     exact_theta = False
+    lambda_unit = "N·m/θ"  # θ's unit is the user's
 
     def theta(self, p):
         return jnp.reshape(self.theta_fn(p, self.params), ())

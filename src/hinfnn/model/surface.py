@@ -29,6 +29,10 @@ class Surface:
 
     m: int
     k: int
+    #: λ's unit: F = Âᵀλ (eq. 3) makes λ the force conjugate to θ̂, in N when θ̂ is a length (the
+    #: lines in either scaling, the shapes' θ, the fitted distance); a user's θ̂ of another unit
+    #: gives λ in N·m per unit of θ̂
+    lambda_unit = "N"
 
     def theta(self, x):
         """Constraint function θ̂(x) ∈ ℝᵏ, positive inside the material."""
@@ -141,6 +145,7 @@ class ImplicitSurface(Surface):
     theta_fn: Callable = static_field()
     m: int = static_field(default=1)
     k: int = static_field(default=1)
+    lambda_unit = "N·m/θ"  # θ's unit is the user's
 
     def theta(self, x):
         return jnp.atleast_1d(self.theta_fn(x, self.params))
@@ -164,6 +169,10 @@ class TaskConstraint(Surface):
 
     def theta(self, x):
         return jnp.atleast_1d(self.geometry.theta(self.task.point(x)))
+
+    @property
+    def lambda_unit(self) -> str:
+        return self.geometry.lambda_unit
 
 
 @pytree_dataclass

@@ -96,13 +96,15 @@ def _bookkeeping(doc, run) -> bool:
 
 def job_done(run) -> str:
     """The run's verdicts in a few words (hinfnn.metrics.verdicts): "yes", or "no: contact lost,
-    tracking off" ("-" for a document written before the verdicts)."""
+    tracking off", with "(contact not judged)" when ``contact_held`` is None (null: no step after
+    ``verdict.contact_after``) ("-" for a document written before the verdicts)."""
     v = run.get("verdict")
     if not v:
         return "-"
     bad = [word for key, word in (("contact_held", "contact lost"), ("tracking_within_tolerance", "tracking off"),
                                   ("within_joint_limits", "joint limit")) if v.get(key) is False]
-    return "no: " + ", ".join(bad) if bad else "yes"
+    unjudged = " (contact not judged)" if "contact_held" in v and v["contact_held"] is None else ""
+    return ("no: " + ", ".join(bad) if bad else "yes") + unjudged
 
 
 def stopped_notes(doc) -> list[str]:

@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
+
 from ..errors import ConfigError
 from .figures import PAPER_FIGURES, RUN_FIGURES, paper_figures, run_figures
 
@@ -40,6 +42,8 @@ def replot(folder, *, only: Sequence[str] | None = None, out=None,
         if unknown:
             raise ConfigError(f"unknown figure(s) {', '.join(unknown)}; this {'study' if study else 'result'} "
                               f"has {', '.join(names)}", key="--figures")
+    if zoom_windows is not None:
+        _check_zoom(result.trajectories.values(), zoom_windows)
     dest = Path(out) if out is not None else (folder if folder.is_dir() else folder.parent)
     key = "--out" if out is not None else "plot"
     if dest.exists() or dest.is_symlink():
@@ -66,3 +70,17 @@ def replot(folder, *, only: Sequence[str] | None = None, out=None,
         written = run_figures(result.trajectories, dest, only=only, zoom_windows=zoom_windows)
     add_to_marker(dest, [p.name for p in written])
     return written
+
+
+def _check_zoom(trajectories, windows) -> None:
+    """Each zoom window holds at least one stored sample of the runs (up to each run's stop):
+    else its panels would be empty, a ConfigError naming ``--zoom``, the window and what the runs
+    cover."""
+    times = [np.asarray(t.arrays["t"])[:t.valid_samples()] for t in trajectories]
+    for a, b in windows:
+        if not any(np.any((t >= a) & (t <= b)) for t in times):
+            lo = min((float(t[0]) for t in times if t.size), default=0.0)
+            hi = max((float(t[-1]) for t in times if t.size), default=0.0)
+            raise ConfigError(f"the window {a:g}:{b:g} s holds no stored sample of the runs (they cover {lo:g} to "
+                              f"{hi:g} s); give windows inside the runs", key="--zoom")
+

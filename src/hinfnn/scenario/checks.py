@@ -73,6 +73,7 @@ def check(sc) -> None:
     constraint = setup.constraint
     m, k = constraint.m, constraint.k
     _check_reference_lengths(sc, m, k)
+    _check_force_reference(sc, k, constraint.lambda_unit)
     q0 = setup.q0
     if not np.all(np.isfinite(q0)):
         if cartesian:
@@ -119,6 +120,24 @@ def _check_reference_lengths(sc, m: int, k: int) -> None:
                 raise ConfigError(f"must be a number or a list of {'m' if what == 'motion' else 'k'} = {want} numbers (one per {what} coordinate"
                                   f"{listed}), got {len(value)}: [{', '.join(f'{float(v):g}' for v in value)}]",
                                   key=f"reference.{key}")
+
+
+def _check_force_reference(sc, k: int, unit: str) -> None:
+    """λd ≥ 0 over its whole period: every contact hinfnn simulates can only push (λ > 0 presses
+    on the surface, docs/paper-conventions.md), so a negative force reference cannot be tracked.
+    λd_j = r(t)(lam_offset_j + lam_amplitude_j cos(...)) with r(t) ≥ 0 reaches
+    lam_offset_j − |lam_amplitude_j|: a ConfigError naming reference.lam_offset when it is < 0."""
+    ref = sc.reference
+    if not hasattr(ref, "lam_offset") or not hasattr(ref, "lam_amplitude"):
+        return
+    offset, amplitude = (np.broadcast_to(np.atleast_1d(np.asarray(getattr(ref, key), dtype=float)), (k,))
+                         for key in ("lam_offset", "lam_amplitude"))
+    low = offset - np.abs(amplitude)
+    for j in np.flatnonzero(low < 0)[:1]:
+        which = f" (force coordinate {j + 1})" if k > 1 else ""
+        raise ConfigError(f"λd = lam_offset + lam_amplitude·cos(...) reaches {low[j]:g} {unit}{which}, got lam_offset = "
+                          f"{offset[j]:g} and lam_amplitude = {amplitude[j]:g}: the contact can only push (λ > 0 presses "
+                          "on the surface); give lam_offset >= |lam_amplitude| (λd >= 0)", key="reference.lam_offset")
 
 
 def _joint_names(plant) -> list[str]:
@@ -221,29 +240,42 @@ def _path_joints_program():
 
 #: u1d(t) is sampled at least this often per period of its fastest cosine for the design's path ...
 PATH_PER_PERIOD = 40
-#: ... with at least and at most this many points over the run.
+#: ... with at least and at most this many points over the design's span.
 PATH_SAMPLES = (201, 4001)
+
+
+def design_span(sc) -> tuple[float | None, str]:
+    """(T, in words): the design's path is u1d(t) on [0, T], T from the reference
+    (``design_span()``: its fade-in and one common period, independent of the run's horizon);
+    (None, ...) for a single cosine, whose path is its span of u1; the run's horizon for a
+    reference kind that declares neither."""
+    ref = sc.reference
+    if getattr(ref, "u1_range", None) is not None:
+        lo, hi = ref.u1_range()
+        return None, f"the span of u1d, {lo:g}..{hi:g}"
+    if hasattr(ref, "design_span"):
+        return ref.design_span()
+    return sc.simulation.t_final, "the run's horizon (the reference kind declares no period)"
 
 
 def design_path(sc):
     """The reference's path in the motion coordinates, where the design evaluates the NOMINAL
     model (the force-rate rule's normal masses, the singularity guard's σ_min(Ĵ)): the span
     (lo, hi) of a single cosine (m = 1, as the Sec. VI reference), else u1d(t) at evenly spaced
-    instants over [0, t_final] (an N × m array; N from :data:`PATH_PER_PERIOD` and
-    :data:`PATH_SAMPLES`)."""
-    span = getattr(sc.reference, "u1_range", None)
-    if span is not None:
-        lo, hi = span()
+    instants over [0, T] of :func:`design_span` (an N × m array; N from :data:`PATH_PER_PERIOD`
+    and :data:`PATH_SAMPLES`). The same design for a run of any length."""
+    span, _ = design_span(sc)
+    if span is None:
+        lo, hi = sc.reference.u1_range()
         return (float(lo), float(hi))
     import jax.numpy as jnp
 
     from ..controllers.force_rate import reference_points
 
     periods = [p for p in np.atleast_1d(np.asarray(getattr(sc.reference, "u1_period", 1.0), dtype=float)) if p > 0]
-    t_final = sc.simulation.t_final
-    n = int(math.ceil(t_final / (min(periods) / PATH_PER_PERIOD))) + 1 if periods else PATH_SAMPLES[0]
+    n = int(math.ceil(span / (min(periods) / PATH_PER_PERIOD))) + 1 if periods else PATH_SAMPLES[0]
     n = min(max(n, PATH_SAMPLES[0]), PATH_SAMPLES[1])
-    return np.asarray(reference_points(sc.build().reference, jnp.linspace(0.0, t_final, n)))
+    return np.asarray(reference_points(sc.build().reference, jnp.linspace(0.0, span, n)))
 
 
 def path_sigma_min(sc, ctrl, q0):

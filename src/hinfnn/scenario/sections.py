@@ -1199,6 +1199,30 @@ class CosinesConfig(ReferenceConfig):
 
     U1_KEYS = ("u1_offset", "u1_amplitude", "u1_period", "u1_phase")
     LAM_KEYS = ("lam_offset", "lam_amplitude", "lam_period", "lam_phase")
+    #: Without a common period of the cosines up to this many of the longest, the design's span is as many.
+    SPAN_PERIODS = 100
+
+    def design_span(self) -> tuple[float, str]:
+        """(T, in words): u1d(t) on [0, T] passes every point of its path, whatever the run's
+        horizon: the fade-in and one common period of the moving coordinates' cosines (or
+        :data:`SPAN_PERIODS` of the longest when they have none that short). The design evaluates
+        the nominal model there (:func:`hinfnn.scenario.checks.design_path`)."""
+        from ..reference import common_period
+
+        m, _ = self.sizes()
+        m = m if m and m > 0 else 1
+        amps = per_item(self.u1_amplitude, m, "reference.u1_amplitude", "one per coordinate")
+        periods = [p for p, a in zip(per_item(self.u1_period, m, "reference.u1_period", "one per coordinate"), amps)
+                   if a != 0.0]
+        if not periods:
+            return self.u1_ramp, f"u1d constant after its {self.u1_ramp:g}-s fade-in"
+        limit = self.SPAN_PERIODS * max(periods)
+        period = common_period(periods, limit)
+        ramp = f"the {self.u1_ramp:g}-s fade-in and " if self.u1_ramp else ""
+        if period is None:
+            return self.u1_ramp + limit, (f"{ramp}{self.SPAN_PERIODS} periods of its slowest cosine "
+                                          f"(its cosines have no common period up to {limit:g} s)")
+        return self.u1_ramp + period, f"{ramp}one {period:g}-s period of u1d"
 
     def sizes(self):
         def n(keys):

@@ -214,6 +214,13 @@ class Setup:
         n = self.nominal_arm.n
         return list(chain.joint_names) if chain is not None else [f"joint{i + 1}" for i in range(n)]
 
+    @functools.cached_property
+    def joint_units(self) -> list[str]:
+        """Each moving joint's unit: m for a prismatic joint (URDF), else rad."""
+        chain = getattr(self.nominal_arm, "chain", None)
+        types = chain.joint_types if chain is not None else ("revolute",) * self.nominal_arm.n
+        return ["m" if kind == "prismatic" else "rad" for kind in types]
+
 
 #: Colours of the shipped controller kinds in figures (other kinds take the next free colour of
 #: the report's palette).
@@ -223,7 +230,8 @@ KIND_COLORS = {"fl": "#7b3294", "hinf": "#1f5fbf", "hinf_nn": "#d62728"}
 def describe(scenario) -> dict:
     """The facts a report shows of a run of ``scenario`` (one controller kind): the controller's
     label and colour, whether it learns (and its F_f centre preset), the contact, the scaling of λ,
-    the task coordinates' and joints' names and the reference's periods."""
+    the task coordinates' and joints' names, the joints' and λ's units (what exports label each
+    component with: :func:`hinfnn.fields.component_units`) and the reference's periods."""
     from ..controllers import KINDS
 
     kind = scenario.kinds[0]
@@ -236,8 +244,10 @@ def describe(scenario) -> dict:
                if isinstance(v, (int, float)) and math.isfinite(v)]
     try:
         coordinates, joints = scenario.coordinate_names(), scenario.joint_names()
+        setup = scenario.build()
+        joint_units, lambda_unit = setup.joint_units, setup.constraint.lambda_unit
     except Exception:  # noqa: BLE001 - a description never fails over a label
-        coordinates, joints = None, None
+        coordinates, joints, joint_units, lambda_unit = None, None, None, None
     return {
         "kind": kind, "label": comp.label if comp is not None else kind, "color": KIND_COLORS.get(kind, ""),
         "networks": learning, "f_f_preset": ctrl.network_f.preset if learning else None,
@@ -247,6 +257,8 @@ def describe(scenario) -> dict:
         "lambda_scaling": getattr(scenario.nominal.surface, "scaling", None),
         "coordinates": [list(c) for c in coordinates] if coordinates else None,
         "joints": list(joints) if joints else None,
+        "joint_units": joint_units,
+        "lambda_unit": lambda_unit,
         "reference_periods": periods,
         "engine": scenario.plant.engine,
         "control": scenario.simulation.control,

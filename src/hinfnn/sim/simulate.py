@@ -125,11 +125,18 @@ class Carry:
     ``tau_peak``/``tau_tv``/``tau_prev``: max |τ_i| and Σ|τ_i(t_k) − τ_i(t_{k−1})| over the steps
     since the last record, and τ at the previous step (NaN before the first); ``sums``/``maxes``:
     the recorder's step summaries over those steps. Records taken every ``save_every`` steps thus
-    still give the exact peak, total variation and RMS values over every step.
+    still give the exact peak, total variation and RMS values over every step. A run that stops
+    counts the step that stopped it and none after it: the first record after the stop summarises
+    the steps from the previous record up to the stop (its other entries are the frozen state, the
+    state at the start of that step), so the metrics of a partial run cover every step it ran.
     """
 
     y: SimState
     held: jax.Array  # the zero-order-held torque (sampled mode)
+    #: sampled mode: the controller state the next sample's law reads (the update of the last
+    #: sample); ``y.xc`` holds the state the held torque was computed from, which the records and
+    #: the bookkeeping between samples read. None in continuous mode.
+    xc_next: object
     status: jax.Array  # a RunStatus value
     t_fail: jax.Array
     bad_tau: jax.Array
@@ -159,10 +166,12 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
     rolled = _loop.current().rolled(plant.n) if rolled is None else rolled
 
     def sample(c: Carry, k, skip=False):
-        """At a sample instant: τ held from now on, controller state advanced by the controller's
-        zero-order-hold update. The update runs only at sample instants (a ``lax.cond`` on the
-        step index, which every member of a batch shares, so it stays a branch under ``vmap``);
-        a stopped run (its own status) keeps what it held."""
+        """At a sample instant: τ held from now on, computed from the state of the previous
+        sample's update (``c.xc_next``), which is now the state the law acts with (``y.xc``: what
+        the records and the bookkeeping read until the next sample, as it acted); the controller's
+        zero-order-hold update from it is kept for the next sample. The update runs only at sample
+        instants (a ``lax.cond`` on the step index, which every member of a batch shares, so it
+        stays a branch under ``vmap``); a stopped run (its own status) keeps what it held."""
         if not sampled:
             return c
         due = (jnp.mod(k, n_hold) == 0) & (k < n_steps) & ~jnp.asarray(skip)
@@ -171,11 +180,14 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             t = k * dt
             y = c.y
             meas, _ = plant.sense(t, y.plant)
-            tau_s, xc_s = ctrl.sample(t, n_hold * dt, y.xc, meas, ref)
+            tau_s, xc_s = ctrl.sample(t, n_hold * dt, c.xc_next, meas, ref)
             running = c.status == 0
-            held = jnp.where(running, tau_s, c.held)
-            xc = jax.tree.map(lambda new, old: jnp.where(running, new, old), xc_s, y.xc)
-            return dataclasses.replace(c, y=SimState(plant=y.plant, xc=xc, acc=y.acc), held=held)
+
+            def keep(new, old):
+                return jax.tree.map(lambda a, b: jnp.where(running, a, b), new, old)
+
+            return dataclasses.replace(c, y=SimState(plant=y.plant, xc=keep(c.xc_next, y.xc), acc=y.acc),
+                                       held=jnp.where(running, tau_s, c.held), xc_next=keep(xc_s, c.xc_next))
 
         return jax.lax.cond(due, update, lambda c: c, c)
 
@@ -214,10 +226,16 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         y_in = c.y
         y_new, aux = advance(t, y_in, plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt), c.held, take=first)
         tau = aux["tau"]
-        rec = dict(aux, tau_abs_max=jnp.maximum(c.tau_peak, jnp.abs(tau)),
-                   tau_variation=c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev)),
-                   **{name: c.sums[name] + fn(aux) for name, fn in STEP_SUMS.items()},
-                   **{name: jnp.maximum(c.maxes[name], fn(aux)) for name, fn in STEP_MAXES.items()})
+        running = c.status == 0
+
+        def own(new, old):  # a stopped run's steps (its frozen state) add nothing to the summaries
+            return jnp.where(running, new, old)
+
+        rec = dict(aux, tau_abs_max=own(jnp.maximum(c.tau_peak, jnp.abs(tau)), c.tau_peak),
+                   tau_variation=own(c.tau_tv + jnp.where(jnp.isnan(c.tau_prev), 0.0, jnp.abs(tau - c.tau_prev)),
+                                     c.tau_tv),
+                   **{name: own(c.sums[name] + fn(aux), c.sums[name]) for name, fn in STEP_SUMS.items()},
+                   **{name: own(jnp.maximum(c.maxes[name], fn(aux)), c.maxes[name]) for name, fn in STEP_MAXES.items()})
         tau_peak = jnp.max(jnp.abs(tau))
         pen = aux["penetration"]
         finite_parts = (all_finite(y_new.plant), all_finite(y_new.xc), all_finite(y_new.acc))
@@ -231,13 +249,13 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         first_fail = (status == 0) & (code != 0)
         status = jnp.where(status == 0, code, status)
         keep_old = (status != 0) | ~active
-        count = active & ~first
+        count = active & ~first & running  # the step that stops the run is counted, none after it
 
         def stat(new, old):  # restart at a record, else accumulate over the counted steps
             return jnp.where(first, jnp.zeros_like(old), jnp.where(count, new, old))
 
         return Carry(
-            y=jax.tree.map(lambda a, b: jnp.where(keep_old, a, b), y_in, y_new), held=c.held,
+            y=jax.tree.map(lambda a, b: jnp.where(keep_old, a, b), y_in, y_new), held=c.held, xc_next=c.xc_next,
             status=status,
             t_fail=jnp.where(first_fail, jnp.where(code == 1, t + dt, t), c.t_fail),
             bad_tau=jnp.where(first_fail, tau_peak, c.bad_tau),
@@ -347,7 +365,8 @@ def _final(plant, ctrl, ref, carry):
 
     y_end = carry.y
     q, qd = plant.joints(y_end.plant)
-    final = dict(q=q, qd=qd, **ctrl.state_arrays(y_end.xc), J=y_end.acc.J, J_aug=y_end.acc.J_aug,
+    xc_end = y_end.xc if carry.xc_next is None else carry.xc_next  # sampled: the last sample's update
+    final = dict(q=q, qd=qd, **ctrl.state_arrays(xc_end), J=y_end.acc.J, J_aug=y_end.acc.J_aug,
                  supply=y_end.acc.supply)
     fault_value = carry.bad_fault
     if type(ctrl).fault_measure is not Controller.fault_measure:
@@ -359,14 +378,15 @@ def _final(plant, ctrl, ref, carry):
     return la.default_layout((carry.status, carry.t_fail, details, final))
 
 
-def _init_carry(ctrl, y0, n):
+def _init_carry(ctrl, y0, n, sampled: bool = False):
     """The first carry, strongly typed so that the carry a chunk returns has the same types (no
-    second compile)."""
+    second compile); ``sampled``: the sampled-data mode's (the controller state carried twice:
+    :attr:`Carry.xc_next`)."""
     f64 = jnp.float64
     zero = jnp.zeros((), f64)
     # per-coordinate sums: e_u1 has the controller's m entries, e_λ its k
     sizes = {"tau_sq": n, "e_u1_sq": ctrl.m, "e_lam_sq": ctrl.k}
-    return Carry(y=y0, held=jnp.zeros(n, f64), status=jnp.zeros((), jnp.int32),
+    return Carry(y=y0, held=jnp.zeros(n, f64), xc_next=y0.xc if sampled else None, status=jnp.zeros((), jnp.int32),
                  t_fail=jnp.array(jnp.nan, dtype=f64), bad_tau=zero, bad_pen=zero,
                  bad_parts=jnp.zeros((), jnp.int32), bad_fault=jnp.array(jnp.nan, dtype=f64),
                  bad_fault_index=jnp.full((), -1, jnp.int32),
@@ -409,13 +429,13 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
     options = loop.compiler_options(n_joints)
     loop = loop.for_joints(n_joints)
     chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields, book=book)
-    final, init = _final, _init_carry
+    final, init = _final, functools.partial(_init_carry, sampled=sampled)
     members = {"chunk": None, "final": None}
     if in_axes is not None:
         p, c, r, lim = in_axes
         chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None, None, None))
         final = jax.vmap(final, in_axes=(p, c, r, 0))
-        init = jax.vmap(_init_carry, in_axes=(c, 0, None))
+        init = jax.vmap(init, in_axes=(c, 0, None))
         # the batch's own options (member_minor) by its size: the leading axis of the carry
         members = {"chunk": lambda *a: jax.tree.leaves(a[4])[0].shape[0],
                    "final": lambda *a: jax.tree.leaves(a[3])[0].shape[0]}
@@ -795,7 +815,7 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
         return dict(_RECORD_SHAPES[key])
 
     def one(plant, ctrl, ref, lim, y0):
-        carry = _init_carry(ctrl, y0, plant.n)
+        carry = _init_carry(ctrl, y0, plant.n, sampled)
         _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True, book=book)
         return _derived(ctrl, step(carry, jnp.zeros((), jnp.int64), True)[1], fields)
 
