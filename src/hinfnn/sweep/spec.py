@@ -324,6 +324,8 @@ def spec_names() -> list[str]:
 def read_spec_source(name_or_path) -> tuple[str, str, Path | None]:
     """(TOML text, where it came from, its folder or None for a shipped spec)."""
     text_name = str(name_or_path)
+    if not text_name.strip():
+        raise ConfigError(f"{text_name!r} is empty; give a sweep spec name (hinfnn sweep --list) or a .toml file")
     path = Path(text_name)
     if path.suffix == ".toml" or path.exists() or "/" in text_name:
         if path.is_dir():
