@@ -618,6 +618,24 @@ def test_kind_switch_is_reported_at_the_kind_key():
     assert info.value.key == "plant.arm.model"
 
 
+@pytest.mark.parametrize("overrides,words", [
+    ("plant.arm.m1=2", "got 'plant.arm.m1=2'"),
+    ([("plant.arm.m1", 2.0, 3.0)], "('plant.arm.m1', 2.0, 3.0) is neither"),
+    ([3], "; 3 is neither"),
+    (7, "got 7"),
+    ({1: 2.0}, "keys must be dotted scenario keys (strings), got 1"),
+])
+def test_overrides_of_another_shape_are_refused(overrides, words):
+    with pytest.raises(H.ConfigError) as err:
+        H.load_scenario("paper", overrides, check=False)
+    assert err.value.key == "overrides" and words in str(err.value)
+    assert "a dict of dotted keys to values, or a list of 'key=value' strings or (key, value) pairs" in str(err.value) \
+        or "keys must be" in str(err.value)
+    # the shapes it takes
+    for good in ({"plant.arm.m1": 2.0}, ["plant.arm.m1=2.0"], [("plant.arm.m1", 2.0)], (["plant.arm.m1", 2.0],)):
+        assert H.load_scenario("paper", good, check=False).plant.arm.m1 == 2.0
+
+
 SPHERE = {"kind": "sphere", "centre": [0.5, 0.1, -0.25], "radius": 0.3}
 
 

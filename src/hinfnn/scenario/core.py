@@ -24,6 +24,7 @@ import difflib
 import functools
 import math
 import tomllib
+from collections.abc import Iterable
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -280,10 +281,25 @@ def parse_override(item: str) -> tuple[str, Any]:
 def override_items(overrides) -> list[tuple[str, Any]]:
     """``(key, value)`` pairs of a dict, of ``"key=value"`` strings or of pairs, the values as TOML
     would give them (:func:`~hinfnn.scenario.schema.plain`: NumPy values as Python's)."""
+    allowed = ("a dict of dotted keys to values, or a list of 'key=value' strings or (key, value) pairs, "
+               "e.g. {'plant.arm.m1': 2.0} or ['plant.arm.m1=2.0']")
     if isinstance(overrides, dict):
         items = list(overrides.items())
+    elif isinstance(overrides, (str, bytes)) or not isinstance(overrides, Iterable):
+        raise ConfigError(f"must be {allowed}, got {overrides!r:.80}", key="overrides")
     else:
-        items = [parse_override(o) if isinstance(o, str) else tuple(o) for o in overrides]
+        items = []
+        for o in overrides:
+            if isinstance(o, str):
+                items.append(parse_override(o))
+                continue
+            pair = tuple(o) if isinstance(o, Iterable) and not isinstance(o, (bytes, dict)) else ()
+            if len(pair) != 2:
+                raise ConfigError(f"must be {allowed}; {o!r:.80} is neither", key="overrides")
+            items.append(pair)
+    for k, _ in items:
+        if not isinstance(k, str):
+            raise ConfigError(f"keys must be dotted scenario keys (strings), got {k!r:.80}", key="overrides")
     return [(k, schema.plain(v)) for k, v in items]
 
 
