@@ -682,3 +682,19 @@ def test_a_derived_file_switches_an_arm_model_and_the_engine(tmp_path):
     built_in = H.load_scenario("ur5-polish", {"plant.engine": "hinfnn"}, check=False)
     assert built_in.plant.engine == "hinfnn" and not hasattr(built_in.plant, "mjcf")
     assert built_in.plant.arm == polish.plant.arm and built_in.plant.contact == polish.plant.contact
+
+
+def test_networks_that_compile_for_minutes_are_announced_before_the_work():
+    import warnings
+
+    from hinfnn.errors import HinfnnWarning
+
+    big = {"controller.kind": "hinf_nn", "controller.network_f.preset": "custom",
+           "controller.network_p.centre_count": 2600, "controller.network_f.centre_count": 2600}
+    with pytest.warns(HinfnnWarning, match=r"the hinf_nn controller's networks have 5,200 weights \(theta_p 2,600, "
+                                           r"theta_f 2,600; .* XLA may print 'Very slow compile\?'"):
+        H.load_scenario("paper", big)
+    with warnings.catch_warnings():  # the shipped networks say nothing
+        warnings.simplefilter("error", HinfnnWarning)
+        H.load_scenario("ur5-table", {"controller.kind": "hinf_nn"})
+
