@@ -608,6 +608,93 @@ def test_two_link_arm_has_only_its_native_coordinates():
 
 
 def test_kind_switch_is_reported_at_the_kind_key():
-    with pytest.raises(H.ConfigError, match="model = 'urdf' does not take") as info:
+    # the base's two_link keys go with the switch; the new kind's own keys are then required ...
+    with pytest.raises(H.ConfigError, match="is missing") as info:
         H.load_scenario("paper", {"plant.arm.model": "urdf"}, check=False)
+    assert info.value.key == "plant.arm.file"
+    # ... and a key of the old kind given with the switch is refused at the kind key
+    with pytest.raises(H.ConfigError, match="model = 'urdf' does not take the key 'm1'") as info:
+        H.load_scenario("paper", {"plant.arm.model": "urdf", "plant.arm.m1": 2.0}, check=False)
     assert info.value.key == "plant.arm.model"
+
+
+@pytest.mark.parametrize("overrides,words", [
+    ("plant.arm.m1=2", "got 'plant.arm.m1=2'"),
+    ([("plant.arm.m1", 2.0, 3.0)], "('plant.arm.m1', 2.0, 3.0) is neither"),
+    ([3], "; 3 is neither"),
+    (7, "got 7"),
+    ({1: 2.0}, "keys must be dotted scenario keys (strings), got 1"),
+])
+def test_overrides_of_another_shape_are_refused(overrides, words):
+    with pytest.raises(H.ConfigError) as err:
+        H.load_scenario("paper", overrides, check=False)
+    assert err.value.key == "overrides" and words in str(err.value)
+    assert "a dict of dotted keys to values, or a list of 'key=value' strings or (key, value) pairs" in str(err.value) \
+        or "keys must be" in str(err.value)
+    # the shapes it takes
+    for good in ({"plant.arm.m1": 2.0}, ["plant.arm.m1=2.0"], [("plant.arm.m1", 2.0)], (["plant.arm.m1", 2.0],)):
+        assert H.load_scenario("paper", good, check=False).plant.arm.m1 == 2.0
+
+
+SPHERE = {"kind": "sphere", "centre": [0.5, 0.1, -0.25], "radius": 0.3}
+
+
+def _toml_table(name, table):
+    return f"[{name}]\n" + "".join(f"{k} = {v!r}\n".replace("'", '"') for k, v in table.items())
+
+
+def test_a_derived_file_switches_a_surface_kind_with_the_new_kinds_keys_only(tmp_path):
+    """docs/scenarios.md: a file that switches kind lists the new kind's keys only (the base's
+    plane keys point and normal go; scaling, which a sphere takes too, stays)."""
+    path = tmp_path / "ball.toml"
+    path.write_text('base = "ur5-table"\nname = "ur5-ball"\n' + _toml_table("plant.surface", SPHERE)
+                    + _toml_table("nominal.surface", SPHERE))
+    sc = H.load_scenario(str(path), check=False)
+    base = H.load_scenario("ur5-table", check=False)
+    assert base.plant.surface.kind == "plane"
+    for which in ("plant", "nominal"):
+        got = getattr(sc, which).surface
+        assert (got.kind, got.centre, got.radius) == ("sphere", (0.5, 0.1, -0.25), 0.3)
+        assert got.scaling == getattr(base, which).surface.scaling
+    assert sc.plant.arm == base.plant.arm and sc.plant.contact == base.plant.contact
+    # the same switch by overrides (--set), and a plane key kept with it is refused at the kind key
+    over = H.load_scenario("ur5-table", {f"{w}.surface.{k}": v for w in ("plant", "nominal") for k, v in SPHERE.items()},
+                           check=False)
+    assert over.plant.surface == sc.plant.surface and over.nominal.surface == sc.nominal.surface
+    path.write_text('base = "ur5-table"\n' + _toml_table("plant.surface", {**SPHERE, "normal": [0.0, 0.0, 1.0]}))
+    with pytest.raises(H.ConfigError, match="kind = 'sphere' does not take the key 'normal' \\(kind = 'plane'\\)") as info:
+        H.load_scenario(str(path), check=False)
+    assert info.value.key == "plant.surface.kind"
+    path.write_text('base = "ur5-table"\n[plant.surface]\nkind = "sphere"\n')
+    with pytest.raises(H.ConfigError, match="is missing") as info:
+        H.load_scenario(str(path), check=False)
+    assert info.value.key == "plant.surface.centre"
+
+
+def test_a_derived_file_switches_an_arm_model_and_the_engine(tmp_path):
+    path = tmp_path / "planar.toml"
+    path.write_text('base = "paper"\n[plant.arm]\nmodel = "planar"\nmasses = [1.0, 1.0]\nlengths = [1.0, 1.0]\n')
+    sc = H.load_scenario(str(path), check=False)
+    paper = H.load_scenario("paper", check=False)
+    assert sc.plant.arm.model == "planar" and sc.plant.arm.masses == (1.0, 1.0) and sc.plant.arm.g == paper.plant.arm.g
+    # MuJoCo to the built-in plant: the MuJoCo-only keys of the base go, the arm and contact stay
+    polish = H.load_scenario("ur5-polish", check=False)
+    built_in = H.load_scenario("ur5-polish", {"plant.engine": "hinfnn"}, check=False)
+    assert built_in.plant.engine == "hinfnn" and not hasattr(built_in.plant, "mjcf")
+    assert built_in.plant.arm == polish.plant.arm and built_in.plant.contact == polish.plant.contact
+
+
+def test_networks_that_compile_for_minutes_are_announced_before_the_work():
+    import warnings
+
+    from hinfnn.errors import HinfnnWarning
+
+    big = {"controller.kind": "hinf_nn", "controller.network_f.preset": "custom",
+           "controller.network_p.centre_count": 2600, "controller.network_f.centre_count": 2600}
+    with pytest.warns(HinfnnWarning, match=r"the hinf_nn controller's networks have 5,200 weights \(theta_p 2,600, "
+                                           r"theta_f 2,600; .* XLA may print 'Very slow compile\?'"):
+        H.load_scenario("paper", big)
+    with warnings.catch_warnings():  # the shipped networks say nothing
+        warnings.simplefilter("error", HinfnnWarning)
+        H.load_scenario("ur5-table", {"controller.kind": "hinf_nn"})
+

@@ -250,6 +250,34 @@ def test_missing_file_and_bad_toml_exit_2(tmp_path, capsys):
     assert "not valid TOML" in capsys.readouterr().err
 
 
+def test_an_empty_base_or_name_exits_2_saying_so(tmp_path, capsys):
+    empty = tmp_path / "empty.toml"
+    empty.write_text('base = ""\n')
+    assert cli.main(["run", str(empty), "--out", str(tmp_path / "x")]) == 2
+    assert capsys.readouterr().err.strip() == \
+        "hinfnn: ConfigError: base: '' is empty; give a scenario name (hinfnn scenarios) or a .toml file"
+    assert cli.main(["run", "", "--out", str(tmp_path / "x")]) == 2
+    assert capsys.readouterr().err.strip() == \
+        "hinfnn: ConfigError: '' is empty; give a scenario name (hinfnn scenarios) or a .toml file"
+    assert cli.main(["sweep", " ", "--out", str(tmp_path / "x")]) == 2
+    assert capsys.readouterr().err.strip() == \
+        "hinfnn: ConfigError: ' ' is empty; give a sweep spec name (hinfnn sweep --list) or a .toml file"
+    assert not (tmp_path / "x").exists()
+
+
+def test_a_utf8_byte_order_mark_is_skipped(tmp_path):
+    from hinfnn.sweep import load_spec
+    from hinfnn.workflows.run import result_name
+
+    path = tmp_path / "bom.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + 'base = "paper"\nname = "bommed"\n[plant.arm]\nm1 = 1.25\n'.encode())
+    sc = Scenario.load(str(path), check=False)
+    assert (sc.name, sc.plant.arm.m1) == ("bommed", 1.25) and result_name(sc) == "bommed"
+    spec = tmp_path / "spec.toml"
+    spec.write_bytes(b"\xef\xbb\xbf" + f'name = "b"\nscenario = "{path.name}"\ncontrollers = ["hinf"]\n'.encode())
+    assert load_spec(str(spec)).base.plant.arm.m1 == 1.25
+
+
 def test_compare_writes_one_run_per_value(tmp_path, capsys):
     """`hinfnn compare`: one run per value of the one varied key, compare.md with a row each and the
     ratios against the first value; refused (exit 2, before anything runs) with two varied keys or

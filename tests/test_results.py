@@ -662,3 +662,12 @@ def test_files_added_during_a_run_are_kept(tmp_path, result, monkeypatch):
                               out=out, force=True, log=lambda m: None)
     assert res.target == tmp_path / "r-2" and "did not write appeared" in res.note
     assert (out / "late.txt").read_text() == "mine" and _complete(out) and _complete(tmp_path / "r-2")
+
+
+def test_loading_a_sweep_folder_says_it_is_a_sweep(tmp_path):
+    from hinfnn.sweep.store import MANIFEST
+
+    (tmp_path / MANIFEST).write_text("{}")
+    with pytest.raises(H.LoadError, match="is a sweep .* not a run's result: its table is .*results.parquet "
+                                          r"\(hinfnn.load_sweep\)"):
+        H.load(tmp_path)

@@ -275,6 +275,54 @@ def test_checked_rejects_wrong_shapes(sampled_fl):
         sc.update_checked(0.0, 0.0, state, Measurement(q=q0, qd=np.zeros(2), force=np.zeros(2)))
 
 
+@pytest.mark.parametrize("bad", ["q_strings", "q_complex", "q_list_of_strings", "t_one_element", "t_complex",
+                                 "period_string"])
+def test_both_updates_refuse_strings_complex_numbers_and_an_array_of_t(sampled_fl, bad):
+    """Nothing is silently converted: strings and complex numbers (whose imaginary part a float
+    buffer would drop) and a t that is an array are refused, naming the input; the state stays."""
+    sc, q0 = sampled_fl
+    args = {"t": 0.0, "period": PERIOD, "q": np.asarray(q0, dtype=float), "qd": np.zeros(2), "force": np.zeros(2)}
+    name, how = bad.split("_", 1)
+    args[name] = {"strings": np.array(["0.1", "0.2"]), "complex": args[name] + 1e-3j,
+                  "list_of_strings": ["a", "b"], "one_element": np.array([0.0]), "string": "0.001"}[how]
+    key = f"measurement.{name}" if name == "q" else name
+    loop = sc.loop()
+    with pytest.raises(MeasurementError) as err:
+        loop.update(args["t"], args["period"], args["q"], args["qd"], args["force"])
+    assert err.value.key == key
+    assert loop.rejected == 0 and np.all(loop.state.z == 0)
+    with pytest.raises(MeasurementError) as err:
+        sc.update(args["t"], args["period"], sc.init(),
+                  Measurement(q=args["q"], qd=args["qd"], force=args["force"]))
+    assert err.value.key == key
+    # a good sample still goes through both, to the same torque
+    tau = loop.update(0.0, PERIOD, q0, np.zeros(2), np.zeros(2))
+    np.testing.assert_array_equal(tau, np.asarray(sc.update(0.0, PERIOD, sc.init(),
+                                                            Measurement(q=q0, qd=np.zeros(2), force=np.zeros(2)))[0]))
+
+
+def test_a_reference_of_the_wrong_size_is_refused_naming_the_sizes(paper_plant):
+    import dataclasses
+
+    sc = _scenario("hinf")
+    ctrl, ref = sc.build_controller("hinf"), sc.build_reference()
+    two = jnp.array([1.5, 1.5])
+    bad = dataclasses.replace(ref, u1_offset=two, u1_amplitude=two, u1_omega=two, u1_phase=two)
+    words = "gives u1_d of shape (2,), but the controller has m = 1 motion and k = 1 force coordinates"
+    for call in (lambda: H.SampledController(ctrl, bad).init(), lambda: H.SampledController(ctrl, bad).loop(),
+                 lambda: H.simulate(paper_plant, ctrl, bad, t_final=0.01, q0=sc.initial_q()),
+                 lambda: H.simulate_batch([paper_plant] * 2, ctrl, [ref, bad], t_final=0.01, q0=sc.initial_q())):
+        with pytest.raises(H.ConfigError) as err:
+            call()
+        assert err.value.key == "reference" and words in str(err.value)
+    lam = dataclasses.replace(ref, lam_offset=jnp.zeros(3))
+    with pytest.raises(H.ConfigError, match=r"gives lam_d of shape \(3,\).*lam_d shape \(1,\)"):
+        H.SampledController(ctrl, lam).init()
+    # a scalar reference is broadcast as before
+    scalar = dataclasses.replace(ref, u1_offset=1.5, u1_amplitude=0.2, u1_omega=jnp.pi, u1_phase=0.0)
+    H.SampledController(ctrl, scalar).init()
+
+
 def test_wrong_parts_are_rejected():
     sc = _scenario("fl")
     with pytest.raises(TypeError, match="controller"):

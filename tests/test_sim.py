@@ -875,3 +875,20 @@ def test_the_metrics_table_says_why_a_run_has_no_dissipation_verdict():
     assert "off: J(T) and the dissipation verdict n/a" in text and "on: J(T)" not in text
     doc["scenario"]["simulation"]["bookkeeping"] = False
     assert "off, on: J(T) and the dissipation verdict n/a" in metrics_table(doc, markdown=False)
+
+
+def test_a_start_pose_of_the_wrong_size_or_type_and_an_empty_batch_are_refused(paper_plant, nominal_arm,
+                                                                               nominal_surface, reference):
+    ctrl = H.HinfController.design(nominal_arm, nominal_surface)
+    for key, kw, words in (("q0", {"q0": np.zeros(3)}, "must be 2 real numbers (the arm has n = 2 joints), got float64 "
+                                                        "values of shape (3,)"),
+                           ("q0", {"q0": np.array([0.5, 0.5]) + 1e-3j}, "got complex128 values of shape (2,)"),
+                           ("qd0", {"u1_0": U1_0, "qd0": [0.0]}, "got float64 values of shape (1,)")):
+        with pytest.raises(H.ConfigError) as err:
+            H.simulate(paper_plant, ctrl, reference, t_final=0.01, **kw)
+        assert err.value.key == key and words in str(err.value)
+    with pytest.raises(H.ConfigError) as err:
+        H.simulate_batch([paper_plant] * 2, ctrl, reference, t_final=0.01, q0=[np.zeros(2), np.zeros(3)])
+    assert err.value.key == "q0"
+    with pytest.raises(H.ConfigError, match="at least one member: the lists .* are empty"):
+        H.simulate_batch([], ctrl, reference, t_final=0.01)

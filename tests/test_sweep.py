@@ -203,6 +203,15 @@ BAD = [  # (spec body after the header, key named, words)
     ('seeed = 3', "seeed", "did you mean"),
     ('[set]\n"plant.arm.m1" = -2', "set.plant.arm.m1", "> 0"),
     ('[set]\n"simulation.dt" = 0.005\n"simulation.output_interval" = 0.01', "simulation.dt", "too large"),
+    ('[vary]\n"plant.arm.m1" = { linspace = [2.0, -1.0, 4] }', "vary.plant.arm.m1", "grid value -1"),
+    ('[vary]\n"plant.arm.m1" = { linspace = [1.0, 2.0, 100000] }\n"plant.arm.m2" = { linspace = [1.0, 2.0, 100000] }',
+     "vary", "= 10,000,000,000 draws (10,000,000,000 runs with 1 controller), above the cap of 10,000,000 draws"),
+    ('samples = 1000\n[vary]\n"plant.arm.m1" = { linspace = [1.0, 2.0, 100000] }\n'
+     '"plant.arm.m2" = { distribution = "relative", percent = 10 }', "vary",
+     "100,000 (plant.arm.m1) × 1,000 samples = 100,000,000 draws"),
+    ('scenario = "ur5-table"\n[vary]\n"plant.arm.m1" = { values = [1.0, 2.0] }', "vary.plant.arm.m1",
+     "not a key of the base scenario: plant.arm.model: model = 'urdf' does not take the key 'm1'"),
+    ('[vary]\n"plant.arm.mm1" = { values = [1.0, 2.0] }', "vary.plant.arm.mm1", "did you mean 'plant.arm.m1'"),
 ]
 
 
@@ -240,6 +249,58 @@ def test_cli_options_are_checked(tmp_path, capsys):
     (tmp_path / "afile").write_text("x")
     assert cli.main(["sweep", str(path), "--out", str(tmp_path / "afile")]) == 2
     assert "not a folder" in capsys.readouterr().err
+
+
+def test_a_grid_within_the_cap_is_counted_without_computing_it():
+    spec = spec_of('name = "g"\ncontrollers = ["hinf"]\n[vary]\n"plant.arm.m1" = { linspace = [1.0, 2.0, 100000] }\n'
+                   '"plant.arm.m2" = { logspace = [0.5, 2.0, 100] }\n')
+    assert spec.points == 10_000_000 and spec.n_runs == 10_000_000
+    assert [v.how.size for v in spec.varied] == [100_000, 100]
+
+
+def test_the_sweep_says_how_many_runs_before_it_starts(tmp_path, capsys, monkeypatch):
+    from hinfnn.sweep import run as sweep_run
+
+    def stop(*args, **kwargs):
+        raise ConfigError("stopped here", key="--test")
+
+    monkeypatch.setattr(sweep_run, "run_sweep", stop)
+    assert cli.main(["sweep", str(write(tmp_path, SPEC)), "--out", str(tmp_path / "o")]) == 2
+    assert "hinfnn sweep: 4 runs: 1 grid point(s) × 4 sample(s) × 1 controller(s)" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("address,words", [
+    ("localhost:notaport", "must be 'auto' (the cluster this machine belongs to), HOST:PORT"),
+    ("10.0.0.5", "HOST:PORT"),
+    ("ray://10.0.0.5", "ray://HOST:PORT"),
+    ("10.0.0.5:70000", "HOST:PORT"),
+    ("ray://10.0.0.5:10001", "Ray Client, which needs pip install 'ray[client]'"),
+])
+def test_ray_addresses_are_checked_before_any_work(tmp_path, capsys, monkeypatch, address, words):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    # Ray present, Ray Client's grpc absent, whatever this machine has
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "grpc" else (object() if name == "ray" else real(name, *a)))
+    path = write(tmp_path, SPEC)
+    assert cli.main(["sweep", str(path), "--backend", "ray", "--address", address, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("hinfnn: ConfigError: --address: ") and "\n" not in err, err
+    assert repr(address) in err and words in err, err
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_ray_backend_without_ray_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "ray" else real(name, *a))
+    path = write(tmp_path, SPEC)
+    assert cli.main(["sweep", str(path), "--backend", "ray", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "hinfnn: ConfigError: --backend: the ray backend needs Ray: pip install 'hinfnn[ray]'"
+    assert not (tmp_path / "o").exists()
 
 
 def test_batches_have_equal_sizes_per_group_and_fit_memory():

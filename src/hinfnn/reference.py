@@ -12,9 +12,11 @@ from fractions import Fraction
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from . import _linalg as la
 from ._pytree import pytree_dataclass
+from .errors import ConfigError
 
 
 @pytree_dataclass
@@ -25,6 +27,33 @@ class RefSample:
     u1_d_dot: jax.Array
     u1_d_ddot: jax.Array
     lam_d: jax.Array
+
+
+def check_references(pairs) -> None:
+    """Each reference's sizes against its controller's, before anything is traced: for
+    ``(reference, m, k)`` pairs (m motion and k force coordinates), u1d, u̇1d and ü1d must have
+    shape (m,) and λd shape (k,) (a scalar is broadcast), or a :class:`~hinfnn.errors.ConfigError`
+    at ``reference`` names the sizes. Shapes only (``jax.eval_shape``: nothing is computed), once
+    per distinct structure and shapes (the members of a batch share them)."""
+    seen = set()
+    for ref, m, k in pairs:
+        leaves, tree = jax.tree.flatten(ref)
+        key = (tree, tuple(np.shape(x) for x in leaves), m, k)
+        if key in seen:
+            continue
+        seen.add(key)
+        out = jax.eval_shape(ref, 0.0)
+        names = ("u1_d", "u1_d_dot", "u1_d_ddot", "lam_d")
+        if not all(hasattr(out, a) for a in names):
+            raise ConfigError("must be a callable on t that returns a RefSample (u1_d, u1_d_dot, u1_d_ddot, lam_d), "
+                              f"got {type(out).__name__}", key="reference")
+        for name in names:
+            size = k if name == "lam_d" else m
+            shape = tuple(getattr(out, name).shape)
+            if shape not in ((), (size,)):
+                raise ConfigError(f"gives {name} of shape {shape}, but the controller has m = {m} motion and k = {k} "
+                                  f"force coordinates: u1_d, u1_d_dot and u1_d_ddot must have shape ({m},), lam_d "
+                                  f"shape ({k},)", key="reference")
 
 
 @jax.jit

@@ -57,11 +57,6 @@ def export(args) -> int:
 
 def _not_a_sweep(folder: Path) -> Path:
     """``folder``, unless it is a sweep's (a LoadError saying where a sweep's results are)."""
-    from ..errors import LoadError
-    from ..sweep.store import MANIFEST, is_sweep_folder
+    from ..io import not_a_sweep
 
-    if Path(folder).is_dir() and is_sweep_folder(folder):
-        raise LoadError(f"{folder} is a sweep (it has {MANIFEST}), not a run's result: its table is "
-                        f"{Path(folder) / 'results.parquet'} (hinfnn.load_sweep), its report and figures are "
-                        f"{Path(folder) / 'report.md'} and the PNG files beside it")
-    return folder
+    return not_a_sweep(folder)

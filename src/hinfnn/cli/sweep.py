@@ -40,6 +40,9 @@ def main(args) -> int:
         if not args.quiet:
             print(f"hinfnn sweep: {message}", file=sys.stderr, flush=True)
 
+    log(f"{spec.n_runs:,} runs: {spec.points:,} grid point(s) × {spec.samples:,} sample(s) × "
+        f"{len(spec.controllers)} controller(s)")
+
     try:
         res = run_sweep(spec, output.work, backend=args.backend, address=args.address, resume=output.resume,
                         max_batch=args.batch_size, progress=progress, log=log, command=command_line(args),

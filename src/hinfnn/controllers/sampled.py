@@ -94,9 +94,16 @@ from .._loop import ROLL_FROM_JOINTS
 from .._pytree import all_finite, pytree_dataclass
 from ..errors import HinfnnError
 from ..protocols import Measurement
+from ..reference import check_references
 from .law import ControllerState, ReducedOrderController
 
 __all__ = ["SampledController", "SampledLoop", "MeasurementError"]
+
+_F8 = np.dtype(float)
+#: The dtype kinds a sample's numbers may have: floats and integers (not complex, not strings).
+_REAL_KINDS = "fiu"
+#: Python types a t or period would be converted from silently (NumPy's complex scalars are complex).
+_NOT_REAL = (complex, str, bytes)
 
 
 class MeasurementError(HinfnnError, ValueError):
@@ -112,6 +119,20 @@ class MeasurementError(HinfnnError, ValueError):
         self.value = value
         self.t = t
         super().__init__(f"{key}: {message}" if key else message)
+
+
+def _plain(n_shape: tuple, d_shape: tuple, q, qd, force) -> bool:
+    """True when q, q̇ have shape ``n_shape`` = (n,), force ``d_shape`` = (d,) and all three a real
+    dtype (a list counts as float: its entries are checked where it is converted): the cheap test
+    each update makes in Python, with no device round trip, before its compiled call (on arrays,
+    attribute reads only); ``check_sample`` names what is wrong otherwise."""
+    try:
+        return (q.shape == n_shape and qd.shape == n_shape and force.shape == d_shape and q.dtype.kind in _REAL_KINDS
+                and qd.dtype.kind in _REAL_KINDS and force.dtype.kind in _REAL_KINDS)
+    except AttributeError:  # lists, tuples, numbers
+        return (np.shape(q) == n_shape and np.shape(qd) == n_shape and np.shape(force) == d_shape
+                and getattr(q, "dtype", _F8).kind in _REAL_KINDS and getattr(qd, "dtype", _F8).kind in _REAL_KINDS
+                and getattr(force, "dtype", _F8).kind in _REAL_KINDS)
 
 
 def _as_meas(measurement) -> Measurement:
@@ -281,6 +302,13 @@ class SampledController:
         if not callable(self.reference):
             raise TypeError("SampledController.reference must be a reference callable on t "
                             f"(e.g. hinfnn.CosineReference), got {type(self.reference).__name__}")
+        self._reference_fits
+
+    @functools.cached_property
+    def _reference_fits(self) -> bool:
+        """The reference's sizes checked against the controller's m and k, once per wrapper."""
+        check_references([(self.reference, self.controller.m, self.controller.k)])
+        return True
 
     def _jit(self, fn, **jit_kwargs):
         """``jax.jit(fn)``, traced with the loop options the simulator traces this arm with
@@ -330,9 +358,20 @@ class SampledController:
         (31): forward Euler over the period. Pass t and period as floats and the measurement as
         float64 arrays (another dtype compiles a second program). Works under ``jax.vmap``. τ is
         all-NaN when a sample is unusable: check with :meth:`is_valid` (then keep your previous
-        state) or use :meth:`update_checked`.
+        state) or use :meth:`update_checked`. t and period must be numbers, q, q̇ and force real
+        vectors of shapes (n,), (n,), (d,): anything else raises :class:`MeasurementError`
+        naming the input (a cheap test in Python before the compiled call).
         """
-        return self._update(t, period, state, measurement)
+        m = measurement
+        if not (np.ndim(t) == 0 and np.ndim(period) == 0 and not isinstance(t, _NOT_REAL)
+                and not isinstance(period, _NOT_REAL)
+                and _plain((self.n_joints,), (self.force_size,), m.q, m.qd, m.force)):
+            self.check_sample(t, period, m.q, m.qd, m.force)  # raises, naming the input
+        try:
+            return self._update(t, period, state, measurement)
+        except (TypeError, ValueError):  # a list of strings ...: named, when the sample is at fault
+            self.check_sample(t, period, m.q, m.qd, m.force)
+            raise
 
     def update_packed(self, x):
         """One sample on the packed layouts (:meth:`step_packed`), jit-compiled once.
@@ -351,11 +390,15 @@ class SampledController:
 
     def check_sample(self, t, period, q, qd, force) -> None:
         """Raise :class:`MeasurementError` naming the input when t or period is not a finite
-        number, period ≤ 0, q or q̇ is not n finite numbers, or force is not d finite numbers."""
+        number, period ≤ 0, q or q̇ is not n finite numbers, or force is not d finite numbers
+        (complex numbers and strings are refused, not converted)."""
         n = self.n_joints
         for key, v in (("t", t), ("period", period)):
             try:
-                a = np.asarray(v, dtype=float)
+                a = np.asarray(v)
+                if a.dtype.kind not in _REAL_KINDS:
+                    raise TypeError(a.dtype)
+                a = a.astype(float)
             except (TypeError, ValueError):
                 raise MeasurementError(f"must be a finite number, got {v!r}", key=key, value=v, t=t) from None
             if a.shape != () or not np.isfinite(a):
@@ -365,9 +408,12 @@ class SampledController:
         d = self.force_size
         for name, v, size in (("q", q, n), ("qd", qd, n), ("force", force, d)):
             try:
-                v = np.asarray(v, dtype=float)
+                a = np.asarray(v)
+                if a.dtype.kind not in _REAL_KINDS:
+                    raise TypeError(a.dtype)
+                v = a.astype(float)
             except (TypeError, ValueError):
-                raise MeasurementError(f"must be {size} numbers, got {v!r:.80}", key=f"measurement.{name}",
+                raise MeasurementError(f"must be {size} real numbers, got {v!r:.80}", key=f"measurement.{name}",
                                        value=v, t=t) from None
             if v.shape != (size,):
                 what = (" (the contact force at the tool point, in the base frame's Cartesian axes)"
@@ -431,8 +477,8 @@ class SampledLoop:
     packed buffer (one buffer in and one out: faster than the leaves for its small state). q, q̇
     are NumPy-convertible vectors of shape (n,), force of shape (d,): the contact force the tool
     exerts on the surface at the tool point, in the base frame's Cartesian axes (for the paper's
-    planar arm: in N, in the plane's coordinates). A wrong shape raises :class:`MeasurementError`
-    (the state is not touched). The state is advanced only when τ is finite: after an unusable
+    planar arm: in N, in the plane's coordinates). A wrong shape, complex numbers or strings raise
+    :class:`MeasurementError` (the state is not touched). The state is advanced only when τ is finite: after an unusable
     sample (NaN or inf in t, h, q, q̇, force; h < 0; non-finite τ) ``update`` returns
     τ = [NaN, …], the state stays as it was, and ``rejected`` counts it. Same numbers as
     :meth:`SampledController.update`.
@@ -452,12 +498,13 @@ class SampledLoop:
     """
 
     __slots__ = ("controller", "_buf", "_leaves", "_packed", "_fn", "_n", "_d", "_ns", "_i_q", "_i_qd", "_i_F",
-                 "rejected", "_pending_start")
+                 "rejected", "_pending_start", "_shape_q", "_shape_F")
 
     def __init__(self, controller: SampledController, state: ControllerState, start: bool = False):
         self.controller = controller
         self._n = n = controller.n_joints
         self._d = controller.force_size
+        self._shape_q, self._shape_F = (n,), (self._d,)
         self._ns = controller.sample_size
         self._i_q, self._i_qd, self._i_F = slice(2, 2 + n), slice(2 + n, 2 + 2 * n), slice(2 + 2 * n, self._ns)
         self._packed = n < ROLL_FROM_JOINTS
@@ -483,21 +530,27 @@ class SampledLoop:
         exerts on the surface at the tool point, in the base frame's Cartesian axes, shape (d,)
         (for the paper's planar arm: in N along the plane's x and y axes, as a force/torque sensor
         gives it after the transform to the base frame); the controller turns it into λ itself. A
-        wrong shape raises :class:`MeasurementError` naming the input (the state is not touched)."""
+        wrong shape, complex numbers or strings (in any input; a t or period that is not one number)
+        raise :class:`MeasurementError` naming the input (the state is not touched)."""
         n = self._n
-        if np.shape(q) != (n,) or np.shape(qd) != (n,) or np.shape(force) != (self._d,):
+        if (not _plain(self._shape_q, self._shape_F, q, qd, force) or (type(t) is not float and isinstance(t, _NOT_REAL))
+                or (type(period) is not float and isinstance(period, _NOT_REAL))):
             self.controller.check_sample(t, period, q, qd, force)  # raises, naming the input
-        if self._pending_start:  # the controller's filters start at the first measurement
-            meas = Measurement(q=np.asarray(q, float), qd=np.asarray(qd, float), force=np.asarray(force, float))
-            if np.all(np.isfinite(meas.q)) and np.all(np.isfinite(meas.qd)) and np.all(np.isfinite(meas.force)):
-                self._set_state(self.controller.start(float(t), self.state, meas))
-                self._pending_start = False
         b = self._buf
-        b[self._i_q] = q
-        b[self._i_qd] = qd
-        b[self._i_F] = force
-        b[0] = t
-        b[1] = period
+        try:
+            b[self._i_q] = q
+            b[self._i_qd] = qd
+            b[self._i_F] = force
+            b[0] = t
+            b[1] = period
+        except (TypeError, ValueError):  # a t of one element, a list of strings ...
+            self.controller.check_sample(t, period, q, qd, force)  # raises, naming the input
+            raise
+        if self._pending_start:  # the controller's filters start at the first measurement
+            meas = Measurement(q=b[self._i_q].copy(), qd=b[self._i_qd].copy(), force=b[self._i_F].copy())
+            if np.all(np.isfinite(meas.q)) and np.all(np.isfinite(meas.qd)) and np.all(np.isfinite(meas.force)):
+                self._set_state(self.controller.start(float(b[0]), self.state, meas))
+                self._pending_start = False
         if self._packed:
             out = np.asarray(self._fn(b))
             tau = out[:n]

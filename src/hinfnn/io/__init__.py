@@ -11,10 +11,11 @@ from ..errors import LoadError
 from .folders import (MARKER, FolderLock, OutputFolder, Reservation, add_to_marker, atomic_write, atomic_write_bytes,
                       atomic_write_text, default_output, foreign_files, read_marker, reserve_output, safe_name,
                       timestamp, write_marker)
-from .formats import FORMAT, dumps_json, table, to_pandas, trajectory_npz_bytes
-from .load import SavedResult, load, load_metrics, load_npz
+from .formats import FORMAT, SWEEP_MANIFEST, dumps_json, table, to_pandas, trajectory_npz_bytes
+from .load import SavedResult, load, load_metrics, load_npz, not_a_sweep
 
 __all__ = ["LoadError", "MARKER", "FolderLock", "OutputFolder", "Reservation", "add_to_marker", "atomic_write",
            "atomic_write_bytes", "atomic_write_text", "default_output", "foreign_files", "read_marker",
-           "reserve_output", "safe_name", "timestamp", "write_marker", "FORMAT", "dumps_json", "table", "to_pandas",
-           "trajectory_npz_bytes", "SavedResult", "load", "load_metrics", "load_npz"]
+           "reserve_output", "safe_name", "timestamp", "write_marker", "FORMAT", "SWEEP_MANIFEST", "dumps_json",
+           "table", "to_pandas", "trajectory_npz_bytes", "SavedResult", "load", "load_metrics", "load_npz",
+           "not_a_sweep"]

@@ -20,6 +20,9 @@ from ..errors import ConfigError, LoadError
 from ..fields import component_units, unit
 
 FORMAT = "hinfnn-trajectory-1"
+#: The file that makes a folder a sweep's (:mod:`hinfnn.sweep.store` writes it; :func:`hinfnn.load`
+#: refuses such a folder, saying where its results are).
+SWEEP_MANIFEST = "manifest.json"
 
 
 def version() -> str:

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import HinfnnError, LoadError
-from .formats import FORMAT
+from .formats import FORMAT, SWEEP_MANIFEST
 
 
 # --- loading ----------------------------------------------------------------------------------
@@ -107,16 +107,26 @@ def load_npz(path: Path) -> tuple[dict, str]:
     return out, str(data["__hinfnn_version__"])
 
 
+def not_a_sweep(folder) -> Path:
+    """``folder``, unless it is a sweep's (a LoadError saying where a sweep's results are)."""
+    if Path(folder).is_dir() and (Path(folder) / SWEEP_MANIFEST).exists():
+        raise LoadError(f"{folder} is a sweep (it has {SWEEP_MANIFEST}), not a run's result: its table is "
+                        f"{Path(folder) / 'results.parquet'} (hinfnn.load_sweep), its report and figures are "
+                        f"{Path(folder) / 'report.md'} and the PNG files beside it")
+    return folder
+
+
 def load(path: str | Path) -> SavedResult:
     """Load a result folder written by ``hinfnn run``/``reproduce`` (or a ``trajectory.npz``).
 
     Returns the Trajectories by run name, the resolved scenario and the metrics.
-    Raises :class:`LoadError` for a missing, truncated or foreign file.
+    Raises :class:`LoadError` for a missing, truncated or foreign file, and for a sweep's folder
+    (read with :func:`hinfnn.load_sweep`).
     """
     from ..errors import ConfigError
     from ..scenario import Scenario
 
-    path = Path(path)
+    path = Path(not_a_sweep(path))
     folder = path if path.is_dir() else path.parent
     npz = path if path.is_file() else path / "trajectory.npz"
     if not folder.exists():

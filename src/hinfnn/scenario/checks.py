@@ -11,7 +11,11 @@ import math
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, HinfnnWarning
+
+#: Weights of a controller's networks (Θ̂p and Θ̂f together) from which compiling a run takes
+#: minutes (the shipped scenarios' networks have at most 360: 40 or 120 hidden units per coordinate).
+SLOW_COMPILE_WEIGHTS = 5_000
 
 
 def require_multiple(key, value, step, message, allow_zero=False):
@@ -88,12 +92,31 @@ def check(sc) -> None:
     controllers = [setup.controller(kind) for kind in sc.kinds]
     for ctrl in controllers:
         ctrl.check_start(q0)
+    _warn_large_networks(sc, controllers)
     if cartesian:
         _check_path(sc, controllers[0], q0)
         _check_path_joint_limits(sc, controllers[0], plant, q0)
     if sc.controller.singularity_stop > 0:
         _check_path_against_singularity(sc, controllers[0], q0)
     _check_step_against_contact(sc, plant, q0)
+
+
+def _warn_large_networks(sc, controllers) -> None:
+    """Say before the run (a :class:`~hinfnn.errors.HinfnnWarning`, one line from the command) when
+    a controller's networks have more than :data:`SLOW_COMPILE_WEIGHTS` weights: XLA then compiles
+    its programs (the design's, the run's) for minutes, and prints its own "Very slow compile?"
+    lines meanwhile."""
+    import warnings
+
+    for kind, ctrl in zip(sc.kinds, controllers):
+        arrays = ctrl.state_arrays(ctrl.init()) if hasattr(ctrl, "state_arrays") else {}
+        sizes = {name: int(np.size(a)) for name, a in arrays.items() if name.startswith("theta")}
+        if sum(sizes.values()) > SLOW_COMPILE_WEIGHTS:
+            counts = ", ".join(f"{name} {size:,}" for name, size in sizes.items())
+            warnings.warn(f"controller.network_p/network_f.centre_count: the {kind} controller's networks have "
+                          f"{sum(sizes.values()):,} weights ({counts}; the shipped scenarios' at most 360): compiling "
+                          "its programs takes minutes, growing with the weights, and XLA may print 'Very slow "
+                          "compile?' meanwhile (expected: the command goes on)", HinfnnWarning, stacklevel=2)
 
 
 def _check_reference_lengths(sc, m: int, k: int) -> None:

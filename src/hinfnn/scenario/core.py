@@ -24,6 +24,7 @@ import difflib
 import functools
 import math
 import tomllib
+from collections.abc import Iterable
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -69,8 +70,12 @@ class Scenario:
         """Build from a plain dict (the TOML table), resolving ``base`` and applying overrides."""
         items = override_items(overrides)
         data = resolve_base(_resolve_paths(raw, source), source)
-        for key, value in items:
-            set_key(data, key, value)
+        if items:
+            before, given = copy.deepcopy(data), {}
+            for key, value in items:
+                set_key(data, key, value)
+                set_key(given, key, value)
+            schema.drop_switched(cls, before, data, given)  # --set plant.surface.kind=sphere: as a file would
         try:
             sc = schema.load(cls, data)
         except ConfigError as err:
@@ -217,6 +222,8 @@ def scenario_names() -> list[str]:
 def read_source(name_or_path: str | Path) -> tuple[str, str]:
     """(TOML text, where it came from) for a shipped scenario name or a file path."""
     text_name = str(name_or_path)
+    if not text_name.strip():
+        raise ConfigError(f"{text_name!r} is empty; give a scenario name (hinfnn scenarios) or a .toml file")
     path = Path(text_name)
     if path.suffix == ".toml" or path.exists() or "/" in text_name:
         if path.is_dir():
@@ -237,8 +244,10 @@ def read_source(name_or_path: str | Path) -> tuple[str, str]:
 
 
 def parse_toml(text: str, source: str = "<string>") -> dict:
+    """The TOML table of ``text``; a leading UTF-8 byte-order mark (which some Windows editors
+    write) is skipped, as TOML readers that open files as ``utf-8-sig`` do."""
     try:
-        return tomllib.loads(text)
+        return tomllib.loads(text.removeprefix("\ufeff"))
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{source} is not valid TOML: {err}") from None
 
@@ -272,10 +281,25 @@ def parse_override(item: str) -> tuple[str, Any]:
 def override_items(overrides) -> list[tuple[str, Any]]:
     """``(key, value)`` pairs of a dict, of ``"key=value"`` strings or of pairs, the values as TOML
     would give them (:func:`~hinfnn.scenario.schema.plain`: NumPy values as Python's)."""
+    allowed = ("a dict of dotted keys to values, or a list of 'key=value' strings or (key, value) pairs, "
+               "e.g. {'plant.arm.m1': 2.0} or ['plant.arm.m1=2.0']")
     if isinstance(overrides, dict):
         items = list(overrides.items())
+    elif isinstance(overrides, (str, bytes)) or not isinstance(overrides, Iterable):
+        raise ConfigError(f"must be {allowed}, got {overrides!r:.80}", key="overrides")
     else:
-        items = [parse_override(o) if isinstance(o, str) else tuple(o) for o in overrides]
+        items = []
+        for o in overrides:
+            if isinstance(o, str):
+                items.append(parse_override(o))
+                continue
+            pair = tuple(o) if isinstance(o, Iterable) and not isinstance(o, (bytes, dict)) else ()
+            if len(pair) != 2:
+                raise ConfigError(f"must be {allowed}; {o!r:.80} is neither", key="overrides")
+            items.append(pair)
+    for k, _ in items:
+        if not isinstance(k, str):
+            raise ConfigError(f"keys must be dotted scenario keys (strings), got {k!r:.80}", key="overrides")
     return [(k, schema.plain(v)) for k, v in items]
 
 
@@ -335,7 +359,10 @@ def resolve_base(raw: dict, source: str, _chain: tuple = ()) -> dict:
         if err.key is not None:
             raise
         raise ConfigError(str(err), key="base") from None
-    return deep_merge(resolve_base(_resolve_paths(base_raw, base_source), base_source, chain), raw)
+    resolved = resolve_base(_resolve_paths(base_raw, base_source), base_source, chain)
+    merged = deep_merge(resolved, raw)
+    schema.drop_switched(Scenario, resolved, merged, raw)  # a file that switches kind lists the new kind's keys
+    return merged
 
 
 def _resolve_paths(raw: dict, source: str) -> dict:

@@ -273,6 +273,28 @@ def _suggest(key: str, names) -> str:
     return ""
 
 
+def drop_switched(cls, before: dict, after: dict, given: dict) -> None:
+    """Where ``given`` (a derived file's table over its base, or the overrides) switches a
+    section's kind (``plant.surface.kind``, ``plant.arm.model``, ``plant.engine``, ...), drop
+    from ``after`` (``before`` with ``given`` applied) the keys it kept from ``before`` that the
+    new kind does not take, in place: a file that switches kind lists the new kind's keys only,
+    and keys both kinds take stay. Keys ``given`` itself sets are left for :func:`load` to judge."""
+    reg = registry_of(cls)
+    if reg is not None and cls.__dict__.get("__registry__") is reg:
+        old, new = before.get(reg.key, reg.default), after.get(reg.key, reg.default)
+        if not isinstance(new, str) or new not in reg:
+            return  # an unknown kind: load() names it
+        cls = reg[new]
+        if new != old:
+            taken = {f.name for f, _ in fields_of(cls)}
+            for key in [k for k in after if k not in taken and k not in given and k in before]:
+                del after[key]
+    for f, tp in fields_of(cls):
+        sub_before, sub_after, sub_given = (d.get(f.name) for d in (before, after, given))
+        if _is_section(tp) and isinstance(sub_after, dict) and isinstance(sub_given, dict):
+            drop_switched(tp, sub_before if isinstance(sub_before, dict) else {}, sub_after, sub_given)
+
+
 def load(cls, data, path: str = "", exclude=()):
     """Build section ``cls`` from a TOML table ``data`` (a dict), checking every key.
 

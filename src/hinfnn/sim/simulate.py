@@ -53,6 +53,7 @@ from .._programs import ExportedProgram, KeptFunction
 from .._pytree import all_finite, pytree_dataclass, structure_key
 from ..errors import ConfigError, SimulationError
 from ..protocols import check as check_protocols
+from ..reference import check_references
 from ..status import RunStatus, status_of
 from .integrate import rk4_step
 from .plan import SINGLE_RECORDS, StepPlan
@@ -531,6 +532,13 @@ def initial_state(plant, ctrl, *, q0=None, u1_0=None, qd0=None, xc0=None) -> Sim
             raise ConfigError("give the start pose: q0 (joint angles) or u1_0 (the motion coordinate of the "
                               "end-effector on the true surface)", key="initial")
         q0 = plant.initial_q(u1_0)
+    for key, v in (("q0", q0), ("qd0", qd0)):
+        if v is None:
+            continue
+        dtype = v.dtype if hasattr(v, "dtype") else np.asarray(v).dtype
+        if np.shape(v) != (plant.n,) or dtype.kind not in "fiu":
+            raise ConfigError(f"must be {plant.n} real numbers (the arm has n = {plant.n} joints), got "
+                              f"{dtype} values of shape {np.shape(v)}", key=key)
     return SimState(plant=plant.initial_state(jnp.asarray(q0, dtype=float), qd0),
                     xc=ctrl.init() if xc0 is None else xc0, acc=Accumulators.zero())
 
@@ -600,6 +608,7 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
 
     require_x64()
     check_protocols(plant, controller)
+    check_references([(reference, controller.m, controller.k)])
     plan = StepPlan.make(t_final, dt, control_period=control_period, save_interval=save_interval,
                          save_every=save_every, discrete=plant.discrete)
     fields = select(fields)
@@ -677,12 +686,16 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     if len(sizes) != 1:
         raise ConfigError(f"batch lists have different lengths {sorted(sizes)}")
     (B,) = sizes
+    if B == 0:
+        raise ConfigError("simulate_batch needs at least one member: the lists of plants, controllers or "
+                          "references are empty")
 
     def member(x, i):
         return x[i] if isinstance(x, (list, tuple)) else x
 
     for i in range(B):
         check_protocols(member(plants, i), member(controllers, i))
+    check_references((member(references, i), member(controllers, i).m, member(controllers, i).k) for i in range(B))
     q0s = q0 if isinstance(q0, (list, tuple)) else [q0] * B
     u1s = u1_0 if isinstance(u1_0, (list, tuple, np.ndarray)) else [u1_0] * B
     inits: dict = {}  # a controller's initial state once per object, not once per member that shares it

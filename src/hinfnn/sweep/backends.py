@@ -228,10 +228,39 @@ def check_options(name: str, address: str | None = None, workers: int | None = N
         raise ConfigError(f"must be 'local' or 'ray', got {name!r}", key="--backend")
     if address is not None and name != "ray":
         raise ConfigError("only with --backend ray (the Ray cluster to join)", key="--address")
+    if name == "ray":
+        import importlib.util
+
+        if importlib.util.find_spec("ray") is None:
+            raise ConfigError("the ray backend needs Ray: pip install 'hinfnn[ray]'", key="--backend")
+        if address is not None:
+            check_address(address)
     if workers is not None:
         if name != "local":
             raise ConfigError("only with the local backend (Ray runs one task per CPU)", key="--workers")
         check_workers(workers)
+
+
+#: What ``--address`` accepts, in words.
+ADDRESSES = ("'auto' (the cluster this machine belongs to), HOST:PORT (a cluster's head, e.g. 10.0.0.5:6379) "
+             "or ray://HOST:PORT (a remote cluster through Ray Client, e.g. ray://10.0.0.5:10001)")
+
+
+def check_address(address: str) -> None:
+    """``--address`` checked before anything starts (Ray itself would say so only as a bare
+    ``ValueError`` once the sweep's folder is made): ``auto``, ``HOST:PORT`` or ``ray://HOST:PORT``
+    with a port from 1 to 65535; ``ray://`` needs Ray Client (``pip install 'ray[client]'``)."""
+    import importlib.util
+
+    if address == "auto":
+        return
+    rest = address[len("ray://"):] if address.startswith("ray://") else address
+    host, colon, port = rest.rpartition(":")
+    if not (colon and host and "/" not in rest and port.isdigit() and 1 <= int(port) <= 65535):
+        raise ConfigError(f"must be {ADDRESSES}, got {address!r}", key="--address")
+    if address.startswith("ray://") and importlib.util.find_spec("grpc") is None:
+        raise ConfigError(f"{address!r} joins through Ray Client, which needs pip install 'ray[client]' "
+                          "(or run the sweep on a node of the cluster with --address auto)", key="--address")
 
 
 def make_backend(name: str, address: str | None = None, workers: int | None = None):
@@ -243,4 +272,4 @@ def make_backend(name: str, address: str | None = None, workers: int | None = No
     return RayBackend(address=address)
 
 
-__all__ = ["LocalBackend", "auto_workers", "available_cores", "check_options", "make_backend"]
+__all__ = ["LocalBackend", "auto_workers", "available_cores", "check_address", "check_options", "make_backend"]

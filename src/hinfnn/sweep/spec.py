@@ -46,6 +46,9 @@ from ..scenario.schema import param, section
 SHIPPED = "files"
 
 GRIDS = ("values", "linspace", "logspace")
+#: The most draws a sweep takes: grid points × samples (each count and ``samples`` alone are capped
+#: too; the runs are the draws × the controllers).
+MAX_DRAWS = 10_000_000
 DISTRIBUTIONS = ("uniform", "normal", "log-uniform", "relative")
 #: The parameters each distribution takes (required, optional).
 DISTRIBUTION_PARAMS = {
@@ -152,6 +155,13 @@ class VarySpec:
             if (lo is not None and self.mean < lo) or (hi is not None and self.mean > hi):
                 raise ConfigError(f"{self.mean:g} is outside the truncation [low, high]", key=f"{path}.mean")
 
+    @property
+    def size(self) -> int:
+        """How many values the grid has (without computing them)."""
+        if self.values is not None:
+            return len(self.values)
+        return int(getattr(self, self.kind)[2])
+
     def grid(self) -> list:
         """The grid's values, in order."""
         import numpy as np
@@ -211,7 +221,7 @@ class SweepSpec:
     controllers: tuple[str, ...] = param(None, doc="controllers to compare (default: the base scenario's "
                                                    "controller.kind)")
     samples: int = param(1, doc="random draws (taken at every grid point); 1 when nothing is drawn", ge=1,
-                         le=10_000_000)
+                         le=MAX_DRAWS)
     seed: int = param(0, doc="seed of the random draws (draw i depends only on seed, key and i)", ge=0,
                       lt=2**63, allowed="a whole number >= 0 (below 2^63)")
     metrics: tuple[str, ...] = param(DEFAULT_METRICS, doc="metrics the report shows (the table holds every "
@@ -240,7 +250,7 @@ class SweepSpec:
         n = 1
         for v in self.varied:
             if v.how.is_grid:
-                n *= len(v.how.grid())
+                n *= v.how.size
         return n
 
     @property
@@ -314,6 +324,8 @@ def spec_names() -> list[str]:
 def read_spec_source(name_or_path) -> tuple[str, str, Path | None]:
     """(TOML text, where it came from, its folder or None for a shipped spec)."""
     text_name = str(name_or_path)
+    if not text_name.strip():
+        raise ConfigError(f"{text_name!r} is empty; give a sweep spec name (hinfnn sweep --list) or a .toml file")
     path = Path(text_name)
     if path.suffix == ".toml" or path.exists() or "/" in text_name:
         if path.is_dir():
@@ -402,21 +414,19 @@ def spec_from_dict(raw: dict, *, samples: int | None = None, overrides=(), sourc
     # the varied keys
     leaves = {k: (tp, meta, v) for k, tp, meta, v in schema.leaves(base)}
     known_vary = {f.name for f in dataclasses.fields(VarySpec)}
-    varied = []
+    hows = []
     for key, table in _flatten(vary_table, "", lambda v: bool(set(v) & known_vary)):
         where = f"vary.{key}"
         if key in RESERVED:
             raise ConfigError(f"cannot be varied: {RESERVED[key]}", key=where)
         if key not in leaves:
-            from ..scenario.core import suggest_key
-
-            raise ConfigError(f"is not a scenario key{suggest_key(key)} (see `hinfnn keys`)", key=where)
+            raise ConfigError(f"{_not_a_key(key, base)} (see `hinfnn keys`)", key=where)
         if not isinstance(table, dict):
             raise ConfigError(f"must be a table such as {{ values = [...] }} or {{ distribution = \"uniform\", "
                               f"low = ..., high = ... }}, got {table!r}", key=where)
-        how = schema.load(VarySpec, table, path=f"{where}.")
-        tp, meta, value = leaves[key]
-        varied.append(_check_varied(key, how, tp, value, base))
+        hows.append((key, schema.load(VarySpec, table, path=f"{where}.")))
+    _check_size(hows, spec.samples, len(controllers), "--samples" if samples is not None else "samples")
+    varied = [_check_varied(key, how, leaves[key][0], leaves[key][2], base) for key, how in hows]
     if not varied and spec.samples > 1:
         raise ConfigError(f"is {spec.samples} but nothing is drawn (no distribution in [vary]): the runs would "
                           "be identical", key="--samples" if samples is not None else "samples")
@@ -466,6 +476,40 @@ def _is_number_type(tp) -> bool:
     return tp is float or (schema._is_union(tp) and float in typing.get_args(tp))
 
 
+def _not_a_key(key: str, base) -> str:
+    """Why ``key`` is not a key of the base scenario, in the scenario loader's words: it knows the
+    kinds the base chose (``plant.arm.m1`` on a URDF arm is refused at ``plant.arm.model``), so
+    the suggestion is a key this scenario takes."""
+    from ..scenario import Scenario
+
+    try:
+        Scenario.from_dict(base.to_dict(), [(key, 0.0)], source=base.source, check=False)
+    except ConfigError as err:
+        if err.key == key:
+            return f"is not a key of the base scenario: {str(err).split(': ', 1)[1]}"
+        return f"is not a key of the base scenario: {err}"
+    return "is not a key of the base scenario"
+
+
+def _check_size(hows, samples: int, controllers: int, samples_key: str) -> None:
+    """Refuse, before anything is computed, a sweep whose grid points × samples exceed
+    :data:`MAX_DRAWS` (each count is capped on its own; their product is capped here), naming the
+    product, the cap and the counts to lower."""
+    grids = [(key, how.size) for key, how in hows if how.is_grid]
+    points = 1
+    for _, size in grids:
+        points *= size
+    draws = points * samples
+    if draws <= MAX_DRAWS:
+        return
+    counts = " × ".join(f"{size:,} ({key})" for key, size in grids)
+    product = f"{counts}{f' × {samples:,} samples' if samples > 1 else ''}" if grids else f"{samples:,} samples"
+    lower = "lower a grid's count or values" + (f" or {samples_key}" if samples > 1 else "")
+    raise ConfigError(f"the sweep would take {product} = {draws:,} draws ({draws * controllers:,} runs with "
+                      f"{controllers} controller{'s' if controllers > 1 else ''}), above the cap of "
+                      f"{MAX_DRAWS:,} draws: {lower}", key="vary")
+
+
 def _check_varied(key: str, how: VarySpec, tp, base_value, base) -> Varied:
     """Check a varied key against the scenario's schema: its type suits the way it varies,
     every grid value is a valid value, a distribution's range lies inside the key's range."""
@@ -501,7 +545,10 @@ def _check_varied(key: str, how: VarySpec, tp, base_value, base) -> Varied:
             raise ConfigError(f"{what}: {err}", key=where) from None
 
     if how.is_grid:
-        for i, v in enumerate(how.grid()):
+        grid = how.grid()
+        if how.kind != "values" and tp is not int:  # monotonic: the ends decide a range
+            grid = [grid[0], grid[-1]]
+        for v in grid:
             probe(int(v) if tp is int and isinstance(v, float) and v.is_integer() else v,
                   f"grid value {_fmt(v)}")
     elif how.distribution in ("uniform", "log-uniform") or (how.distribution == "normal" and

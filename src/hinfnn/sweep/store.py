@@ -30,13 +30,13 @@ import os
 from pathlib import Path
 
 from ..errors import ConfigError
-from ..io import LoadError, atomic_write, atomic_write_text, dumps_json
+from ..io import SWEEP_MANIFEST, LoadError, atomic_write, atomic_write_text, dumps_json
 from ..io.folders import INSIDE_PREFIX
 from ..metrics import METRIC_KEYS, UNITS
 from .spec import BOOL_METRICS, PER_COORDINATE_METRICS, PER_JOINT_METRICS
 
 FORMAT = "hinfnn-sweep-1"
-MANIFEST = "manifest.json"
+MANIFEST = SWEEP_MANIFEST
 PLAN = "plan.json"
 PARTS = "parts"
 RESULTS = "results.parquet"

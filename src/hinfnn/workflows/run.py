@@ -4,10 +4,10 @@ a result folder (metrics.json, trajectory.npz, scenario.toml, figures), atomical
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from pathlib import Path
 
 from ..experiment import cases, check_memory, result_folder, simulate_cases, write_result
+from ..scenario.core import parse_toml
 
 
 def result_name(sc) -> str:
@@ -17,7 +17,7 @@ def result_name(sc) -> str:
     src = Path(sc.source) if sc.source and not sc.source.startswith("<") else None
     if src is not None and src.is_file():
         try:
-            raw = tomllib.loads(src.read_text(encoding="utf-8"))
+            raw = parse_toml(src.read_text(encoding="utf-8"))
         except (OSError, ValueError):
             raw = {}
         if "name" not in raw:
