@@ -102,8 +102,8 @@ class Sensor:
     def read(self, k, period, meas: Measurement, state: SensorState):
         """(what the controller measures at sample ``k``, the state after it) from the true
         measurement ``meas`` at the sample instant; ``period``: the sampling period T, s."""
-        a = 1.0 - jnp.exp(-2.0 * jnp.pi * self.bandwidth * period)  # 1 when the bandwidth is inf: no filter
-        filtered = state.filtered + a * (meas.force - state.filtered)
+        a = 1.0 - jnp.exp(-2.0 * jnp.pi * self.bandwidth * period)
+        filtered = jnp.where(jnp.isinf(self.bandwidth), meas.force, state.filtered + a * (meas.force - state.filtered))
         nu_q, nu_qd, nu_f = self.noise(k, (jnp.shape(meas.q), jnp.shape(meas.qd), jnp.shape(meas.force)))
         acquired = Measurement(q=meas.q + self.q_noise * nu_q, qd=meas.qd + self.qd_noise * nu_qd,
                                force=filtered + self.force_bias + self.force_noise * nu_f)

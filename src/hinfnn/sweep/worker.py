@@ -94,6 +94,16 @@ def _plain(x):
     return np.asarray(x)
 
 
+def own_stream(run, r: RunSpec):
+    """``run`` with its plant's sensor noise on the draw's own stream (the sensor's key folded with
+    the grid point and the sample: every draw its own noise, the same on every controller of the
+    draw and on a resumed sweep); a run without a sensor model as it is."""
+    sensor = run.plant.sensor
+    if sensor is None:
+        return run
+    return dataclasses.replace(run, plant=run.plant.with_sensor(sensor.stream(r.point, r.sample)))
+
+
 def _ready(run) -> tuple:
     """What a batch needs of a checked run besides what its members share: the plant's leaves
     and the start pose, as plain Python/NumPy values (small, picklable)."""
@@ -123,7 +133,7 @@ def check_runs(base: dict, source: str, runs: list[RunSpec]) -> list[dict]:
             try:
                 one = sc.single(r.controller)
                 check(one)  # designs through the process's design cache (hinfnn.scenario.setup)
-                run = one.run(r.controller)
+                run = own_stream(one.run(r.controller), r)
                 out.append({"run": r.run, "ok": True, "group": compile_key(run), "shared": shared_key(one, r.controller),
                             "samples": stored_samples(run), "n_joints": int(run.plant.n), "ready": _ready(run)})
             except INVALID_ERRORS as err:
@@ -232,7 +242,7 @@ def _members(job: BatchJob) -> list:
     import jax
 
     first = scenario_of(job.base, job.source, job.members[0].values, job.members[0].controller)
-    run0 = first.run(job.members[0].controller)
+    run0 = own_stream(first.run(job.members[0].controller), job.members[0])
     if job.batch.shared and job.ready is not None:
         treedef = jax.tree.structure(run0.plant)
         plants = [jax.tree.unflatten(treedef, leaves) for leaves, _ in job.ready]
@@ -241,7 +251,7 @@ def _members(job: BatchJob) -> list:
     runs = [run0]
     for r in job.members[1:]:
         sc = scenario_of(job.base, job.source, r.values, r.controller)
-        runs.append(sc.run(r.controller))
+        runs.append(own_stream(sc.run(r.controller), r))
     plants, q0s = [r.plant for r in runs], [r.q0 for r in runs]
     if job.batch.shared:
         return plants, q0s, run0.controller, run0.reference, run0.limits, run0
@@ -325,4 +335,4 @@ def invalid_row(r: RunSpec, checked: dict) -> dict:
 
 __all__ = ["DEFAULT_MAX_BATCH", "MEMORY_FRACTION", "CHECK_CHUNK", "INVALID_ERRORS", "scenario_of", "compile_key",
            "shared_key", "stored_samples", "check_runs", "Batch", "bytes_per_member", "batch_cap", "plan_batches",
-           "BatchJob", "execute_batch", "member_row", "id_row", "invalid_row"]
+           "BatchJob", "execute_batch", "member_row", "id_row", "invalid_row", "own_stream"]
