@@ -219,3 +219,50 @@ def test_urdf_torque_limits_are_the_files_efforts():
     sc = H.load_scenario("ur5-table", ["plant.actuator.torque_limit=urdf"])
     plant = sc.build().plant
     assert np.array_equal(np.asarray(plant.actuator.torque_limit), [150.0, 150.0, 150.0, 28.0, 28.0, 28.0])
+
+
+# --- sweeps ---------------------------------------------------------------------------------------
+
+SWEEP = """
+name = "noise"
+scenario = "planar3-drum-stable"
+controllers = ["hinf_nn"]
+samples = 2
+seed = 1
+[set]
+"simulation.t_final" = 0.02
+"simulation.control" = "sampled"
+"simulation.control_period" = 0.001
+"plant.sensor.delay" = 1
+[vary]
+"plant.sensor.force_noise" = { distribution = "uniform", low = 0.5, high = 2.0 }
+"""
+
+
+def test_a_sweep_varies_the_sensor_noise_and_each_draw_has_its_own_stream(tmp_path):
+    import tomllib
+
+    from hinfnn.sweep import run_sweep, spec_from_dict
+    from hinfnn.sweep.sampling import RunSpec
+    from hinfnn.sweep.worker import own_stream, scenario_of
+
+    spec = spec_from_dict(tomllib.loads(SWEEP))
+    run_sweep(spec, tmp_path / "a", max_batch=2)
+    df = H.load_sweep(tmp_path / "a")
+    assert list(df["status"]) == ["ok", "ok"] and df["plant.sensor.force_noise"].nunique() == 2
+    assert df["rms_normal_force_error_last2s"].notna().all() and "fraction_torque_saturated" in df.columns
+    # a row is its draw's run alone, its noise on the draw's own stream
+    base = spec.base.to_dict()
+    for i in range(2):
+        values = {"plant.sensor.force_noise": df["plant.sensor.force_noise"][i]}
+        r = RunSpec(run=i, point=0, sample=i, controller="hinf_nn", values=values)
+        run = own_stream(scenario_of(base, spec.base.source, values, "hinf_nn").single("hinf_nn").run("hinf_nn"), r)
+        traj = H.simulate(run.plant, run.controller, run.reference, q0=run.q0, t_final=run.t_final, dt=run.dt,
+                          control_period=run.control_period, limits=run.limits, info=run.info)
+        assert df["rms_normal_force_error"][i] == pytest.approx(H.compute_metrics(traj)["rms_normal_force_error"],
+                                                                rel=1e-9)
+    # the streams: a function of the draw (grid point, sample) alone
+    run = scenario_of(base, spec.base.source, {}, "hinf_nn").single("hinf_nn").run("hinf_nn")
+    keys = [np.asarray(own_stream(run, RunSpec(run=j, point=p, sample=s, controller="hinf_nn", values={})).plant.sensor.key)
+            for j, (p, s) in enumerate([(0, 0), (0, 1), (1, 0), (0, 0)])]
+    assert len({k.tobytes() for k in keys[:3]}) == 3 and np.array_equal(keys[0], keys[3])

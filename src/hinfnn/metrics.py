@@ -67,7 +67,8 @@ def _rms(x, axis=0):
     return np.sqrt(np.mean(x**2, axis=axis))
 
 
-def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, coordinates=None) -> dict:
+def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, coordinates=None,
+                    lam_is_normal_force: bool | None = None) -> dict:
     """Metrics of one run (a dict of floats, lists and bools; JSON-ready).
 
     ``*_last2s`` are over t ≥ t_end − ``last``. ``tv_rate_tau_last2s`` is the total variation
@@ -78,7 +79,8 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
     ``rms_e_lam*`` are the controller's MEASURED force error e_λ (what its sensor gave it);
     ``rms_normal_force_error`` (and ``_last2s``) the TRUE one, the plant's normal force minus λd
     over the stored samples (N; None where λ is not a normal force: a nominal constraint without
-    ``scaling = "unit"``, or a run without a scenario); ``fraction_torque_saturated`` the share of
+    ``scaling = "unit"``; ``lam_is_normal_force`` says it for a run whose trajectory carries no
+    scenario, None: the scenario's, and none: not); ``fraction_torque_saturated`` the share of
     stored samples with a joint's applied torque at its limit (``plant.actuator``; 0 without one).
     ``dissipation_min_margin`` is min over t > 0 of ρ²∫₀ᵗ(‖f_p‖²+‖f_f‖²) − (J(t) + V(t) − V(0)): the
     theorems claim the inequality for every T, not only the final one. ``t_end`` is the time the
@@ -161,7 +163,7 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
     else:
         out_after = math.nan
     lam_scale = float(np.mean(np.linalg.norm(arr["lam_d"].reshape(n, -1)[first:], axis=1))) if "lam_d" in arr else math.nan
-    true_force = _normal_force_error(traj, arr, n)
+    true_force = _normal_force_error(traj, arr, n, lam_is_normal_force)
     rms_true, rms_true_w = (None, None) if true_force is None else (float(_rms(true_force)),
                                                                     float(_rms(true_force[first:])))
     # the force-tracking verdict reads the TRUE force where λ is one, else the controller's measured e_λ
@@ -208,13 +210,20 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
     }
 
 
-def _normal_force_error(traj, arr: dict, n: int):
-    """The TRUE normal force minus λd at each stored sample (N), where λ is a normal force (one
-    force coordinate and the nominal constraint's ``scaling = "unit"``, as the run's scenario
-    says); None otherwise (e.g. the paper's line: λ = f_n cos δ; a run built by hand) or when the
-    run did not store both."""
-    surface = getattr(getattr(getattr(traj, "scenario", None), "nominal", None), "surface", None)
-    if getattr(surface, "scaling", None) != "unit" or "normal_force" not in arr or "lam_d" not in arr:
+def lam_is_normal_force(scenario) -> bool:
+    """Whether λ is the normal force in N in runs of ``scenario``: its nominal constraint's
+    ``scaling`` is "unit" (the Cartesian surfaces; the paper's line has λ = f_n cos δ)."""
+    surface = getattr(getattr(scenario, "nominal", None), "surface", None)
+    return getattr(surface, "scaling", None) == "unit"
+
+
+def _normal_force_error(traj, arr: dict, n: int, flag: bool | None = None):
+    """The TRUE normal force minus λd at each stored sample (N), where λ is a normal force
+    (``flag``; None: as the run's scenario says, :func:`lam_is_normal_force`) and one force
+    coordinate; None otherwise (e.g. the paper's line; a run built by hand) or when the run did
+    not store both."""
+    flag = lam_is_normal_force(getattr(traj, "scenario", None)) if flag is None else flag
+    if not flag or "normal_force" not in arr or "lam_d" not in arr:
         return None
     lam_d = np.asarray(arr["lam_d"], dtype=float).reshape(n, -1)
     if lam_d.shape[1] != 1:

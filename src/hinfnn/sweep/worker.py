@@ -295,17 +295,21 @@ def execute_batch(job: BatchJob, progress: Callable[[float], None] | None = None
     traj = simulate_batch(plants, controllers, references, q0=q0s, t_final=first.t_final, dt=first.dt,
                           save_interval=first.save_interval, fields="metrics", control_period=first.control_period,
                           limits=limits, bookkeeping=first.bookkeeping, progress=report)
-    rows = [member_row(r, traj.member(j), job.max_out_of_contact) for j, r in enumerate(job.members)]
+    from ..metrics import lam_is_normal_force
+
+    normal = lam_is_normal_force(first.info.scenario)  # the members' λ means what the first's does
+    rows = [member_row(r, traj.member(j), job.max_out_of_contact, normal) for j, r in enumerate(job.members)]
     return {"batch": job.batch.id, "rows": rows, "wall_s": time.perf_counter() - t0,
             "cpu_s": time.process_time() - c0, "host": socket.gethostname(), "pid": os.getpid(), "members": n_real,
             "size": job.batch.size}
 
 
-def member_row(r: RunSpec, traj, max_out_of_contact: float) -> dict:
-    """The table row of one simulated run."""
+def member_row(r: RunSpec, traj, max_out_of_contact: float, normal: bool | None = None) -> dict:
+    """The table row of one simulated run (``normal``: λ is the normal force, for its true force
+    error: :func:`hinfnn.metrics.lam_is_normal_force`)."""
     from ..metrics import compute_metrics
 
-    m = compute_metrics(traj)
+    m = compute_metrics(traj, lam_is_normal_force=normal)
     code = int(traj.status)
     row = id_row(r)
     row.update(status=traj.run_status.outcome, reason=traj.reason, error_key=None,
