@@ -266,3 +266,44 @@ def test_a_sweep_varies_the_sensor_noise_and_each_draw_has_its_own_stream(tmp_pa
     keys = [np.asarray(own_stream(run, RunSpec(run=j, point=p, sample=s, controller="hinf_nn", values={})).plant.sensor.key)
             for j, (p, s) in enumerate([(0, 0), (0, 1), (1, 0), (0, 0)])]
     assert len({k.tobytes() for k in keys[:3]}) == 3 and np.array_equal(keys[0], keys[3])
+
+
+@pytest.mark.parametrize("override, key", [
+    ("plant.sensor.force_noise=1.0", "plant.sensor"),
+    ("plant.actuator.torque_limit=urdf", "plant.actuator.torque_limit"),
+    ("plant.sensor.bandwidth=0", "plant.sensor.bandwidth"),
+])
+def test_the_cli_refuses_a_bad_sensor_or_motor_in_one_line(tmp_path, capsys, override, key):
+    from hinfnn import cli
+
+    code = cli.main(["run", "paper", "--set", override, "--out", str(tmp_path / "x")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and key in err and "Traceback" not in err
+    assert not (tmp_path / "x").exists()
+
+
+# --- on MuJoCo ------------------------------------------------------------------------------------
+
+
+def test_the_sensor_and_motors_act_on_the_mujoco_plant():
+    pytest.importorskip("mujoco")
+    sets = ["simulation.t_final=0.03", "plant.sensor.force_noise=1.0", "plant.sensor.delay=1",
+            "plant.actuator.torque_limit=[150.0, 40.0, 150.0, 28.0, 28.0, 28.0]"]
+    sc = H.load_scenario("ur5-polish", sets)
+    r = sc.build().run()
+    assert r.plant.sensor.delay == 1 and np.asarray(r.plant.actuator.torque_limit)[1] == 40.0
+
+    def once(plant):
+        return H.simulate(plant, r.controller, r.reference, q0=r.q0, t_final=r.t_final, dt=r.dt,
+                          control_period=r.control_period, limits=r.limits, info=r.info, raise_on_failure=False)
+
+    a, b = once(r.plant), once(r.plant)
+    assert np.array_equal(a.arrays["tau"], b.arrays["tau"])  # the same seed: the same run
+    end = a.valid_samples()
+    applied, tau = a.arrays["tau_applied"][:end], a.arrays["tau"][:end]
+    limit = np.asarray(r.plant.actuator.torque_limit)
+    # (the law's τ is computed once for the record and once for the motors: equal to rounding)
+    assert np.allclose(applied, np.clip(tau, -limit, limit), rtol=1e-12, atol=1e-12)
+    assert np.max(np.abs(tau[:, 1])) > 40.0 and np.max(np.abs(applied[:, 1])) == 40.0
+    m = H.compute_metrics(a)
+    assert 0 < m["fraction_torque_saturated"] < 1 and m["rms_normal_force_error"] is not None
