@@ -60,7 +60,11 @@ _CORE = [
     ("e_u1_dot", "m/s", "ė_u1", None, ("motion", "{}/s")),
     ("e_lam", LAMBDA, "e_λ = λ − λd"),
     ("z", LAMBDA, "z-filter state, eq. (27)"),
-    ("tau", "N·m", "applied joint torque τ, eq. (24)", None, ("effort", "{}")),
+    ("tau", "N·m", "joint torque τ the controller commands, eq. (24) (applied as is by ideal motors)", None,
+     ("effort", "{}")),
+    ("tau_applied", "N·m", "joint torque the plant's motors apply: τ saturated and rate-limited (plant.actuator)",
+     None, ("effort", "{}")),
+    ("torque_saturated", "-", "1 when a joint's applied torque is at its limit, else 0 (plant.actuator)"),
     ("sigma_min_J", "-", "smallest singular value of the nominal Jacobian Ĵ (the singularity guard's measure)"),
     # the theorem bookkeeping
     ("J", "-", "H∞ performance index J(t), eq. (34)"),
@@ -113,7 +117,7 @@ SUMMARY_FIELDS = {f.name: f.summary for f in FIELDS.values() if f.summary}
 
 #: What :func:`hinfnn.compute_metrics` needs: ``fields="metrics"`` stores only these.
 METRICS_FIELDS = ("t", "e_u1", "e_lam", "tau", "normal_force", "J", "J_aug", "V", "supply", "task_margin",
-                  "joint_limit_margin", "lam_d", *SUMMARY_FIELDS)
+                  "joint_limit_margin", "lam_d", "torque_saturated", *SUMMARY_FIELDS)
 
 
 def component_units(name: str, count: int, tags: dict | None) -> list[str] | None:

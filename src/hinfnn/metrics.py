@@ -32,6 +32,7 @@ METRIC_KEYS = (
     "fraction_out_of_contact", "dissipation_lhs", "dissipation_rhs", "dissipation_holds",
     "dissipation_min_margin", "dissipation_holds_for_all_t",
     "rms_e_u1_each", "rms_e_u1_each_last2s", "rms_e_lam_each", "rms_e_lam_each_last2s", "min_task_margin",
+    "rms_normal_force_error", "rms_normal_force_error_last2s", "fraction_torque_saturated",
 )
 #: Units of the metrics (machine-readable output carries them: metrics.json "units").
 UNITS = {
@@ -43,6 +44,7 @@ UNITS = {
     "dissipation_holds_for_all_t": "bool", "t_end": "s", "partial": "bool",
     "rms_e_u1_each": "m or rad", "rms_e_u1_each_last2s": "m or rad", "rms_e_lam_each": "λ units",
     "rms_e_lam_each_last2s": "λ units", "min_task_margin": "rad or m",
+    "rms_normal_force_error": "N", "rms_normal_force_error_last2s": "N", "fraction_torque_saturated": "-",
 }
 #: The verdicts and what they rest on (:func:`verdicts`): ``compute_metrics(...)["verdict"]``, one
 #: dict (metrics.json: each run's "verdict", next to its status); not among :data:`METRIC_KEYS` (a
@@ -66,7 +68,8 @@ def _rms(x, axis=0):
     return np.sqrt(np.mean(x**2, axis=axis))
 
 
-def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, coordinates=None) -> dict:
+def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, coordinates=None,
+                    lam_is_normal_force: bool | None = None) -> dict:
     """Metrics of one run (a dict of floats, lists and bools; JSON-ready).
 
     ``*_last2s`` are over t ≥ t_end − ``last``. ``tv_rate_tau_last2s`` is the total variation
@@ -74,6 +77,12 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
     ``rms_e_u1_each`` and ``rms_e_lam_each`` (and their ``_last2s``) are per coordinate (the
     overall ``rms_e_u1`` is the root of the sum of their squares); ``min_task_margin`` is the closest the
     true pose's task coordinates came to their singularities (rad or m; None when not recorded).
+    ``rms_e_lam*`` are the controller's MEASURED force error e_λ (what its sensor gave it);
+    ``rms_normal_force_error`` (and ``_last2s``) the TRUE one, the plant's normal force minus λd
+    over the stored samples (N; None where λ is not a normal force: a nominal constraint without
+    ``scaling = "unit"``; ``lam_is_normal_force`` says it for a run whose trajectory carries no
+    scenario, None: the scenario's, and none: not); ``fraction_torque_saturated`` the share of
+    stored samples with a joint's applied torque at its limit (``plant.actuator``; 0 without one).
     ``dissipation_min_margin`` is min over t > 0 of ρ²∫₀ᵗ(‖f_p‖²+‖f_f‖²) − (J(t) + V(t) − V(0)): the
     theorems claim the inequality for every T, not only the final one. ``t_end`` is the time the
     metrics cover; for a run that stopped early (``partial``) it is the step that stopped it: its
@@ -174,7 +183,11 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
     else:
         out_after = math.nan
     lam_scale = float(np.mean(np.linalg.norm(arr["lam_d"].reshape(n, -1)[first:], axis=1))) if "lam_d" in arr else math.nan
-    ratio = float(rms_lam_w / lam_scale) if lam_scale > 0 else None
+    true_force = _normal_force_error(traj, arr, n, lam_is_normal_force)
+    rms_true, rms_true_w = (None, None) if true_force is None else (float(_rms(true_force)),
+                                                                    float(_rms(true_force[first:])))
+    # the force-tracking verdict reads the TRUE force where λ is one, else the controller's measured e_λ
+    ratio = float((rms_lam_w if rms_true_w is None else rms_true_w) / lam_scale) if lam_scale > 0 else None
     if "joint_limit_margin" in arr:
         each = np.min(arr["joint_limit_margin"].reshape(len(arr["joint_limit_margin"]), -1), axis=0)
         margin_joints = [float(v) if math.isfinite(v) else None for v in each]
@@ -188,6 +201,9 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
         "rms_e_lam_each": [float(v) for v in lam_each],
         "rms_e_lam_each_last2s": [float(v) for v in lam_each_w],
         "min_task_margin": margin_task if margin_task is None or math.isfinite(margin_task) else None,
+        "rms_normal_force_error": rms_true,
+        "rms_normal_force_error_last2s": rms_true_w,
+        "fraction_torque_saturated": float(np.mean(arr["torque_saturated"])) if "torque_saturated" in arr else 0.0,
         "rms_e_u1": float(rms_u1),
         "max_abs_e_u1": float(max_u1),
         "rms_e_u1_last2s": float(rms_u1_w),
@@ -226,6 +242,27 @@ def _stopping_step(traj) -> int | None:
     return k - 1 if code == int(RunStatus.NONFINITE) else k
 
 
+def lam_is_normal_force(scenario) -> bool:
+    """Whether λ is the normal force in N in runs of ``scenario``: its nominal constraint's
+    ``scaling`` is "unit" (the Cartesian surfaces; the paper's line has λ = f_n cos δ)."""
+    surface = getattr(getattr(scenario, "nominal", None), "surface", None)
+    return getattr(surface, "scaling", None) == "unit"
+
+
+def _normal_force_error(traj, arr: dict, n: int, flag: bool | None = None):
+    """The TRUE normal force minus λd at each stored sample (N), where λ is a normal force
+    (``flag``; None: as the run's scenario says, :func:`lam_is_normal_force`) and one force
+    coordinate; None otherwise (e.g. the paper's line; a run built by hand) or when the run did
+    not store both."""
+    flag = lam_is_normal_force(getattr(traj, "scenario", None)) if flag is None else flag
+    if not flag or "normal_force" not in arr or "lam_d" not in arr:
+        return None
+    lam_d = np.asarray(arr["lam_d"], dtype=float).reshape(n, -1)
+    if lam_d.shape[1] != 1:
+        return None
+    return np.asarray(arr["normal_force"], dtype=float).reshape(n) - lam_d[:, 0]
+
+
 def _judging(traj, tolerances, coordinates, m: int):
     """The tolerances and the motion coordinates' (name, unit) a run is judged with."""
     sc = getattr(traj, "scenario", None)
@@ -254,8 +291,8 @@ def verdicts(rms_each_last, out_after, force_ratio, joint_margin, *, partial: bo
       before it) or no contact measure (NaN);
     * ``tracking_within_tolerance``: over the last 2 s, the RMS error of each motion coordinate is
       at most ``position_tolerance`` (coordinates in m) or ``angle_tolerance`` (rad), and the RMS
-      force error at most ``force_tolerance`` times the mean |λd| there; False for a run that
-      stopped early;
+      force error (the TRUE normal force's where λ is one, else the measured e_λ's) at most
+      ``force_tolerance`` times the mean |λd| there; False for a run that stopped early;
     * ``within_joint_limits``: no joint passed its limit (None: the arm has none recorded);
 
     and ``notes``, one line per failed criterion with its numbers."""

@@ -20,6 +20,7 @@ the same program.
 from __future__ import annotations
 
 import abc
+import dataclasses
 from typing import Any, ClassVar
 
 import jax
@@ -72,10 +73,25 @@ class Plant(abc.ABC):
 
     discrete: ClassVar[bool]
     fault_name: ClassVar[str] = "plant fault measure"
+    #: The robot's sensor between the truth and the controller (None: ideal, the measurement is
+    #: :meth:`sense`'s). A plant that has one sets it (:class:`hinfnn.plant.instruments.Sensor`):
+    #: the simulator gives its state ``start(measurement at t = 0)`` and at each control sample k
+    #: of period T asks ``read(k, T, true measurement, state) -> (measurement, state)``.
+    sensor: ClassVar = None
+    #: The robot's motors (None: ideal, τ applied as commanded). A plant that has one sets it
+    #: (:class:`hinfnn.plant.instruments.Actuator`): the plant is driven by the applied torque,
+    #: ``apply(τ, previous, T, first)`` at each sample (``saturate(τ)`` under continuous control,
+    #: where ``rate_limited`` must be False), less ``friction(q̇)``; ``saturated(applied)`` is
+    #: recorded.
+    actuator: ClassVar = None
 
     def fault_item(self, index: int) -> str:
         """The name of item ``index`` of a fault (:attr:`PlantRecord.fault_index`) in messages."""
         return f"item {index}"
+
+    def with_sensor(self, sensor) -> "Plant":
+        """The same plant with another :attr:`sensor` (a batch member's own noise stream)."""
+        return dataclasses.replace(self, sensor=sensor)
 
     @abc.abstractmethod
     def initial_state(self, q0, qd0=None) -> Any:

@@ -37,6 +37,7 @@ from ..model.geometry import Geometry
 from ..protocols import ContinuousPlant, Measurement, PlantRecord
 from .contact import Friction, PenaltyContact
 from .disturbance import SquareWave
+from .instruments import Actuator, Sensor
 from .limits import limit_record
 
 
@@ -75,6 +76,8 @@ class RigidBodyPlant(ContinuousPlant):
     contact: PenaltyContact
     disturbance: SquareWave
     friction: Friction | None = None
+    sensor: Sensor | None = None  # the robot's sensor (None: ideal; hinfnn.plant.instruments)
+    actuator: Actuator | None = None  # the robot's motors (None: ideal)
 
     @property
     def cartesian(self) -> bool:

@@ -8,6 +8,7 @@ chosen by ``controller.kind`` from :data:`hinfnn.controllers.KINDS`.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from pathlib import Path
@@ -579,6 +580,104 @@ class FrictionConfig:
 
 
 @section
+class SensorConfig:
+    """The robot's sensor between the truth and the controller (:mod:`hinfnn.plant.instruments`):
+    white noise, a bias, the sensor's own low-pass and a transport delay, once per control sample.
+    Off by default: an ideal sensor (the paper's)."""
+
+    force_noise: float = param(0.0, doc="standard deviation of the white noise on each axis of the sensed tool force, "
+                               "one draw per control sample, N", ge=0.0, le=1e6)
+    force_bias: tuple[float, ...] = param((), doc="constant bias of the sensed tool force in the base frame, N: 3 "
+                                          "values (2 for a planar arm, in its plane); empty: none", ge=-1e6, le=1e6)
+    delay: int = param(0, doc="transport delay of the joint angles, rates and force, whole control samples", ge=0,
+                       le=1000)
+    bandwidth: Literal["none"] | float = param("none", doc="the force sensor's own bandwidth: a first-order low-pass "
+                                               "at this cutoff, Hz; \"none\": ideal", gt=0.0, le=1e9)
+    q_noise: Numbers = param(0.0, doc="standard deviation of the white noise on each joint angle, rad (m for a "
+                             "prismatic joint): a number or one per joint", ge=0.0, le=10.0)
+    qd_noise: Numbers = param(0.0, doc="standard deviation of the white noise on each joint rate, rad/s: a number or "
+                              "one per joint", ge=0.0, le=1e3)
+    seed: int = param(0, doc="seed of the noise (the same seed: the same noise; a batch member or a sweep's draw "
+                      "folds in its own index)", ge=0, le=2**31 - 1)
+
+    @property
+    def ideal(self) -> bool:
+        return (self.force_noise == 0 and not any(self.force_bias) and self.delay == 0 and self.bandwidth == "none"
+                and not np.any(self.q_noise) and not np.any(self.qd_noise))
+
+    def validate(self, path):
+        _length(path, "force_bias", self.force_bias, (0, 2, 3))
+
+    def build(self, n: int, force_dim: int, path: str = "plant.sensor"):
+        """The :class:`~hinfnn.plant.instruments.Sensor` of a plant of n joints whose force has
+        ``force_dim`` components (None: ideal)."""
+        if self.ideal:
+            return None
+        from ..plant.instruments import Sensor
+
+        bias = np.zeros(force_dim)
+        if self.force_bias:
+            if len(self.force_bias) != force_dim:
+                raise ConfigError(f"must be a list of {force_dim} numbers (the force of this arm has {force_dim} "
+                                  f"components, base frame), got {len(self.force_bias)}: {_shown(self.force_bias)}",
+                                  key=f"{path}.force_bias")
+            bias = np.asarray(self.force_bias, dtype=float)
+        return Sensor.make(self.seed, force_noise=self.force_noise, force_bias=bias,
+                           q_noise=per_item(self.q_noise, n, f"{path}.q_noise", "one per joint"),
+                           qd_noise=per_item(self.qd_noise, n, f"{path}.qd_noise", "one per joint"),
+                           bandwidth=math.inf if self.bandwidth == "none" else self.bandwidth, delay=self.delay)
+
+
+@section
+class ActuatorConfig:
+    """The robot's motors (:mod:`hinfnn.plant.instruments`): torque limits, a torque rate limit, and
+    joint friction the controller does not know. Off by default: ideal motors (the paper's)."""
+
+    torque_limit: Literal["none", "urdf"] | Numbers = param("none", doc="the commanded torque saturates at this |tau_i|, "
+                                                            "N m: \"urdf\" (the arm's URDF effort limits), a number, "
+                                                            "one per joint, or \"none\"", gt=0.0, le=1e9)
+    torque_rate_limit: Literal["none"] | Numbers = param("none", doc="largest change of the applied torque, N m/s (from "
+                                                         "one control sample to the next): a number, one per joint, or "
+                                                         "\"none\"", gt=0.0, le=1e12)
+    friction_viscous: Numbers = param(0.0, doc="viscous joint friction b_v (unknown to the controller), N m s/rad: a "
+                                      "number or one per joint", ge=0.0, le=1e6)
+    friction_coulomb: Numbers = param(0.0, doc="Coulomb joint friction f_c (unknown to the controller), N m: a number "
+                                      "or one per joint", ge=0.0, le=1e6)
+    friction_v_smooth: float = param(0.01, doc="Coulomb smoothing speed: f_c tanh(joint rate / this), rad/s", gt=0.0,
+                                     le=100.0)
+
+    @property
+    def ideal(self) -> bool:
+        return (self.torque_limit == "none" and self.torque_rate_limit == "none" and not np.any(self.friction_viscous)
+                and not np.any(self.friction_coulomb))
+
+    def build(self, arm, n: int, path: str = "plant.actuator"):
+        """The :class:`~hinfnn.plant.instruments.Actuator` of the true ``arm`` of n joints (None:
+        ideal)."""
+        if self.ideal:
+            return None
+        from ..plant.instruments import Actuator
+
+        if self.torque_limit == "urdf":
+            chain = getattr(arm, "chain", None)
+            limit = None if chain is None else np.asarray(chain.effort_limit, dtype=float)
+            if limit is None or not np.all(np.isfinite(limit) & (limit > 0)):
+                raise ConfigError("\"urdf\" needs the arm's effort limits on every joint, and this arm has "
+                                  f"{'none (not a URDF chain)' if limit is None else _shown(limit)}: give the limits "
+                                  "as numbers", key=f"{path}.torque_limit")
+        elif self.torque_limit == "none":
+            limit = np.full(n, np.inf)
+        else:
+            limit = per_item(self.torque_limit, n, f"{path}.torque_limit", "one per joint")
+        rate = (np.full(n, np.inf) if self.torque_rate_limit == "none" else
+                per_item(self.torque_rate_limit, n, f"{path}.torque_rate_limit", "one per joint"))
+        return Actuator(torque_limit=limit, rate_limit=rate,
+                        viscous=per_item(self.friction_viscous, n, f"{path}.friction_viscous", "one per joint"),
+                        coulomb=per_item(self.friction_coulomb, n, f"{path}.friction_coulomb", "one per joint"),
+                        v_smooth=np.asarray(self.friction_v_smooth, dtype=float))
+
+
+@section
 class PlantConfig:
     """The truth: what the simulated arm and surface really are (``engine`` chooses the physics)."""
 
@@ -592,12 +691,28 @@ class PlantConfig:
     contact: ContactConfig = param(doc="contact law")
     disturbance: DisturbanceConfig = param(doc="joint disturbance")
     friction: FrictionConfig = param(doc="friction of the tool along the surface")
+    sensor: SensorConfig = param(SensorConfig(), doc="the robot's sensor (noise, bias, delay, bandwidth)")
+    actuator: ActuatorConfig = param(ActuatorConfig(), doc="the robot's motors (torque limits, joint friction)")
 
     def build(self, task=None, **context):
         """The plant object. ``task``: the task map the arm is built with (None: the arm's own
         coordinates); ``context``: ``dt`` (the simulation step) and ``control_period`` (None for
         continuous control), for engines that step themselves."""
         raise NotImplementedError
+
+    def instruments(self, plant) -> dict:
+        """``{"sensor": ..., "actuator": ...}`` of ``plant`` (the true arm's joints, the size of its
+        sensed force) as this section declares them (None: ideal)."""
+        import jax
+        import jax.numpy as jnp
+
+        n = int(plant.n)
+        sensor = None
+        if not self.sensor.ideal:
+            force = jax.eval_shape(lambda q: plant.sense(0.0, plant.initial_state(q))[0].force,
+                                   jax.ShapeDtypeStruct((n,), jnp.float64))
+            sensor = self.sensor.build(n, int(force.shape[-1]))
+        return {"sensor": sensor, "actuator": self.actuator.build(plant.arm, n)}
 
 
 @PLANTS.register("hinfnn")
@@ -608,9 +723,12 @@ class RigidPlantConfig(PlantConfig):
     def build(self, task=None, **context):
         from ..plant import RigidBodyPlant
 
-        return RigidBodyPlant(arm=self.arm.build(task, key="plant.arm"), surface=self.surface.build(),
-                              contact=self.contact.build(), disturbance=self.disturbance.build(),
-                              friction=self.friction.build())
+        plant = RigidBodyPlant(arm=self.arm.build(task, key="plant.arm"), surface=self.surface.build(),
+                               contact=self.contact.build(), disturbance=self.disturbance.build(),
+                               friction=self.friction.build())
+        if self.sensor.ideal and self.actuator.ideal:
+            return plant
+        return dataclasses.replace(plant, **self.instruments(plant))
 
 
 def mjcf_path(value: str) -> str:
@@ -727,10 +845,14 @@ class MujocoPlantConfig(PlantConfig):
                       friction=self.friction.build(), friction_damping=self.friction_damping)
         if self.mjcf.file:
             joints = self.mjcf.joints or tuple(self.arm.chain("plant.arm").joint_names)
-            return MujocoPlant.from_mjcf(mjcf_path(self.mjcf.file), joints=joints, tool_site=self.mjcf.tool_site,
-                                         tool_xyz=self.mjcf.tool_xyz, tool_rot=_rpy(self.mjcf.tool_rpy_deg),
-                                         task=task, **common)
-        return MujocoPlant.from_models(self.arm.build(task, key="plant.arm"), **common)
+            plant = MujocoPlant.from_mjcf(mjcf_path(self.mjcf.file), joints=joints, tool_site=self.mjcf.tool_site,
+                                          tool_xyz=self.mjcf.tool_xyz, tool_rot=_rpy(self.mjcf.tool_rpy_deg),
+                                          task=task, **common)
+        else:
+            plant = MujocoPlant.from_models(self.arm.build(task, key="plant.arm"), **common)
+        if self.sensor.ideal and self.actuator.ideal:
+            return plant
+        return plant.replace(**self.instruments(plant))
 
 
 @section

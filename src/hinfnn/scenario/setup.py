@@ -52,8 +52,12 @@ class Setup:
     @functools.cached_property
     def plant(self):
         """The true plant (``plant.engine`` chooses the class)."""
+        from ..sim.simulate import check_instruments
+
         sc = self.scenario
-        return sc.plant.build(task=self.task, dt=sc.simulation.dt, control_period=self.control_period)
+        plant = sc.plant.build(task=self.task, dt=sc.simulation.dt, control_period=self.control_period)
+        check_instruments(plant, self.control_period is not None)  # a sensor needs control samples
+        return plant
 
     @functools.cached_property
     def nominal_arm(self):

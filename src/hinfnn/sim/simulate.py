@@ -78,11 +78,15 @@ class Limits:
     penetration: jax.Array = 0.05
 
 
-def _evaluate(plant, ctrl, ref, t, y: SimState, w, held, sampled):
-    """Measurement, controller output, applied τ, and the record's plant and controller parts
-    (keys starting with "_" are the simulator's own: the fault flags and measures)."""
+def _evaluate(plant, ctrl, ref, t, y: SimState, w, held, sampled, applied=None, sensed=None):
+    """Measurement, controller output, the torque that drives the plant, and the record's plant and
+    controller parts (keys starting with "_" are the simulator's own: the fault flags and
+    measures). ``sensed``: what the plant's sensor last gave the controller (sampled control with
+    a sensor: the law is evaluated on it; the true measurement is returned, for the bookkeeping);
+    ``applied``: the torque the plant's actuator applies over the sample (sampled control with an
+    actuator), see :func:`_actuated`."""
     meas, cache = plant.sense(t, y.plant)
-    out = ctrl.evaluate(t, y.xc, meas, ref)
+    out = ctrl.evaluate(t, y.xc, meas if sensed is None else sensed, ref)
     tau = held if sampled else out.tau
     pr = plant.record(y.plant, w, cache)
     record = {"t": jnp.asarray(t, dtype=float), **pr.signals, "penetration": pr.penetration, **out.signals,
@@ -92,7 +96,20 @@ def _evaluate(plant, ctrl, ref, t, y: SimState, w, held, sampled):
               "_pfault_index": jnp.asarray(pr.fault_index, dtype=jnp.int32)}
     if out.deferred is not None:  # the controller's fields computed per stored sample (_derived)
         record["_deferred"] = out.deferred
-    return meas, cache, out, tau, record
+    return meas, cache, out, _actuated(plant, y.plant, tau, applied, record), record
+
+
+def _actuated(plant, y_plant, tau, applied, record):
+    """The torque that drives the plant: the commanded ``tau`` itself for ideal motors; with the
+    plant's actuator (:attr:`hinfnn.protocols.Plant.actuator`) the ``applied`` torque (sampled
+    control; under continuous control τ saturated) less the joints' friction, the applied torque
+    and whether a joint is at its limit recorded (``tau_applied``, ``torque_saturated``)."""
+    act = plant.actuator
+    if act is None:
+        return tau
+    applied = act.saturate(tau) if applied is None else applied
+    record.update(tau_applied=applied, torque_saturated=act.saturated(applied))
+    return applied - act.friction(plant.joints(y_plant)[1])
 
 
 def plant_rhs(plant, t, y_plant, tau, w, cache=None):
@@ -105,14 +122,16 @@ def plant_rhs(plant, t, y_plant, tau, w, cache=None):
     return plant.derivative(t, y_plant, tau, w, cache)
 
 
-def rhs(plant, ctrl, ref, t, y: SimState, w, held=None, sampled: bool = False, book: bool = True):
+def rhs(plant, ctrl, ref, t, y: SimState, w, held=None, sampled: bool = False, book: bool = True, applied=None,
+        sensed=None):
     """Time derivative of the whole closed-loop state of a continuous plant (plant, controller,
     accumulators) at (t, y) under the held input w, and the record there. The function the
     simulator integrates, and that :mod:`hinfnn.analysis` linearises. ``held``/``sampled``: the
     torque held by the sampled-data path (the controller state is then frozen between samples).
     ``book``: the theorems' bookkeeping (:func:`~hinfnn.sim.recorder.bookkeeping`); False: the
-    accumulators' rates are zero and the record has none of its fields."""
-    meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, sampled)
+    accumulators' rates are zero and the record has none of its fields. ``applied``, ``sensed``:
+    the plant's actuator and sensor under sampled control (:func:`_evaluate`)."""
+    meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, sampled, applied, sensed)
     dplant, qdd = plant_rhs(plant, t, y.plant, tau, w, cache)
     rates, kept = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc, enabled=book)
     dxc = jax.tree.map(jnp.zeros_like, out.dstate) if sampled else out.dstate
@@ -150,6 +169,8 @@ class Carry:
     tau_prev: jax.Array
     sums: dict
     maxes: dict
+    sensor: object = None  # the plant's sensor's state (hinfnn.protocols.Plant.sensor; None: ideal)
+    applied: object = None  # the torque the plant's actuator applies (sampled control; None: ideal)
 
 
 #: The record's entries a step reads at every step (its checks and the step summaries); the others
@@ -181,23 +202,31 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             t = k * dt
             y = c.y
             meas, _ = plant.sense(t, y.plant)
-            tau_s, xc_s = ctrl.sample(t, n_hold * dt, c.xc_next, meas, ref)
             running = c.status == 0
 
             def keep(new, old):
                 return jax.tree.map(lambda a, b: jnp.where(running, a, b), new, old)
 
+            extra = {}
+            if plant.sensor is not None:  # what the robot's sensor gives at sample k // n_hold
+                meas, state = plant.sensor.read(k // n_hold, n_hold * dt, meas, c.sensor)
+                extra["sensor"] = keep(state, c.sensor)
+            tau_s, xc_s = ctrl.sample(t, n_hold * dt, c.xc_next, meas, ref)
+            if plant.actuator is not None:  # what the robot's motors apply over the sample
+                extra["applied"] = jnp.where(running, plant.actuator.apply(tau_s, c.applied, n_hold * dt, k == 0),
+                                             c.applied)
             return dataclasses.replace(c, y=SimState(plant=y.plant, xc=keep(c.xc_next, y.xc), acc=y.acc),
-                                       held=jnp.where(running, tau_s, c.held), xc_next=keep(xc_s, c.xc_next))
+                                       held=jnp.where(running, tau_s, c.held), xc_next=keep(xc_s, c.xc_next), **extra)
 
         return jax.lax.cond(due, update, lambda c: c, c)
 
-    def advance(t, y, w, held, take=None):
+    def advance(t, y, w, held, take=None, applied=None, sensed=None):
         """(state after one step, the record at the step's start; with ``take`` False, only its
-        entries every step reads: :data:`EVERY_STEP`)."""
+        entries every step reads: :data:`EVERY_STEP`). ``applied``, ``sensed``: the plant's
+        actuator's torque and its sensor's last measurement (:func:`_evaluate`)."""
         if discrete:
-            meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, True)
-            new_plant, qdd = plant.step(t, y.plant, held, dt)
+            meas, cache, out, tau, record = _evaluate(plant, ctrl, ref, t, y, w, held, True, applied, sensed)
+            new_plant, qdd = plant.step(t, y.plant, tau, dt)
             rates, kept = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc, enabled=book)
             acc = jax.tree.map(lambda a, r: a + dt * r, y.acc, rates)
             return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **kept}
@@ -208,12 +237,14 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             # plant and the accumulators, the law's state passes through unchanged (as it would
             # with its zero rate: y + dt/6 · 0, exactly)
             def f(tt, part):
-                d, aux = rhs(plant, ctrl, ref, tt, SimState(plant=part[0], xc=y.xc, acc=part[1]), w, held, True, book)
+                d, aux = rhs(plant, ctrl, ref, tt, SimState(plant=part[0], xc=y.xc, acc=part[1]), w, held, True, book,
+                             applied, sensed)
                 return (d.plant, d.acc), aux
 
             (p_new, acc_new), aux = rk4_step(f, t, (y.plant, y.acc), dt, **opts)
             return SimState(plant=p_new, xc=ctrl.constrain(y.xc), acc=acc_new), aux
-        y_new, aux = rk4_step(lambda tt, yy: rhs(plant, ctrl, ref, tt, yy, w, held, sampled, book), t, y, dt, **opts)
+        y_new, aux = rk4_step(lambda tt, yy: rhs(plant, ctrl, ref, tt, yy, w, held, sampled, book, applied, sensed),
+                              t, y, dt, **opts)
         return SimState(plant=y_new.plant, xc=ctrl.constrain(y_new.xc), acc=y_new.acc), aux
 
     def step(c: Carry, k, first):
@@ -225,7 +256,8 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
         t = k * dt
         c = sample(c, k, skip=first)
         y_in = c.y
-        y_new, aux = advance(t, y_in, plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt), c.held, take=first)
+        y_new, aux = advance(t, y_in, plant.step_input(jnp.minimum(k, n_steps - 1) * dt, dt), c.held, take=first,
+                             applied=c.applied if sampled else None, sensed=None if c.sensor is None else c.sensor.out)
         tau = aux["tau"]
         running = c.status == 0
 
@@ -270,7 +302,8 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             tau_tv=stat(c.tau_tv + jnp.abs(tau - c.tau_prev), c.tau_tv),
             tau_prev=jnp.where(count | first, tau, c.tau_prev),
             sums={name: stat(rec[name], c.sums[name]) for name in STEP_SUMS},
-            maxes={name: stat(rec[name], c.maxes[name]) for name in STEP_MAXES}), _stored(rec, fields)
+            maxes={name: stat(rec[name], c.maxes[name]) for name in STEP_MAXES}, sensor=c.sensor,
+            applied=c.applied), _stored(rec, fields)
 
     return sample, step
 
@@ -379,12 +412,18 @@ def _final(plant, ctrl, ref, carry):
     return la.default_layout((carry.status, carry.t_fail, details, final))
 
 
-def _init_carry(ctrl, y0, n, sampled: bool = False):
+def _init_carry(ctrl, y0, n, plant=None, sampled: bool = False):
     """The first carry, strongly typed so that the carry a chunk returns has the same types (no
-    second compile); ``sampled``: the sampled-data mode's (the controller state carried twice:
-    :attr:`Carry.xc_next`)."""
+    second compile); with the ``plant``'s sensor's state at the measurement of t = 0 and its
+    actuator's applied torque (zero: the first sample is not rate-limited); ``sampled``: the
+    sampled-data mode's (the controller state carried twice: :attr:`Carry.xc_next`)."""
     f64 = jnp.float64
     zero = jnp.zeros((), f64)
+    sensor = applied = None
+    if plant is not None and plant.sensor is not None:
+        sensor = plant.sensor.start(plant.sense(jnp.zeros((), f64), y0.plant)[0])
+    if plant is not None and plant.actuator is not None:
+        applied = jnp.zeros(n, f64)
     # per-coordinate sums: e_u1 has the controller's m entries, e_λ its k
     sizes = {"tau_sq": n, "e_u1_sq": ctrl.m, "e_lam_sq": ctrl.k}
     return Carry(y=y0, held=jnp.zeros(n, f64), xc_next=y0.xc if sampled else None, status=jnp.zeros((), jnp.int32),
@@ -394,7 +433,7 @@ def _init_carry(ctrl, y0, n, sampled: bool = False):
                  tau_peak=jnp.zeros(n, f64), tau_tv=jnp.zeros(n, f64),
                  tau_prev=jnp.full(n, jnp.nan, f64),
                  sums={k: jnp.zeros(sizes.get(k, ()), f64) for k in STEP_SUMS},
-                 maxes={k: jnp.zeros((), f64) for k in STEP_MAXES})
+                 maxes={k: jnp.zeros((), f64) for k in STEP_MAXES}, sensor=sensor, applied=applied)
 
 
 def _with_options(fn, loop: LoopOptions, members=None, n_joints: int = 2):
@@ -436,7 +475,7 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
         p, c, r, lim = in_axes
         chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None, None, None))
         final = jax.vmap(final, in_axes=(p, c, r, 0))
-        init = jax.vmap(init, in_axes=(c, 0, None))
+        init = jax.vmap(init, in_axes=(c, 0, None, p))
         # the batch's own options (member_minor) by its size: the leading axis of the carry
         members = {"chunk": lambda *a: jax.tree.leaves(a[4])[0].shape[0],
                    "final": lambda *a: jax.tree.leaves(a[3])[0].shape[0]}
@@ -471,7 +510,7 @@ def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, f
     once, so memory is what is stored, never proportional to the steps."""
     n_total, n_steps, save_every = plan.samples, plan.n_steps, plan.save_every
     chunk, final, init, per_chunk, scalars = _chunk_program(plan, in_axes, fields, loop, n_joints, book)
-    carry = init(ctrl, y0, n_joints)
+    carry = init(ctrl, y0, n_joints, plant)
     axis = 0 if in_axes is None else 1  # the time axis of the records
     out: dict[str, np.ndarray] = {}
     n_chunks = -(-n_total // per_chunk)
@@ -611,6 +650,7 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     check_references([(reference, controller.m, controller.k)])
     plan = StepPlan.make(t_final, dt, control_period=control_period, save_interval=save_interval,
                          save_every=save_every, discrete=plant.discrete)
+    check_instruments(plant, plan.sampled)
     fields = select(fields)
     y0 = initial_state(plant, controller, q0=q0, u1_0=u1_0, qd0=qd0, xc0=xc0)
     controller.check_start(plant.joints(y0.plant)[0])
@@ -625,6 +665,23 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     if raise_on_failure and int(traj.status) != 0:
         raise failure_error(traj)
     return traj
+
+
+def check_instruments(plant, sampled: bool) -> None:
+    """Refuse what the plant's sensor and motors cannot do under continuous control (a
+    :class:`ConfigError` naming the key): a sensor's noise is drawn, its delay counted and its
+    filter stepped once per control sample, and a torque rate is a change from one sample to the
+    next; the continuous law has no samples. Saturation and joint friction need none."""
+    if sampled:
+        return
+    if plant.sensor is not None:
+        raise ConfigError("a sensor model (noise, bias, delay or bandwidth) acts once per control sample; continuous "
+                          "control has none: set simulation.control = \"sampled\" with a simulation.control_period, "
+                          "or leave plant.sensor ideal", key="plant.sensor")
+    if plant.actuator is not None and plant.actuator.rate_limited:
+        raise ConfigError("a torque rate limit acts from one control sample to the next; continuous control has none: "
+                          "set simulation.control = \"sampled\", or leave it \"none\"",
+                          key="plant.actuator.torque_rate_limit")
 
 
 def _flag(value, name: str) -> bool:
@@ -667,7 +724,9 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     """Simulate B runs as ONE program (``jax.vmap`` of :func:`simulate`'s run).
 
     ``plants``, ``controllers``, ``references`` (and ``limits``): each either a list of B objects
-    (stacked along a new axis) or a single object shared by every member. ``q0``/``u1_0`` may be
+    (stacked along a new axis) or a single object shared by every member (a shared plant with a
+    sensor gives member i the noise stream ``sensor.stream(i)``: independent members; a list keeps
+    each plant's own). ``q0``/``u1_0`` may be
     lists too. Members that fail are marked in ``status``/``t_fail`` and do not stop the others;
     nothing is raised for them. ``save_every``, ``save_interval``, ``fields``, ``progress`` and
     ``bookkeeping`` as for :func:`simulate`; a batch of B runs stores B times what one run stores.
@@ -693,6 +752,8 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     def member(x, i):
         return x[i] if isinstance(x, (list, tuple)) else x
 
+    if not isinstance(plants, (list, tuple)) and plants.sensor is not None:  # each member its own noise stream
+        plants = [plants.with_sensor(plants.sensor.stream(i)) for i in range(B)]
     for i in range(B):
         check_protocols(member(plants, i), member(controllers, i))
     check_references((member(references, i), member(controllers, i).m, member(controllers, i).k) for i in range(B))
@@ -711,6 +772,8 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     plant0, ctrl0 = member(plants, 0), member(controllers, 0)
     plan = StepPlan.make(t_final, dt, control_period=control_period, save_interval=save_interval,
                          save_every=save_every, discrete=plant0.discrete)
+    for i in range(B if isinstance(plants, (list, tuple)) else 1):
+        check_instruments(member(plants, i), plan.sampled)
     fields = select(fields)
     info = tuple(infos) if infos else tuple(RunInfo(kind=member(controllers, i).kind) for i in range(B))
     limits = limits if limits is not None else Limits()
@@ -772,7 +835,7 @@ def _single_chunk(plant, controller, reference, limits, y0, dt, sampled, loop, b
     """(the chunk program of a single run, the arguments :func:`_drive` gives it, the carry as its
     type): their values do not matter to :func:`lower_ahead` and :func:`record_shapes`."""
     chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None, loop, plant.n, book)
-    carry = init.eval_shape(controller, y0, plant.n)
+    carry = init.eval_shape(controller, y0, plant.n, plant)
     return chunk, (plant, controller, reference, limits, carry, jnp.zeros((), jnp.int64), *_chunk_scalars(1, dt, 1, 1, 1))
 
 
@@ -798,7 +861,7 @@ def lower_ahead_batch(plants: list, controllers: list, references: list, *, q0: 
     take = functools.partial(_take, idx=idx) if idx.size != B else (lambda x: x)
     args = [take(stack(list(x))) for x in (plants, controllers, references, limits)]
     y0 = take(stack([initial_state(p, c, q0=q) for p, c, q in zip(plants, controllers, q0)]))
-    carry = init.eval_shape(args[1], y0, plant0.n)
+    carry = init.eval_shape(args[1], y0, plant0.n, args[0])
     return chunk.lower_ahead(*args, carry, jnp.zeros((), jnp.int64), *scalars)
 
 
@@ -828,7 +891,7 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
         return dict(_RECORD_SHAPES[key])
 
     def one(plant, ctrl, ref, lim, y0):
-        carry = _init_carry(ctrl, y0, plant.n, sampled)
+        carry = _init_carry(ctrl, y0, plant.n, plant, sampled)
         _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True, book=book)
         return _derived(ctrl, step(carry, jnp.zeros((), jnp.int64), True)[1], fields)
 

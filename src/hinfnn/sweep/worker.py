@@ -93,6 +93,16 @@ def _plain(x):
     return np.asarray(x)
 
 
+def own_stream(run, r: RunSpec):
+    """``run`` with its plant's sensor noise on the draw's own stream (the sensor's key folded with
+    the grid point and the sample: every draw its own noise, the same on every controller of the
+    draw and on a resumed sweep); a run without a sensor model as it is."""
+    sensor = run.plant.sensor
+    if sensor is None:
+        return run
+    return dataclasses.replace(run, plant=run.plant.with_sensor(sensor.stream(r.point, r.sample)))
+
+
 def _ready(run) -> tuple:
     """What a batch needs of a checked run besides what its members share: the plant's leaves
     and the start pose, as plain Python/NumPy values (small, picklable)."""
@@ -122,7 +132,7 @@ def check_runs(base: dict, source: str, runs: list[RunSpec]) -> list[dict]:
             try:
                 one = sc.single(r.controller)
                 check(one)  # designs through the process's design cache (hinfnn.scenario.setup)
-                run = one.run(r.controller)
+                run = own_stream(one.run(r.controller), r)
                 out.append({"run": r.run, "ok": True, "group": compile_key(run), "shared": shared_key(one, r.controller),
                             "samples": stored_samples(run), "n_joints": int(run.plant.n), "ready": _ready(run)})
             except INVALID_ERRORS as err:
@@ -231,7 +241,7 @@ def _members(job: BatchJob) -> list:
     import jax
 
     first = scenario_of(job.base, job.source, job.members[0].values, job.members[0].controller)
-    run0 = first.run(job.members[0].controller)
+    run0 = own_stream(first.run(job.members[0].controller), job.members[0])
     if job.batch.shared and job.ready is not None:
         treedef = jax.tree.structure(run0.plant)
         plants = [jax.tree.unflatten(treedef, leaves) for leaves, _ in job.ready]
@@ -240,7 +250,7 @@ def _members(job: BatchJob) -> list:
     runs = [run0]
     for r in job.members[1:]:
         sc = scenario_of(job.base, job.source, r.values, r.controller)
-        runs.append(sc.run(r.controller))
+        runs.append(own_stream(sc.run(r.controller), r))
     plants, q0s = [r.plant for r in runs], [r.q0 for r in runs]
     if job.batch.shared:
         return plants, q0s, run0.controller, run0.reference, run0.limits, run0
@@ -284,17 +294,21 @@ def execute_batch(job: BatchJob, progress: Callable[[float], None] | None = None
     traj = simulate_batch(plants, controllers, references, q0=q0s, t_final=first.t_final, dt=first.dt,
                           save_interval=first.save_interval, fields="metrics", control_period=first.control_period,
                           limits=limits, bookkeeping=first.bookkeeping, progress=report)
-    rows = [member_row(r, traj.member(j), job.max_out_of_contact) for j, r in enumerate(job.members)]
+    from ..metrics import lam_is_normal_force
+
+    normal = lam_is_normal_force(first.info.scenario)  # the members' λ means what the first's does
+    rows = [member_row(r, traj.member(j), job.max_out_of_contact, normal) for j, r in enumerate(job.members)]
     return {"batch": job.batch.id, "rows": rows, "wall_s": time.perf_counter() - t0,
             "cpu_s": time.process_time() - c0, "host": socket.gethostname(), "pid": os.getpid(), "members": n_real,
             "size": job.batch.size}
 
 
-def member_row(r: RunSpec, traj, max_out_of_contact: float) -> dict:
-    """The table row of one simulated run."""
+def member_row(r: RunSpec, traj, max_out_of_contact: float, normal: bool | None = None) -> dict:
+    """The table row of one simulated run (``normal``: λ is the normal force, for its true force
+    error: :func:`hinfnn.metrics.lam_is_normal_force`)."""
     from ..metrics import compute_metrics
 
-    m = compute_metrics(traj)
+    m = compute_metrics(traj, lam_is_normal_force=normal)
     code = int(traj.status)
     row = id_row(r)
     row.update(status=traj.run_status.outcome, reason=traj.reason, error_key=None,
@@ -324,4 +338,4 @@ def invalid_row(r: RunSpec, checked: dict) -> dict:
 
 __all__ = ["DEFAULT_MAX_BATCH", "MEMORY_FRACTION", "CHECK_CHUNK", "INVALID_ERRORS", "scenario_of", "compile_key",
            "shared_key", "stored_samples", "check_runs", "Batch", "bytes_per_member", "batch_cap", "plan_batches",
-           "BatchJob", "execute_batch", "member_row", "id_row", "invalid_row"]
+           "BatchJob", "execute_batch", "member_row", "id_row", "invalid_row", "own_stream"]

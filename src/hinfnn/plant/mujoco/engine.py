@@ -435,7 +435,7 @@ class MujocoPlant(DiscretePlant):
     fault_name: ClassVar[str] = "joint limit margin (rad or m, < 0: past the true arm's limit)"
 
     def __init__(self, family: _Family, member, disturbance, sensing, control_period: float,
-                 callback: str = "host", limits=None):
+                 callback: str = "host", limits=None, sensor=None, actuator=None):
         self._family = family
         self.member = member
         self.disturbance = disturbance
@@ -445,6 +445,9 @@ class MujocoPlant(DiscretePlant):
         #: (lower, upper) joint limits of the true arm's chain (data: a batch stacks them), None
         #: for an arm without a chain (the two-link arm)
         self.limits = limits
+        #: the robot's sensor and motors (None: ideal; :mod:`hinfnn.plant.instruments`)
+        self.sensor = sensor
+        self.actuator = actuator
         self.n = family.n
 
     # --- construction -------------------------------------------------------------------------
@@ -531,10 +534,10 @@ class MujocoPlant(DiscretePlant):
                           callback)
 
     def replace(self, **changes) -> "MujocoPlant":
-        """The same plant with other ``disturbance``, ``sensing``, ``control_period`` or
-        ``callback`` (the MuJoCo model stays)."""
+        """The same plant with other ``disturbance``, ``sensing``, ``control_period``,
+        ``callback``, ``sensor`` or ``actuator`` (the MuJoCo model stays)."""
         kw = dict(disturbance=self.disturbance, sensing=self.sensing, control_period=self.control_period,
-                  callback=self.callback)
+                  callback=self.callback, sensor=self.sensor, actuator=self.actuator)
         unknown = set(changes) - set(kw)
         if unknown:
             raise TypeError(f"cannot replace {sorted(unknown)}")
@@ -542,6 +545,10 @@ class MujocoPlant(DiscretePlant):
         if kw["callback"] not in CALLBACKS:
             raise ConfigError(f"must be one of {CALLBACKS}, got {kw['callback']!r}", key="plant.callback")
         return MujocoPlant(self._family, self.member, limits=self.limits, **kw)
+
+    def with_sensor(self, sensor) -> "MujocoPlant":
+        """The same plant with another ``sensor`` (:meth:`hinfnn.protocols.Plant.with_sensor`)."""
+        return self.replace(sensor=sensor)
 
     # --- read-only facts ----------------------------------------------------------------------
     def _meta(self) -> _Meta:
@@ -750,13 +757,14 @@ def _task_of(arm, surface, task=None):
 def _flatten(plant: MujocoPlant):
     # the family (MuJoCo models, Batches) is static and hashed by identity; the member index, the
     # disturbance and the sensing data are leaves (a batch of plants is a stack of them)
-    return ((plant.member, plant.disturbance, plant.sensing, plant.limits),
+    return ((plant.member, plant.disturbance, plant.sensing, plant.limits, plant.sensor, plant.actuator),
             (plant._family, plant.control_period, plant.callback))
 
 
 def _unflatten(aux, children):
     family, period, callback = aux
-    return MujocoPlant(family, children[0], children[1], children[2], period, callback, children[3])
+    return MujocoPlant(family, children[0], children[1], children[2], period, callback, children[3], children[4],
+                       children[5])
 
 
 jax.tree_util.register_pytree_node(MujocoPlant, _flatten, _unflatten)
