@@ -9,7 +9,8 @@ reached the controller, the cycle's latency (from the reading's return to the wr
 lateness (the write against the robot's next tick: > 0 means the robot held the previous torque
 once more). A rejected reading never reaches the controller: the previous torque is held and the
 controller's state is not advanced. After a stop the robot is held (and, on a contact loss,
-retracted) by the safety layer's hold for ``stop_time`` s, then the loop ends.
+retracted) by the safety layer's hold for ``stop_time`` s (plus ``retract_time``), or as many cycles
+when the robot's time stands still, then the loop ends.
 
 :func:`trajectory` turns the log into a :class:`~hinfnn.sim.Trajectory` (the same fields as a
 simulation's, by replaying the accepted readings through the same law, plus the loop's own), so
@@ -132,8 +133,10 @@ def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, g
     rejected_row, last_reject = 0, None
     low_since = None
     good = None  # the last accepted reading (q, qd, force)
+    pressing = None  # the last accepted force at or above contact_loss_force (where the surface is)
     q_hold = dq = None
     t_stop = 0.0
+    held = 0  # cycles since the stop
     perf = time.perf_counter
     start = perf()
 
@@ -168,6 +171,8 @@ def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, g
                     tau_law = loop.update(t_read, h, r.q, r.qd, r.force)
                     accepted = True
                     good = (np.array(r.q), np.array(r.qd), np.array(r.force))
+                    if np.linalg.norm(good[2]) >= limits.contact_loss_force:
+                        pressing = good[2]
                     sent, clamps = S.clamp_torque(limits, t, tau_law, tau_prev)
                     for c in clamps:
                         if c.action == "stop":
@@ -182,8 +187,8 @@ def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, g
                 q_hold = good[0] if good is not None else np.array(r.q)
                 mode = RETRACT if ev.action == "retract" else HOLD
                 dq = np.zeros(n)
-                if mode == RETRACT and good is not None:
-                    dq = S.retract_step(point_jacobian(q_hold), good[2], limits.retract_distance)
+                if mode == RETRACT and pressing is not None:
+                    dq = S.retract_step(point_jacobian(q_hold), pressing, limits.retract_distance)
         if mode != CONTROL:
             finite = np.all(np.isfinite(r.q)) and np.all(np.isfinite(r.qd))
             q_now, qd_now = (np.asarray(r.q), np.asarray(r.qd)) if finite else (q_hold, np.zeros(n))
@@ -206,8 +211,11 @@ def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, g
             rows[k].append(np.array(v, dtype=float))
         if mode == CONTROL and t >= t_final - 1e-9:
             break
-        if mode != CONTROL and t - t_stop >= limits.stop_time + (limits.retract_time if mode == RETRACT else 0.0) - 1e-9:
-            break
+        if mode != CONTROL:  # the hold lasts its time, or as many cycles where the robot's time stands still
+            held += 1
+            span = limits.stop_time + (limits.retract_time if mode == RETRACT else 0.0)
+            if t - t_stop >= span - 1e-9 or held > span / period + 0.5:
+                break
     return LoopLog(period=period, rows={k: np.stack(v) for k, v in rows.items()}, events=events, counts=counts,
                    stop=stop, seconds=perf() - start)
 
