@@ -355,3 +355,13 @@ def test_cli_robot_run(tmp_path, capsys):
                      "--set", "controller.kind=hinf_nn"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "plant.engine" in err[0] and not (tmp_path / "bad").exists()
+
+
+def test_a_ur5_joint_driven_to_its_limit_stops(tmp_path):
+    """ur5-polish in lock-step: joint 2 reads 1 cm·rad inside its URDF limit, inside the 0.05 rad margin."""
+    sc = H.Scenario.load("ur5-polish", ["simulation.t_final=0.03", "safety.stop_time=0.005"])
+    res = run_virtual(sc, tmp_path, faults=[Fault("joint_limit", t=0.01, value=0.01, joint=1)])
+    assert res.log.stop.rule == "joint_limit_margin" and res.log.stop.values["joint"] == 2
+    run = H.load(res.target).metrics["runs"][0]
+    assert run["status"] == "diverged" and "joint_limit_margin" in run["reason"]
+    assert res.doc["robot"]["limits"]["torque"] == [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]
