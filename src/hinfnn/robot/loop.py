@@ -25,26 +25,14 @@ import time
 
 import numpy as np
 
-from ..fields import declare
 from ..protocols import Measurement
 from ..status import RunStatus
 from . import safety as S
 from .base import Robot
 
-#: The loop's own recorded fields (beside those of the law).
-LOOP_FIELDS = (
-    ("force_measured", "N", "the robot's force reading: the contact force at the tool point, base frame"),
-    ("tau_law", "N·m", "the torque the control law asked for, before the safety layer's clamps"),
-    ("t_reading", "s", "the time the robot gave the reading (t: the latest time seen)"),
-    ("cycle_latency", "s", "from the robot's reading to the torque written, in the loop"),
-    ("cycle_lateness", "s", "the torque written against the robot's next tick (> 0: late, the previous torque held again)"),
-    ("missed_ticks", "-", "control periods in a row the robot held a stale torque, up to the reading"),
-    ("control_h", "s", "the time since the previous reading the controller integrated over (NaN: not called)"),
-    ("accepted", "-", "1 when the reading reached the controller, 0 when the safety layer rejected it"),
-    ("safety_mode", "-", "0 control, 1 hold after a stop, 2 retract after a contact loss"),
-)
-for _row in LOOP_FIELDS:
-    declare(*_row)
+#: The loop's own recorded fields (beside those of the law; units in :data:`hinfnn.fields.FIELDS`).
+LOOP_FIELDS = ("force_measured", "tau_law", "t_reading", "cycle_latency", "cycle_lateness", "missed_ticks", "control_h",
+               "accepted", "safety_mode")
 
 CONTROL, HOLD, RETRACT = 0, 1, 2
 #: Events of one rule written to the log one by one (the rest are counted).
@@ -123,8 +111,7 @@ def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, g
     period = robot.period
     loop = sampled.loop()
     n = robot.n
-    rows = {k: [] for k in ("t", "t_reading", "q", "qd", "force_measured", "tau", "tau_law", "cycle_latency",
-                            "cycle_lateness", "missed_ticks", "control_h", "accepted", "safety_mode")}
+    rows = {k: [] for k in ("t", "q", "qd", "tau", *LOOP_FIELDS)}
     events, counts = [], {}
     stop = None
     mode = CONTROL

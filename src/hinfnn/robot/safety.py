@@ -147,6 +147,8 @@ class SafetyLimits:
         def num(v):
             if np.ndim(v):
                 return [num(x) for x in np.asarray(v).tolist()]
+            if isinstance(v, (int, np.integer)):
+                return int(v)
             return float(v) if math.isfinite(v) else None
         return {f.name: num(getattr(self, f.name)) for f in dataclasses.fields(self)}
 

@@ -221,9 +221,8 @@ class VirtualRobot(Robot):
         for f in self.faults:
             if not isinstance(f, Fault):
                 raise ConfigError(f"must be hinfnn.robot.Fault items, got {type(f).__name__}", key="faults")
-        setup = scenario.build()
-        self.n = int(setup.plant.n)
-        self.d = int(setup.nominal_arm.space_dim)
+        arm = scenario.build().nominal_arm  # its sizes: the plant itself is built in the server only
+        self.n, self.d = int(arm.n), int(arm.space_dim)
         self.limit = float(scenario.simulation.t_final + scenario.safety.stop_time + scenario.safety.retract_time
                            + 1.0 if limit is None else limit)
         self._proc = None
