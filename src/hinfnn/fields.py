@@ -63,7 +63,7 @@ _CORE = [
     ("tau_law", "N·m", "the torque the control law asked for, before the safety layer's clamps"),
     ("t_reading", "s", "the time the robot gave the reading (t: the latest time seen)"),
     ("cycle_latency", "s", "from the robot's reading to the torque written, in the loop"),
-    ("cycle_lateness", "s", "the torque written against the robot's next tick (> 0: late, the previous torque held again)"),
+    ("cycle_lateness", "s", "the torque written against the robot's next tick (> 0: late, the previous one held again)"),
     ("missed_ticks", "-", "control periods in a row the robot held a stale torque, up to the reading"),
     ("control_h", "s", "the time since the previous reading the controller integrated over (NaN: not called)"),
     ("accepted", "-", "1 when the reading reached the controller, 0 when the safety layer rejected it"),

@@ -204,7 +204,8 @@ def check_state(limits: SafetyLimits, t: float, q, qd, force) -> Event | None:
     if qd.size and float(np.max(np.abs(qd))) > limits.velocity_limit:
         j = int(np.argmax(np.abs(qd)))
         return Event("velocity_limit", float(t), f"joint {j + 1} moves at {qd[j]:.6g}, above the limit "
-                     f"{limits.velocity_limit:g}", {"joint": j + 1, "qd": _vec(qd), "velocity_limit": limits.velocity_limit})
+                     f"{limits.velocity_limit:g}",
+                     {"joint": j + 1, "qd": _vec(qd), "velocity_limit": limits.velocity_limit})
     q = np.asarray(q, dtype=float)
     margin = np.minimum(q - limits.lower, limits.upper - q)
     if margin.size and float(np.min(margin)) < limits.joint_margin:
@@ -255,8 +256,8 @@ def clamp_torque(limits: SafetyLimits, t: float, tau, tau_prev, h: float | None 
     tau = np.asarray(tau, dtype=float)
     prev = None if tau_prev is None else np.asarray(tau_prev, dtype=float)
     if not np.all(np.isfinite(tau)):
-        return (None if prev is None else prev.copy()), [Event("nonfinite_torque", float(t), "the controller returned a non-finite torque",
-                                   {"tau": _vec(tau)})]
+        bad = Event("nonfinite_torque", float(t), "the controller returned a non-finite torque", {"tau": _vec(tau)})
+        return (None if prev is None else prev.copy()), [bad]
     events = []
     out = np.clip(tau, -limits.torque, limits.torque)
     hit = np.nonzero(out != tau)[0]
