@@ -273,6 +273,7 @@ LAYERS = [
     ("hinfnn.experiment",),
     ("hinfnn.workflows",),
     ("hinfnn.sweep",),
+    ("hinfnn.robot",),
     ("hinfnn.cli",),
 ]
 #: Besides the layers: (importer prefix, imported prefixes it must never reach, directly or not,

@@ -73,6 +73,16 @@ _CORE = [
     ("V", "-", "storage function V, eqs. (36)/(55)"),
     ("f_p", "m/s²", "position residual f_p of eq. (28)/(52)", None, ("motion", "{}/s²")),
     ("f_f", LAMBDA, "force residual f_f of eq. (29)/(53)"),
+    # a robot run's loop (hinfnn.robot.loop)
+    ("force_measured", "N", "the robot's force reading: the contact force at the tool point, base frame"),
+    ("tau_law", "N·m", "the torque the control law asked for, before the safety layer's clamps"),
+    ("t_reading", "s", "the time the robot gave the reading (t: the latest time seen)"),
+    ("cycle_latency", "s", "from the robot's reading to the torque written, in the loop"),
+    ("cycle_lateness", "s", "the torque written against the robot's next tick (> 0: late, the previous one held again)"),
+    ("missed_ticks", "-", "control periods in a row the robot held a stale torque, up to the reading"),
+    ("control_h", "s", "the time since the previous reading the controller integrated over (NaN: not called)"),
+    ("accepted", "-", "1 when the reading reached the controller, 0 when the safety layer rejected it"),
+    ("safety_mode", "-", "0 control, 1 hold after a stop, 2 retract after a contact loss"),
 ]
 _SUMMARIES = [
     ("tau_abs_max", "N·m", "max |τ_i| over the steps since the previous sample", "max", ("effort", "{}")),

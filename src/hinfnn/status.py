@@ -28,6 +28,7 @@ class RunStatus(enum.IntEnum):
     PENETRATION_LIMIT = 3
     CONTROLLER_FAULT = 4
     PLANT_FAULT = 5
+    SAFETY_STOP = 6
     INVALID = -1
 
     @property
@@ -45,8 +46,9 @@ class RunStatus(enum.IntEnum):
     def describe(self, details: dict | None = None) -> str:
         """Why the run stopped, in words, with the numbers that decided it (``details``: the
         trajectory's ``fail_details``: the numbers, the names the controller and the plant give
-        their fault measures, ``controller_fault`` and ``plant_fault``, and the plant's name for
-        the item of its fault, ``fault_item``)."""
+        their fault measures, ``controller_fault`` and ``plant_fault``, the plant's name for
+        the item of its fault, ``fault_item``, and for a robot run the safety rule that stopped it,
+        ``safety_rule``, with its message and values, ``safety_message``)."""
         d = details or {}
         what = self.message
         if self is RunStatus.NONFINITE:
@@ -58,6 +60,8 @@ class RunStatus(enum.IntEnum):
             return f"{what} (peak |tau| = {_num(d.get('tau_peak')):.4g} N·m)"
         if self is RunStatus.PENETRATION_LIMIT:
             return f"{what} (penetration = {_num(d.get('penetration')):.4g} m)"
+        if self is RunStatus.SAFETY_STOP:  # a robot run (hinfnn.robot): the rule that fired, in words
+            return f"{what}: {d.get('safety_rule') or 'a rule'} ({d.get('safety_message') or 'no details'})"
         if self in (RunStatus.CONTROLLER_FAULT, RunStatus.PLANT_FAULT):
             name = d.get("controller_fault" if self is RunStatus.CONTROLLER_FAULT else "plant_fault")
             item = d.get("fault_item") if self is RunStatus.PLANT_FAULT else None
@@ -73,6 +77,7 @@ _MESSAGES = {
     RunStatus.PENETRATION_LIMIT: "penetration limit exceeded",
     RunStatus.CONTROLLER_FAULT: "stopped by the controller's guard",
     RunStatus.PLANT_FAULT: "stopped by the plant's guard",
+    RunStatus.SAFETY_STOP: "stopped by the robot's safety layer",
     RunStatus.INVALID: "not simulated: the scenario failed a check",
 }
 

@@ -25,7 +25,8 @@ from ._parser import _parser
 COMMANDS = {"run": ("run", "main"), "reproduce": ("reproduce", "main"), "design": ("design", "main"),
             "compare": ("compare", "main"), "gallery": ("gallery", "main"), "sweep": ("sweep", "main"),
             "show": ("results", "show"), "plot": ("results", "plot"), "export": ("results", "export"),
-            "keys": ("info", "keys"), "scenarios": ("info", "scenarios"), "cache": ("info", "cache")}
+            "keys": ("info", "keys"), "scenarios": ("info", "scenarios"), "cache": ("info", "cache"),
+            "robot": ("robot", "main")}
 
 
 def _command(name: str):
@@ -151,7 +152,8 @@ def _main(argv, box: dict) -> int:
         if args.command not in ("keys", "scenarios", "show", "plot", "export"):
             from .._config import configure
 
-            configure()
+            # a robot loop's process runs every compiled call on its own thread (docs/robot.md)
+            configure(async_dispatch=False if args.command == "robot" else None)
         if args.command == "run":
             from .._startup import StartupTrace
 

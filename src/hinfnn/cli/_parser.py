@@ -60,6 +60,13 @@ EXAMPLES_SWEEP = """examples:
 The table is OUT/results.parquet (hinfnn.load_sweep(OUT) gives a pandas DataFrame); OUT/report.md
 states the fractions that stayed bounded and held contact; see docs/sweeps.md for the spec format.
 """
+EXAMPLES_ROBOT = """examples:
+  hinfnn robot run ur5-polish --robot virtual                 # results/robots/ur5-polish-<UTC time>/
+  hinfnn robot run ur5-polish --set simulation.t_final=2 --set safety.force_limit=60 --out results/r1
+
+The virtual robot is the scenario's MuJoCo plant (plant.engine = "mujoco") in its own process, advancing
+in wall-clock real time; the loop reaches it only through the robot interface. See docs/robot.md.
+"""
 EXAMPLES_MAIN = """examples:
   hinfnn reproduce                 the paper's Sec. VI study into results/paper/
   hinfnn gallery                   the shipped arms-and-surfaces scenarios into results/gallery/
@@ -67,6 +74,7 @@ EXAMPLES_MAIN = """examples:
   hinfnn keys                      every scenario key, its meaning and allowed values
   hinfnn show results/paper        the metrics and designed controllers of a saved result
   hinfnn plot DIR / export DIR     redraw the figures / write the trajectories as CSV or Parquet
+  hinfnn robot run ur5-polish      the controller on a (virtual) robot: real-time loop, safety layer
   hinfnn sweep paper-uncertainty   a robustness sweep: 1,000 seeded draws of the true plant, 3 controllers
   hinfnn cache                     the compilation cache that makes later starts fast
 
@@ -122,6 +130,25 @@ def _parser() -> argparse.ArgumentParser:
                    help="write no figures (2.5-3 s less); `hinfnn plot DIR` draws them later from the saved result")
     common(r)
 
+    ro = sub.add_parser(
+        "robot", formatter_class=fmt, epilog=EXAMPLES_ROBOT,
+        help="run a scenario's controller on a robot: the real-time loop with the safety layer",
+        description="Drive a robot with the scenario's one controller at its control period, through the safety "
+                    "layer ([safety], docs/robot.md), and record the run as `hinfnn run` records a simulation: "
+                    "OUT/metrics.json (with the loop's latency, lateness, late and rejected cycles and the safety "
+                    "events), OUT/trajectory.npz, OUT/scenario.toml, OUT/robot.log and figures.")
+    rsub = ro.add_subparsers(dest="robot_command", metavar="ACTION")
+    rr = rsub.add_parser("run", formatter_class=fmt, epilog=EXAMPLES_ROBOT,
+                         help="run SCENARIO on the robot for simulation.t_final s of robot time",
+                         description="Run SCENARIO (one controller, simulation.control = \"sampled\") on the robot "
+                                     "for simulation.t_final s of robot time and write the result folder.")
+    rr.add_argument("scenario", help="shipped scenario name (see `hinfnn scenarios`) or path to a .toml file")
+    rr.add_argument("--robot", choices=("virtual",), default="virtual",
+                    help="virtual: the scenario's MuJoCo plant served in its own process in real time (default)")
+    rr.add_argument("--out", default=None, metavar="DIR",
+                    help="output folder (default: results/robots/<scenario name>-<UTC time>)")
+    rr.add_argument("--no-figures", dest="figures", action="store_false", help="write no figures")
+    common(rr)
     rp = sub.add_parser(
         "reproduce", formatter_class=fmt, epilog=EXAMPLES_REPRODUCE,
         help="reproduce the paper's Sec. VI study: figures, metrics, claims, report",

@@ -33,7 +33,7 @@ from ..errors import ConfigError
 from . import schema
 from .schema import param, section
 from .sections import (ControllerConfig, InitialConfig, NativeTaskConfig, NominalConfig, PlantConfig, ReferenceConfig,
-                       SimulationConfig, TaskConfig, VerdictConfig)
+                       SafetyConfig, SimulationConfig, TaskConfig, VerdictConfig)
 
 SHIPPED = "files"
 
@@ -54,6 +54,7 @@ class Scenario:
     initial: InitialConfig = param(doc="the start")
     simulation: SimulationConfig = param(doc="the simulation")
     verdict: VerdictConfig = param(VerdictConfig(), doc="when a run did its job")
+    safety: SafetyConfig = param(SafetyConfig(), doc="the safety layer of a robot loop (hinfnn robot run)")
     source: str = dataclasses.field(default="<dict>", compare=False)
     overrides: tuple = dataclasses.field(default=(), compare=False)
 

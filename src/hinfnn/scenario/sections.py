@@ -1414,6 +1414,50 @@ class VerdictConfig:
 
 
 @section
+class SafetyConfig:
+    """The safety layer of a robot loop (:mod:`hinfnn.robot.safety`, ``hinfnn robot run``; docs/robot.md):
+    what is clamped, what is rejected before it reaches the controller and what stops the robot.
+    A simulation does not read it."""
+
+    torque_limit: tuple[float, ...] = param((), doc="largest magnitude of the torque sent to each joint, N m (clamped); empty: the "
+                                            "nominal arm's URDF effort limits (an arm without them: "
+                                            "simulation.torque_limit)", gt=0.0, le=1e6)
+    torque_rate_limit: float = param(1000.0, doc="largest change of each joint's torque per second, N m/s (clamped; "
+                                     "libfranka's limit)", gt=0.0, le=1e9)
+    force_limit: float = param(200.0, doc="the robot stops when the measured contact force exceeds this, N (the "
+                               "force ceiling)", gt=0.0, le=1e6)
+    force_range: float = param(2000.0, doc="a force reading above this is outside the sensor's range: rejected, "
+                               "never given to the controller, N", gt=0.0, le=1e9)
+    velocity_limit: float = param(3.0, doc="the robot stops when a joint moves faster than this, rad/s or m/s",
+                                  gt=0.0, le=1e3)
+    velocity_range: float = param(50.0, doc="a joint-rate reading above this is outside the sensor's range: "
+                                  "rejected, rad/s or m/s", gt=0.0, le=1e6)
+    joint_limit_margin: float = param(0.05, doc="the robot stops when a joint comes this close to its limit "
+                                      "(the nominal arm's URDF limits), rad or m", ge=0.0, le=10.0)
+    contact_loss_force: float = param(1.0, doc="contact is lost when the measured force stays below this, N",
+                                      ge=0.0, le=1e6)
+    contact_loss_time: float = param(0.02, doc="contact is lost when the force stays below contact_loss_force this "
+                                     "long, s: the robot then holds its position and retracts", gt=0.0, le=100.0)
+    contact_loss_after: float = param(0.5, doc="the contact-loss rule is armed from this time on (the force "
+                                      "builds up before), s", ge=0.0, le=1e5)
+    retract_distance: float = param(0.02, doc="how far the tool backs away from the surface after a contact "
+                                    "loss (against the last measured force), m", ge=0.0, le=1.0)
+    retract_time: float = param(0.5, doc="the retraction takes this long, s", gt=0.0, le=100.0)
+    hold_stiffness: float = param(200.0, doc="joint stiffness of the hold after a stop, N m/rad",
+                                  gt=0.0, le=1e6)
+    hold_damping: float = param(20.0, doc="joint damping of the hold after a stop, N m s/rad", ge=0.0,
+                                le=1e6)
+    stop_time: float = param(0.2, doc="how long the robot holds after a stop before the loop ends, s", ge=0.0,
+                             le=100.0)
+    max_period_ratio: float = param(5.0, doc="a reading more than this many control periods after the previous "
+                                    "one is rejected (the law is designed for its period)", gt=1.0, le=1e3)
+    max_rejected: int = param(10, doc="the robot stops after this many readings rejected in a row", ge=1,
+                              le=100000)
+    watchdog_misses: int = param(20, doc="the robot stops after this many control periods in a row without a "
+                                 "fresh torque (libfranka stops after 20 lost packets)", ge=1, le=100000)
+
+
+@section
 class SimulationConfig:
     t_final: float = param(doc="horizon, s", gt=0.0, le=1e5)
     dt: float = param(doc="RK4 step, s", gt=0.0, le=0.1)

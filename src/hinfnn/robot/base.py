@@ -1,0 +1,76 @@
+"""The robot interface the loop runner drives (docs/robot.md): start, read, write, stop.
+
+A robot gives the loop, once per control period, a :class:`Reading` (its own time and what its
+sensors measured) and takes a joint torque to hold until the next one. Everything else (the
+controller, the safety layer, the log) is the loop's (:func:`hinfnn.robot.run_loop`).
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class Reading:
+    """What a robot reports once per control period.
+
+    ``t``: the robot's time, s (from its start). ``q``, ``qd``: joint angles and rates (n,).
+    ``force``: the contact force the tool exerts on the surface at the tool point, in the base
+    frame's Cartesian axes (d,): what a force/torque sensor at the tool gives
+    (:class:`hinfnn.protocols.Measurement`). ``tau_ext``: the external joint torques when the
+    robot estimates them instead (None here: every robot hinfnn drives today has a force sensor).
+    ``missed``: control periods in a row, up to this reading, in which the robot got no fresh
+    torque and held the previous one (0 when every torque arrived in time). ``wall``: the robot's
+    ``time.perf_counter()`` when the reading was taken (same clock as the loop's on one machine),
+    or NaN when unknown.
+    """
+
+    t: float
+    q: np.ndarray
+    qd: np.ndarray
+    force: np.ndarray
+    tau_ext: np.ndarray | None = None
+    missed: int = 0
+    wall: float = float("nan")
+
+
+class Robot(abc.ABC):
+    """A torque-controlled arm as the loop sees it.
+
+    * ``period``: the control period the robot runs at, s;
+    * :meth:`start`: connect and start the robot's clock (the first reading is at t = 0);
+    * :meth:`read`: block until the next reading and return it (the newest when several came);
+    * :meth:`write`: the joint torque to hold from now until the next write, N·m (n,);
+    * :meth:`stop`: hold the robot still and disconnect (idempotent; also on errors).
+
+    A robot is a context manager: ``with robot: ...`` starts and stops it.
+    """
+
+    period: float
+    n: int
+
+    @abc.abstractmethod
+    def start(self) -> None: ...
+
+    @abc.abstractmethod
+    def read(self) -> Reading: ...
+
+    @abc.abstractmethod
+    def write(self, tau) -> None: ...
+
+    @abc.abstractmethod
+    def stop(self) -> None: ...
+
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+        return False
+
+
+__all__ = ["Reading", "Robot"]

@@ -1,0 +1,125 @@
+"""``hinfnn robot run`` as a library call: a scenario's controller on a robot, recorded as a result
+folder (metrics.json, trajectory.npz, scenario.toml, robot.log, figures), atomically."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from ..errors import ConfigError
+from .loop import run_loop, trajectory
+from .safety import SafetyLimits
+
+#: The robots ``hinfnn robot run --robot`` knows.
+ROBOTS = ("virtual",)
+
+
+@dataclasses.dataclass
+class RobotRunResult:
+    target: object        # the folder written
+    doc: dict             # metrics.json
+    log: object           # the LoopLog
+    note: str | None      # why the result is not in the reserved folder, or None
+
+
+def safety_limits(sc, setup=None) -> SafetyLimits:
+    """The safety layer's limits of a scenario: its ``[safety]`` section, its control period, the
+    nominal arm's URDF effort and joint limits (an arm without them: ``simulation.torque_limit``
+    and no joint limits)."""
+    setup = setup or sc.build()
+    arm = setup.nominal_arm
+    chain = getattr(arm, "chain", None)
+    get = (lambda name: None if chain is None else np.asarray(getattr(chain, name), dtype=float))
+    return SafetyLimits.from_config(sc.safety, period=sc.simulation.control_period, n=int(arm.n),
+                                    effort=get("effort_limit"), lower=get("lower"), upper=get("upper"),
+                                    fallback_torque=sc.simulation.torque_limit)
+
+
+def _single(sc):
+    if len(sc.kinds) != 1:
+        raise ConfigError(f"a robot runs one controller: give one kind, got {sc.kinds}", key="controller.kind")
+    if sc.simulation.control != "sampled":
+        raise ConfigError("a robot runs the controller at a fixed rate: set simulation.control = \"sampled\", got "
+                          f"{sc.simulation.control!r}", key="simulation.control")
+    return sc.kinds[0]
+
+
+def make_robot(sc, robot: str, faults=()):
+    """The robot named ``robot`` (:data:`ROBOTS`) for scenario ``sc``."""
+    if robot == "virtual":
+        from .virtual import VirtualRobot
+
+        return VirtualRobot(sc, faults=faults)
+    raise ConfigError(f"unknown robot {robot!r}; allowed: {', '.join(ROBOTS)}", key="--robot")
+
+
+def prepared(sc):
+    """(sampled controller, limits, gravity(q), point_jacobian(q)) of a scenario's one controller,
+    every compiled function warmed up (a first call compiles: never inside the loop)."""
+    import jax
+
+    from ..controllers.sampled import SampledController
+    from ..protocols import Measurement
+
+    kind = _single(sc)
+    setup = sc.build()
+    controller = setup.controller(kind)
+    sampled = SampledController(controller, setup.reference)
+    limits = safety_limits(sc, setup)
+    arm = controller.arm
+    gravity_fn, jac_fn = jax.jit(arm.G), jax.jit(arm.point_jacobian)
+    n, d = sampled.n_joints, sampled.force_size
+    q = np.zeros(n)
+    gravity = (lambda q: np.asarray(gravity_fn(np.asarray(q, dtype=float))))
+    point_jacobian = (lambda q: np.asarray(jac_fn(np.asarray(q, dtype=float))))
+    gravity(q), point_jacobian(q)
+    warm = sampled.loop()
+    warm.update(0.0, limits.period, q, np.zeros(n), np.zeros(d))
+    if controller.needs_start:
+        sampled.start(0.0, sampled.init(), Measurement(q=q, qd=np.zeros(n), force=np.zeros(d)))
+    return sampled, limits, gravity, point_jacobian
+
+
+def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, command: str = "", log=print,
+              figures: bool = True, event_log=None) -> RobotRunResult:
+    """Run the scenario's one controller on ``robot`` (a :class:`~hinfnn.robot.Robot`, or a name of
+    :data:`ROBOTS`; ``faults`` for the virtual one) for ``simulation.t_final`` s of robot time,
+    through the safety layer, and write the result folder as ``hinfnn run`` does (reserved before
+    anything runs, put in place when complete: a run that fails leaves nothing): metrics.json (the
+    run, and ``robot``: latency, lateness, late and rejected cycles, the safety events and the stop),
+    trajectory.npz, scenario.toml, robot.log (the events, one per line) and figures. A stop by the
+    safety layer is a result (status ``diverged``, the rule in its reason), not an error.
+    ``event_log(line)``: each safety event as it fires."""
+    from ..experiment import Outcome, cases, result_folder, write_result
+    from ..io import atomic_write_text
+    from ..metrics import compute_metrics
+    from ..workflows.run import result_name
+
+    _single(sc)
+    case = cases(sc, tags={"robot": robot if isinstance(robot, str) else type(robot).__name__})[0]
+    with result_folder(out, command="robot", name=result_name(sc), kind="run", force=force, log=log,
+                       command_line=command) as written:
+        sampled, limits, gravity, jacobian = prepared(sc)
+        bot = make_robot(sc, robot, faults) if isinstance(robot, str) else robot
+        t0 = time.perf_counter()
+        with bot:
+            loop_log = run_loop(bot, sampled, limits, t_final=sc.simulation.t_final, gravity=gravity,
+                                point_jacobian=jacobian, log=event_log)
+        traj = trajectory(loop_log, sampled, case.info())
+        metrics = compute_metrics(traj)
+        outcome = Outcome(cases=[case], trajectories={case.name: traj}, metrics={case.name: metrics},
+                          designs={case.name: sampled.controller.summary()}, seconds=time.perf_counter() - t0)
+        summary = {**loop_log.summary(), "limits": limits.summary()}
+        doc = write_result(written.path, sc, outcome, command=command, save_interval=sc.simulation.control_period,
+                           extra={"robot": summary})
+        atomic_write_text(written.path / "robot.log", "\n".join(loop_log.lines()) + "\n")
+        if figures:
+            from ..report import run_figures
+
+            run_figures(outcome.trajectories, written.path)
+    return RobotRunResult(target=written.path, doc=doc, log=loop_log, note=written.moved)
+
+
+__all__ = ["ROBOTS", "RobotRunResult", "safety_limits", "make_robot", "prepared", "run_robot"]

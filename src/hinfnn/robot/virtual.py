@@ -1,0 +1,329 @@
+"""A virtual robot: hinfnn's MuJoCo plant served in its own process, in wall-clock real time.
+
+:class:`VirtualRobot` starts a server process (``multiprocessing``, spawned) that builds the
+scenario's true plant (``plant.engine = "mujoco"``: :class:`hinfnn.plant.mujoco.MujocoPlant`) at
+the scenario's start pose and then advances it by one control period h at each tick of the wall
+clock (t0 + k h), holding the newest torque the loop wrote (zero-order hold), and publishes the
+reading of each new state. The loop and the server share two small blocks of memory (a reading and
+a command, each behind a sequence counter): the loop reaches the plant only through the
+:class:`~hinfnn.robot.Robot` interface, so the timing, the jitter and the late cycles are real.
+A tick at which no fresh torque has arrived since the previous one holds the old torque again and
+counts as missed (:attr:`~hinfnn.robot.Reading.missed`: missed ticks in a row). A server held up
+by its own machine for more than half a period moves its clock on by the delay (counted in
+:attr:`VirtualRobot.server_behind`) rather than stepping the plant several times in a row with a
+stale torque: a real robot's clock never lags, so the lateness a run sees is the loop's own.
+
+Faults for tests (:class:`Fault`), applied to what the server publishes, at robot time: a force
+spike (``force_spike``, ``value`` N added along the measured force), a sensor dropout (``dropout``:
+the previous reading published again, its time not advancing), a NaN reading (``nan``: q of
+``joint``), a lost contact (``lost_contact``: the force reads zero, as if the part were taken
+away), a joint at its limit (``joint_limit``: q of ``joint`` reads ``value`` inside its upper
+limit), time going backwards (``time_back``: ``value`` s earlier); and on the loop's side a
+stalled cycle (``stall``: the write is delayed by ``duration`` s, as if the loop's process had
+been descheduled).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError, SimulationError
+from .base import Reading, Robot
+
+#: The fault kinds :class:`VirtualRobot` injects (``stall`` on the loop's side, the others in the server).
+FAULTS = ("force_spike", "dropout", "nan", "lost_contact", "joint_limit", "time_back", "stall")
+
+# the server's state word
+_STARTING, _READY, _RUNNING, _STOP, _ENDED = 0, 1, 2, 3, 4
+#: How long the server may take to build its plant, s (a first MuJoCo scene and its step's compile).
+START_TIMEOUT = 300.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Fault:
+    """A fault injected at robot time ``t`` (s) for ``duration`` s (0: one reading); ``value`` and
+    ``joint`` (0-based) as the kind needs them (module docstring)."""
+
+    kind: str
+    t: float
+    duration: float = 0.0
+    value: float = 0.0
+    joint: int = 0
+
+    def __post_init__(self):
+        if self.kind not in FAULTS:
+            raise ConfigError(f"unknown fault {self.kind!r}; allowed: {', '.join(FAULTS)}", key="fault.kind")
+        for name in ("t", "duration", "value"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)) or (name != "value" and v < 0):
+                raise ConfigError(f"must be a finite number{'' if name == 'value' else ' >= 0'}, got {v!r}",
+                                  key=f"fault.{name}")
+
+    def active(self, t: float, fired: bool) -> bool:
+        """Whether the fault applies to a reading at robot time ``t`` (``fired``: it applied before)."""
+        return t >= self.t - 1e-12 and (t <= self.t + self.duration + 1e-12 or not fired)
+
+
+def _publish(buf: np.ndarray, values) -> None:
+    buf[0] += 1.0  # odd: being written
+    buf[1:] = values
+    buf[0] += 1.0
+
+
+def _snapshot(buf: np.ndarray):
+    """(seq, copy of the values), or (None, None) while the block is being written."""
+    s0 = buf[0]
+    if int(s0) % 2:
+        return None, None
+    vals = buf[1:].copy()
+    return (s0, vals) if buf[0] == s0 else (None, None)
+
+
+def _blocks(buf, n: int, d: int):
+    """The reading, command and state blocks in one shared buffer (each with its counter first)."""
+    a = np.ndarray((4 + 2 * n + d + 1 + n + 2,), dtype=np.float64, buffer=buf)
+    r = 4 + 2 * n + d
+    return a[:r], a[r:r + 1 + n], a[r + 1 + n:]
+
+
+def serve(config: dict) -> None:
+    """The server process (``python -m hinfnn.robot._server``, its ``config`` pickled on stdin):
+    build the plant, say ``ready`` on stdout, wait for ``start`` on stdin, then step the plant in
+    real time until told to stop."""
+    import sys
+    from multiprocessing import resource_tracker, shared_memory
+
+    shm = shared_memory.SharedMemory(name=config["shm"])
+    resource_tracker.unregister(shm._name, "shared_memory")  # the loop's process owns it
+    R, C, S = _blocks(shm.buf, config["n"], config["d"])
+    period, faults, limit, realtime = config["period"], config["faults"], config["limit"], config["realtime"]
+
+    def say(what):
+        sys.stdout.write(what.replace("\n", " ") + "\n")
+        sys.stdout.flush()
+    try:
+        import jax
+        import jax.numpy as jnp
+
+        import hinfnn
+        from hinfnn.scenario import Scenario
+
+        hinfnn.configure()
+        sc = Scenario.from_dict(config["scenario"], source=config["source"], check=False)
+        setup = sc.build()
+        plant = setup.plant
+        state = plant.initial_state(np.asarray(setup.q0, dtype=float))
+        n = int(plant.n)
+        step = jax.jit(lambda t, s, tau: plant.step(t, s, tau, period)[0])
+        step(0.0, state, jnp.zeros(n)).q.block_until_ready()  # compiled before the clock starts
+        upper = np.asarray(plant.joint_limits()[1], dtype=float)
+    except Exception as err:  # noqa: BLE001 - reported to the loop's process as one line
+        say(f"error {type(err).__name__}: {' '.join(str(err).split())}")
+        return
+    S[0] = _READY
+    say("ready")
+    if sys.stdin.readline().strip() != "start":
+        return
+    fired = [False] * len(faults)
+    prev = None
+
+    def publish(k, state, missed):
+        nonlocal prev
+        t = k * period
+        q, qd, force = (np.array(a, dtype=float) for a in (state.q, state.qd, state.force))
+        for i, f in enumerate(faults):
+            if f.kind == "stall" or not f.active(t, fired[i]):
+                continue
+            fired[i] = True
+            if f.kind == "force_spike":
+                fn = np.linalg.norm(force)
+                force = force + f.value * (force / fn if fn > 0 else np.eye(len(force))[-1])
+            elif f.kind == "dropout" and prev is not None:
+                _publish(R, prev)
+                return
+            elif f.kind == "nan":
+                q[f.joint] = math.nan
+            elif f.kind == "lost_contact":
+                force = np.zeros_like(force)
+            elif f.kind == "joint_limit":
+                q[f.joint] = upper[f.joint] - f.value
+            elif f.kind == "time_back":
+                t = t - f.value
+        prev = np.concatenate([[t, time.perf_counter(), float(missed)], q, qd, force])
+        _publish(R, prev)
+
+    S[0] = _RUNNING
+    publish(0, state, 0)
+    while C[0] < 2 and S[0] == _RUNNING:  # the clock starts with the first torque (the arm held until then)
+        time.sleep(1e-4)
+    t0 = time.perf_counter()
+    k, last, missed, behind = 0, 0.0, 0, 0
+    while S[0] == _RUNNING and (k + 1) * period <= limit + 1e-9:
+        if realtime:
+            deadline = t0 + (k + 1) * period
+            wait = deadline - time.perf_counter()
+            if wait > 0:
+                time.sleep(wait)
+            elif wait < -0.5 * period:  # the server itself was held up: its clock slips (a robot never lags)
+                t0 -= wait
+                behind += 1
+        else:  # lock-step: the next tick when the torque of this one has come
+            while C[0] == last and S[0] == _RUNNING:
+                time.sleep(2e-5)
+        seq, tau = _snapshot(C)
+        while seq is None:
+            seq, tau = _snapshot(C)
+        if seq == last:
+            missed += 1
+        else:
+            missed, last = 0, seq
+        if not np.all(np.isfinite(tau)):  # never given to the engine: the robot's own guard
+            tau = np.zeros(n)
+        state = step(k * period, state, jnp.asarray(tau))
+        k += 1
+        publish(k, state, missed)
+    S[1] = behind
+    S[0] = _ENDED
+    del R, C, S
+    shm.close()
+
+
+class VirtualRobot(Robot):
+    """The scenario's MuJoCo plant as a robot, in its own process, in wall-clock real time.
+
+    ``VirtualRobot(scenario, faults=(), limit=None)``: ``scenario`` a single-controller
+    :class:`~hinfnn.scenario.Scenario` with ``plant.engine = "mujoco"`` (ConfigError naming
+    ``plant.engine`` otherwise) and ``simulation.control = "sampled"``; the robot's period is the
+    scenario's control period. ``limit``: the server ends after this much robot time, s (default:
+    ``simulation.t_final`` plus a second for the stop). ``faults``: :class:`Fault` items. Use it
+    as a context manager or call :meth:`start` / :meth:`stop`; the server process ends with
+    :meth:`stop`, when the loop's process ends, or at ``limit``. ``realtime=False``: lock-step, for
+    tests of behaviour that must not depend on the machine's load: each tick waits for the torque
+    of the previous reading (no late cycles; the same numbers as a simulation of the same job).
+    """
+
+    def __init__(self, scenario, faults=(), limit: float | None = None, realtime: bool = True):
+        if scenario.plant.engine != "mujoco":
+            raise ConfigError(f"the virtual robot serves the MuJoCo plant: set plant.engine = \"mujoco\", got "
+                              f"{scenario.plant.engine!r}", key="plant.engine")
+        if scenario.simulation.control != "sampled":
+            raise ConfigError("a robot runs the controller at a fixed rate: set simulation.control = \"sampled\", got "
+                              f"{scenario.simulation.control!r}", key="simulation.control")
+        self.scenario = scenario
+        self.realtime = bool(realtime)
+        self.period = float(scenario.simulation.control_period)
+        self.faults = tuple(faults)
+        for f in self.faults:
+            if not isinstance(f, Fault):
+                raise ConfigError(f"must be hinfnn.robot.Fault items, got {type(f).__name__}", key="faults")
+        arm = scenario.build().nominal_arm  # its sizes: the plant itself is built in the server only
+        self.n, self.d = int(arm.n), int(arm.space_dim)
+        self.limit = float(scenario.simulation.t_final + scenario.safety.stop_time + scenario.safety.retract_time
+                           + 1.0 if limit is None else limit)
+        self._proc = None
+        self.server_behind = 0
+        self._last = 0.0  # the reading's counter: 0 before the first one, then 2, 4, ...
+        self._next = 0.0
+        self._stalls = [f for f in self.faults if f.kind == "stall"]
+        self._stalled = [False] * len(self._stalls)
+        self._t = 0.0
+
+    def start(self) -> None:
+        """Start the server process, wait until its plant is built and its step compiled, start the
+        clock."""
+        import os
+        import pickle
+        import subprocess
+        import sys
+        from multiprocessing import shared_memory
+
+        if self._proc is not None:
+            raise SimulationError("the virtual robot is already started")
+        n, d = self.n, self.d
+        self._shm = shared_memory.SharedMemory(create=True, size=8 * (4 + 2 * n + d + 1 + n + 2))
+        self._r, self._c, self._s = _blocks(self._shm.buf, n, d)
+        self._r[:] = 0.0
+        self._c[:] = 0.0
+        self._s[:] = 0.0
+        src = str(Path(__file__).resolve().parents[2])  # the hinfnn this process runs, first on the server's path
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join([src, *filter(None, [os.environ.get("PYTHONPATH")])])}
+        self._proc = subprocess.Popen([sys.executable, "-m", "hinfnn.robot._server"], stdin=subprocess.PIPE,
+                                      stdout=subprocess.PIPE, env=env)
+        config = {"scenario": self.scenario.to_dict(), "source": self.scenario.source, "period": self.period,
+                  "faults": self.faults, "limit": self.limit, "shm": self._shm.name, "n": n, "d": d,
+                  "realtime": self.realtime}
+        self._proc.stdin.write(pickle.dumps(config))
+        self._proc.stdin.flush()
+        line = self._proc.stdout.readline().decode(errors="replace").strip()
+        if line != "ready":
+            detail = line[len("error "):] if line.startswith("error ") else \
+                f"its process ended (exit code {self._proc.poll()})"
+            self._end()
+            raise SimulationError(f"the virtual robot could not start: {detail}")
+        self._proc.stdin.write(b"start\n")
+        self._proc.stdin.flush()
+
+    def read(self) -> Reading:
+        """The next reading (the newest when several came since the last call); blocks until it
+        comes. A SimulationError when the server ended or sends nothing for a second."""
+        r = self._r
+        give_up = time.perf_counter() + max(1.0, 100 * self.period)
+        nap = self._next - time.perf_counter() - 2e-4  # the next tick is not due before then
+        if nap > 0:
+            time.sleep(nap)
+        while True:
+            seq, vals = _snapshot(r)
+            if seq is not None and seq > self._last:
+                break
+            if time.perf_counter() > give_up or self._proc.poll() is not None:
+                raise SimulationError(f"the virtual robot sent no reading after t = {self._t:.6g} s "
+                                      f"(server {'ended' if self._proc.poll() is not None else 'silent'})",
+                                      t_fail=self._t)
+            time.sleep(2e-5)
+        self._last = seq
+        n, d = self.n, self.d
+        self._t = float(vals[0])
+        self._next = float(vals[1]) + self.period
+        return Reading(t=float(vals[0]), q=vals[3:3 + n], qd=vals[3 + n:3 + 2 * n], force=vals[3 + 2 * n:3 + 2 * n + d],
+                       missed=int(vals[2]), wall=float(vals[1]))
+
+    def write(self, tau) -> None:
+        """Send the torque the server holds from its next tick (N·m, n values)."""
+        for i, f in enumerate(self._stalls):
+            if not self._stalled[i] and self._t >= f.t - 1e-12:
+                self._stalled[i] = True
+                time.sleep(f.duration)
+        _publish(self._c, np.asarray(tau, dtype=float))
+
+    def stop(self) -> None:
+        """Stop the server's clock and its process."""
+        if self._proc is None:
+            return
+        self._s[0] = _STOP
+        self._end()
+
+    def _end(self):
+        import subprocess
+
+        proc, self._proc = self._proc, None
+        self.server_behind = int(self._s[1])  # ticks at which the server was a period or more behind
+        try:
+            proc.stdin.close()
+            proc.wait(5.0)
+        except subprocess.TimeoutExpired:
+            proc.terminate()
+            proc.wait(5.0)
+        finally:
+            proc.stdout.close()
+            self._r = self._c = self._s = None
+            self._shm.close()
+            self._shm.unlink()
+
+
+
+__all__ = ["FAULTS", "Fault", "VirtualRobot"]
