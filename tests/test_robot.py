@@ -285,7 +285,7 @@ def test_a_lock_step_virtual_run_is_the_simulation_and_loads(virtual_scenario, t
     assert robot["cycles"] == 61 and robot["stop"] is None and robot["latency_s"]["p50"] > 0
     assert (res.target / "robot.log").read_text().strip().endswith("completed: reached t_final")
     columns = set(loaded.to_pandas().columns)  # exported with their units, as a simulation's fields
-    assert {"cycle_latency [s]", "force_measured_1 [N]", "tau_law_2 [N·m]", "lam [λ units]"} <= columns
+    assert {"cycle_latency [s]", "force_measured_1 [N]", "tau_law_2 [N·m]", "lam [N]"} <= columns
 
 
 @pytest.mark.parametrize("fault, rule, status", [
