@@ -86,18 +86,15 @@ class ArmConfig:
         """A chain arm with the task coordinates ``task`` (a task map, or an
         :class:`~hinfnn.model.augmented.AugmentedTask` whose extra coordinates were resolved on the
         nominal chain: the same joints must be there)."""
-        from ..model import UrdfArm
-        from ..model.augmented import AugmentedArm, AugmentedTask
+        from ..model.augmented import AugmentedTask, chain_arm
 
-        if not isinstance(task, AugmentedTask):
-            return UrdfArm(chain, task)
-        for c in task.extra:
+        for c in (task.extra if isinstance(task, AugmentedTask) else ()):
             for i in _extra_joints(c):
                 if i >= chain.n or (getattr(c, "name", "") in chain.joint_names and chain.joint_names[i] != c.name):
                     raise ConfigError(f"the extra coordinate {c.name!r} uses joint {i + 1} of the nominal chain, which "
                                       f"this chain ({', '.join(chain.joint_names)}) does not have in that place",
                                       key="task.extra")
-        return AugmentedArm(arm=UrdfArm(chain, task.base), task=task)
+        return chain_arm(chain, task)
 
 
 @ARMS.register("two_link")
