@@ -205,7 +205,8 @@ class UrdfArmConfig(ArmConfig):
     perturb the file's inertial parameters: ``mass_scale``, ``com_shift``, ``payload_*``; the
     nominal arm is usually the file as written."""
 
-    file: str = param(doc="URDF: a path to a URDF file (any extension; relative to the scenario file), or a robot "
+    file: str = param(doc="URDF: a path to a URDF file (any extension; relative to the scenario file, or on the "
+                          "command line to the working directory), or a robot "
                           "shipped with hinfnn when no such file exists ('ur5', 'panda', 'ur10', 'kinova', "
                           "'planar/three_link', 'planar/sec6_two_link'); xacro files must be expanded first")
     base_link: str = param(doc="link the chain starts from (fixed)")
@@ -610,25 +611,26 @@ class RigidPlantConfig(PlantConfig):
                               friction=self.friction.build())
 
 
-def mjcf_path(value: str) -> str:
-    """A ``plant.mjcf.file`` value: a shipped MJCF (``"ur5e"``: a name without ``.xml``) or a path to
-    a ``.xml`` file."""
-    if value.endswith(".xml"):
-        return value
-    from ..model.urdf import asset_path
+def mjcf_path(value: str, key: str = "plant.mjcf.file") -> str:
+    """A ``plant.mjcf.file`` value: a file when one of that name exists (any extension), else an
+    MJCF shipped with hinfnn (``"ur5e"``: :func:`hinfnn.model.urdf.shipped_robots` with suffix
+    ``.xml``); a folder or a name that is neither: ConfigError at ``key`` listing the shipped ones."""
+    from ..model.urdf import UrdfError, robot_file
 
-    parts = value.split("/")
-    if len(parts) == 1:
-        parts = [parts[0], parts[0]]
-    return asset_path(*parts[:-1], parts[-1] + ".xml")
+    try:
+        return robot_file(value, ".xml")
+    except UrdfError as err:
+        raise ConfigError(f"{value}: {err.problem}", key=key) from None
 
 
 @section
 class MjcfConfig:
     """A user's MJCF as the true arm (``file`` empty: the MJCF is generated from ``plant.arm``)."""
 
-    file: str = param("", doc="MJCF of the true arm: a shipped model ('ur5e': MuJoCo Menagerie's UR5e) or a path to "
-                              "a .xml file (relative to the scenario file); empty: generated from plant.arm")
+    file: str = param("", doc="MJCF of the true arm: a path to an MJCF file (any extension; relative to the scenario "
+                              "file, or on the command line to the working directory), or a model shipped with "
+                              "hinfnn when no such file exists ('ur5e': MuJoCo Menagerie's UR5e); empty: generated "
+                              "from plant.arm")
     joints: tuple[str, ...] = param((), doc="the arm's joints in the MJCF, from the base to the tool (all of its degrees "
                                             "of freedom; default: the joint names of plant.arm)")
     tool_site: str = param("", doc="the MJCF site the tool hangs from (e.g. the flange)")

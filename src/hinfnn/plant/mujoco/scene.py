@@ -375,7 +375,14 @@ def _load_spec(mujoco, arm_xml: str | None, arm_file: str | None):
     if not os.path.isfile(path):
         raise ConfigError(f"no MJCF file {path}", key="plant.mjcf.file")
     try:
-        return mujoco.MjSpec.from_file(path), path
+        if path.lower().endswith(".xml"):
+            return mujoco.MjSpec.from_file(path), path
+        # MuJoCo picks its reader by the extension: another one (a user's "arm.mjcf") is read as
+        # text, its assets (meshes) still found beside it
+        with open(path, encoding="utf-8") as f:
+            spec = mujoco.MjSpec.from_string(f.read())
+        spec.modelfiledir = os.path.dirname(os.path.abspath(path))
+        return spec, path
     except Exception as err:  # MuJoCo's parser error: a ValueError with its message
         raise ConfigError(f"{path}: MuJoCo cannot read it: {err}", key="plant.mjcf.file") from None
 
