@@ -638,12 +638,39 @@ class MjcfConfig:
                                         le=10.0)
     tool_rpy_deg: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="the tool frame's roll, pitch, yaw in the site's "
                                             "frame, degrees", ge=-360.0, le=360.0)
+    locked_joints: tuple[str, ...] = param((), doc="joints of the MJCF held fixed (removed from the model, each body "
+                                                   "welded at its position), e.g. one of a 7-DOF arm")
+    locked_positions: tuple[float, ...] = param((), doc="their positions (rad or m, the MJCF's joint values; default 0 "
+                                                        "each)", ge=-100.0, le=100.0)
 
     def validate(self, path):
         for name in ("tool_xyz", "tool_rpy_deg"):
             _length(path, name, getattr(self, name), (3,))
-        if self.file and not self.tool_site:
+        if not self.file:  # generated from plant.arm: a key of the user's file would be ignored
+            default = MjcfConfig()
+            for name in ("joints", "tool_site", "tool_xyz", "tool_rpy_deg", "locked_joints", "locked_positions"):
+                if tuple(np.atleast_1d(getattr(self, name))) != tuple(np.atleast_1d(getattr(default, name))):
+                    raise ConfigError(f"applies to a user's MJCF only, got {getattr(self, name)!r} with {path}.file "
+                                      "empty (the MJCF is generated from plant.arm: its tool is plant.arm.tool_xyz, "
+                                      f"its joints plant.arm's); set {path}.file or leave the key at its default",
+                                      key=f"{path}.{name}")
+            return
+        if not self.tool_site:
             raise ConfigError("name the MJCF site the tool hangs from", key=f"{path}.tool_site")
+        if self.locked_positions and len(self.locked_positions) != len(self.locked_joints):
+            raise ConfigError(f"must give one position per locked joint ({len(self.locked_joints)}), got "
+                              f"{len(self.locked_positions)}", key=f"{path}.locked_positions")
+        if len(set(self.locked_joints)) != len(self.locked_joints):
+            raise ConfigError(f"lists a joint twice: {list(self.locked_joints)}", key=f"{path}.locked_joints")
+        both = sorted(set(self.locked_joints) & set(self.joints))
+        if both:
+            raise ConfigError(f"{both[0]!r} is both locked and listed in {path}.joints; a joint is one or the other",
+                              key=f"{path}.locked_joints")
+
+    @property
+    def locked(self) -> tuple:
+        """(joint name, position) of each locked joint."""
+        return tuple(zip(self.locked_joints, self.locked_positions or (0.0,) * len(self.locked_joints)))
 
 
 @PLANTS.register("mujoco")
@@ -693,15 +720,10 @@ class MujocoPlantConfig(PlantConfig):
             if self.arm.model not in ("urdf",):
                 raise ConfigError(f"a user's MJCF needs task coordinates of a spatial arm: give plant.arm as the "
                                   f"nominal's urdf arm (got {self.arm.model!r})", key=f"{path}.arm.model")
-            a = self.arm
-            perturbed = [k for k, v, default in (("mass_scale", a.mass_scale, 1.0), ("payload_mass", a.payload_mass, 0.0))
-                         if v != default and not (isinstance(v, tuple) and all(x == default for x in v))]
-            if any(c != 0.0 for c in a.com_shift):
-                perturbed.append("com_shift")
-            if perturbed:
-                raise ConfigError(f"has no effect on a user's MJCF (plant.mjcf.file = {self.mjcf.file!r}): the true arm is "
-                                  "the MJCF as written; edit the file, or leave the key at its default",
-                                  key=f"{path}.arm.{perturbed[0]}")
+            if any(c != 0.0 for c in self.arm.com_shift):
+                raise ConfigError(f"has no effect on a user's MJCF (plant.mjcf.file = {self.mjcf.file!r}): its bodies' "
+                                  "centres of mass are the file's (mass_scale, payload_mass and payload_xyz apply to "
+                                  "it); edit the file, or leave the key at its default", key=f"{path}.arm.com_shift")
 
     #: The longest MuJoCo step ``timestep = "auto"`` takes, s (RK4 resolves a 1e6 N/m contact on a
     #: 1 kg effective mass at it: ω h = 0.1).
@@ -725,10 +747,15 @@ class MujocoPlantConfig(PlantConfig):
                       control_period=dt, timestep=ts, integrator=self.integrator, callback=self.callback,
                       friction=self.friction.build(), friction_damping=self.friction_damping)
         if self.mjcf.file:
-            joints = self.mjcf.joints or tuple(self.arm.chain("plant.arm").joint_names)
+            nominal = self.arm.chain("plant.arm")  # the user's URDF of the arm: joint names, torque limits
+            joints = self.mjcf.joints or tuple(nominal.joint_names)
+            effort = np.asarray(nominal.effort_limit) if nominal.n == len(joints) else None
+            a = self.arm
             return MujocoPlant.from_mjcf(mjcf_path(self.mjcf.file), joints=joints, tool_site=self.mjcf.tool_site,
                                          tool_xyz=self.mjcf.tool_xyz, tool_rot=_rpy(self.mjcf.tool_rpy_deg),
-                                         task=task, **common)
+                                         task=task, locked=self.mjcf.locked, mass_scale=a.mass_scale,
+                                         payload_mass=a.payload_mass, payload_xyz=a.payload_xyz, effort_limit=effort,
+                                         **common)
         return MujocoPlant.from_models(self.arm.build(task, key="plant.arm"), **common)
 
 

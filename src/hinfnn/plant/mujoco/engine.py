@@ -518,13 +518,19 @@ class MujocoPlant(DiscretePlant):
     def from_mjcf(cls, path, *, joints, tool_site: str, task, surface, contact, disturbance,
                   control_period: float, tool_xyz=(0.0, 0.0, 0.0), tool_rot=None, timestep: float | None = None,
                   integrator: str = "RK4", callback: str = "host", friction=None,
-                  friction_damping: float = S.FRICTION_DAMPING) -> "MujocoPlant":
+                  friction_damping: float = S.FRICTION_DAMPING, locked=(), mass_scale=1.0,
+                  payload_mass: float = 0.0, payload_xyz=(0.0, 0.0, 0.0), effort_limit=None) -> "MujocoPlant":
         """The MuJoCo plant of a user's MJCF arm: ``joints`` its joint names from the base to the
-        tool (all its degrees of freedom), ``tool_site`` the site the tool hangs from, the tool
-        point at ``tool_xyz`` (rotation ``tool_rot``) in that site's frame; ``task`` the task map the
-        controller's coordinates use (x_true and the task-space F are formed with it from MuJoCo's
-        tool pose and Jacobian). The model keeps what it has (armature, damping, friction loss,
-        springs); its actuators are switched off. The rest as :meth:`from_models`."""
+        tool (all its degrees of freedom once the joints ``locked`` ((name, position) pairs) are
+        welded), ``tool_site`` the site the tool hangs from, the tool point at ``tool_xyz``
+        (rotation ``tool_rot``) in that site's frame; ``task`` the task map the controller's
+        coordinates use (x_true and the task-space F are formed with it from MuJoCo's tool pose and
+        Jacobian; an :class:`~hinfnn.model.augmented.AugmentedTask`'s extra coordinates from the
+        joint angles). The model keeps what it has (armature, damping, friction loss, springs); its
+        actuators are switched off. ``mass_scale``, ``payload_mass``, ``payload_xyz``: the true
+        arm's perturbation, applied to the file (:func:`~hinfnn.plant.mujoco.scene.build_scene`);
+        ``effort_limit``: the joints' torque limits where the file has no actuator force range
+        (e.g. the nominal URDF's). The rest as :meth:`from_models`."""
         from ...model.augmented import chain_arm
 
         S.require_mujoco()
@@ -533,8 +539,10 @@ class MujocoPlant(DiscretePlant):
         _, rows = _task_of(None, surface, task)
         scene = S.build_scene(surface, contact, rows=rows, arm_file=os.fspath(path), joints=tuple(joints),
                               tool_site=tool_site, tool_xyz=tool_xyz, tool_rot=tool_rot, friction=mu,
-                              friction_damping=friction_damping, timestep=ts, integrator=integrator)
-        arm = chain_arm(S.chain_from_model(scene.model, joints, scene.site), task)
+                              friction_damping=friction_damping, timestep=ts, integrator=integrator,
+                              locked=tuple(locked), mass_scale=mass_scale, payload_mass=payload_mass,
+                              payload_xyz=payload_xyz)
+        arm = chain_arm(S.chain_from_model(scene.model, joints, scene.site, effort_limit), task)
         meta = _Meta(arm, surface, contact, friction, scene, friction_damping)
         return cls._build(scene, meta, _cartesian_sensing(task, surface, arm.chain), disturbance, control_period,
                           callback)
