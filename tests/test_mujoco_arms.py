@@ -657,3 +657,48 @@ def test_torque_limits_of_a_user_mjcf_fall_back_to_the_given_ones():
     assert np.all(np.isinf(np.asarray(chain_from_model(model, UR5E_JOINTS, site).effort_limit)))
     given = chain_from_model(model, UR5E_JOINTS, site, effort_limit=urdf.effort_limit)
     np.testing.assert_array_equal(np.asarray(given.effort_limit), np.asarray(urdf.effort_limit))
+
+
+def test_design_refuses_what_run_refuses(monkeypatch, capsys):
+    """`hinfnn design` runs the checks a run makes before it compiles (the plant's state at the
+    start pose, the start pose for the controller): what the run refuses, design refuses with the
+    same one-line message, exit 2."""
+    def refuse(self, q0, qd0=None):
+        raise ConfigError("MuJoCo cannot start from this pose", key="plant.mjcf.file")
+
+    monkeypatch.setattr(MujocoPlant, "initial_state", refuse)
+    sc = H.load_scenario("ur5-polish", ["simulation.t_final=0.01"])
+    with pytest.raises(ConfigError) as run_err:
+        sc.simulate()
+    code = cli.main(["design", "ur5-polish"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == f"hinfnn: ConfigError: {run_err.value}", err
+
+
+def test_mjcf_file_is_a_path_or_a_shipped_name(tmp_path, monkeypatch, capsys):
+    """plant.mjcf.file: a file of that name (any extension) is the user's, relative to the
+    scenario file in a file and to the working directory with --set; else a shipped model; an
+    unknown name lists the shipped ones."""
+    from hinfnn.scenario.sections import mjcf_path
+
+    mine = tmp_path / "mj-copy.mjcf"
+    mine.write_text(open(UR5E_XML, encoding="utf-8").read(), encoding="utf-8")
+    monkeypatch.chdir(tmp_path)
+    assert mjcf_path("mj-copy.mjcf") == "mj-copy.mjcf" and mjcf_path("ur5e") == UR5E_XML
+    with pytest.raises(ConfigError) as err:
+        mjcf_path("ur5f")
+    assert err.value.key == "plant.mjcf.file" and "'ur5e'" in str(err.value) and "shipped" in str(err.value)
+    with pytest.raises(ConfigError) as err:
+        mjcf_path("nope/mine.xml")
+    assert "no such file" in str(err.value)
+    # a scenario file beside the MJCF names it relative to itself, from any working directory
+    folder = tmp_path / "study"
+    folder.mkdir()
+    (folder / "arm.xml").write_text(mine.read_text(encoding="utf-8"), encoding="utf-8")
+    (folder / "s.toml").write_text('base = "ur5e-polish"\n[plant.mjcf]\nfile = "arm.xml"\n', encoding="utf-8")
+    monkeypatch.chdir(folder.parent.parent)
+    sc = H.load_scenario(str(folder / "s.toml"), check=False)
+    assert sc.plant.mjcf.file == str((folder / "arm.xml").resolve())
+    monkeypatch.chdir(tmp_path)
+    plant = H.load_scenario("ur5e-polish", ["plant.mjcf.file=mj-copy.mjcf"]).build_plant()  # --set: the cwd
+    assert plant.scene.source == "mj-copy.mjcf" and plant.model.nq == 6
