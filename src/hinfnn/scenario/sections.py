@@ -56,6 +56,21 @@ def _extra_joints(c) -> tuple:
     return (c.shoulder, c.elbow, c.wrist)
 
 
+def _check_locked(path, joints, positions):
+    """``locked_joints`` (no joint twice) and ``locked_positions`` (one per joint, or none) of the
+    section at ``path``."""
+    if positions and len(positions) != len(joints):
+        raise ConfigError(f"must give one position per locked joint ({len(joints)}), got {len(positions)}",
+                          key=f"{path}.locked_positions")
+    if len(set(joints)) != len(joints):
+        raise ConfigError(f"lists a joint twice: {list(joints)}", key=f"{path}.locked_joints")
+
+
+def _locked_pairs(joints, positions) -> tuple:
+    """(joint name, position) of each locked joint (position 0 where none is given)."""
+    return tuple(zip(joints, positions or (0.0,) * len(joints)))
+
+
 @section
 class ArmConfig:
     """An arm model (``model`` chooses the kind). ``build(task, key)`` returns the arm with the
@@ -234,11 +249,7 @@ class UrdfArmConfig(ArmConfig):
     def validate(self, path):
         for name in ("tool_xyz", "tool_rpy_deg", "gravity", "payload_xyz"):
             _length(path, name, getattr(self, name), (3,))
-        if self.locked_positions and len(self.locked_positions) != len(self.locked_joints):
-            raise ConfigError(f"must give one position per locked joint ({len(self.locked_joints)}), got "
-                              f"{len(self.locked_positions)}", key=f"{path}.locked_positions")
-        if len(set(self.locked_joints)) != len(self.locked_joints):
-            raise ConfigError(f"lists a joint twice: {list(self.locked_joints)}", key=f"{path}.locked_joints")
+        _check_locked(path, self.locked_joints, self.locked_positions)
         if len(self.com_shift) % 3:
             raise ConfigError(f"must be 3 numbers, or 3 per body, got {len(self.com_shift)}", key=f"{path}.com_shift")
 
@@ -251,7 +262,7 @@ class UrdfArmConfig(ArmConfig):
             mtime = Path(path).stat().st_mtime_ns
         except OSError:
             mtime = None
-        locked = tuple(zip(self.locked_joints, self.locked_positions or (0.0,) * len(self.locked_joints)))
+        locked = _locked_pairs(self.locked_joints, self.locked_positions)
         try:
             chain = _load_chain(path, mtime, self.base_link, self.ee_link, tuple(self.tool_xyz),
                                 tuple(math.radians(v) for v in self.tool_rpy_deg), tuple(self.gravity), locked)
@@ -657,11 +668,7 @@ class MjcfConfig:
             return
         if not self.tool_site:
             raise ConfigError("name the MJCF site the tool hangs from", key=f"{path}.tool_site")
-        if self.locked_positions and len(self.locked_positions) != len(self.locked_joints):
-            raise ConfigError(f"must give one position per locked joint ({len(self.locked_joints)}), got "
-                              f"{len(self.locked_positions)}", key=f"{path}.locked_positions")
-        if len(set(self.locked_joints)) != len(self.locked_joints):
-            raise ConfigError(f"lists a joint twice: {list(self.locked_joints)}", key=f"{path}.locked_joints")
+        _check_locked(path, self.locked_joints, self.locked_positions)
         both = sorted(set(self.locked_joints) & set(self.joints))
         if both:
             raise ConfigError(f"{both[0]!r} is both locked and listed in {path}.joints; a joint is one or the other",
@@ -670,7 +677,7 @@ class MjcfConfig:
     @property
     def locked(self) -> tuple:
         """(joint name, position) of each locked joint."""
-        return tuple(zip(self.locked_joints, self.locked_positions or (0.0,) * len(self.locked_joints)))
+        return _locked_pairs(self.locked_joints, self.locked_positions)
 
 
 @PLANTS.register("mujoco")
