@@ -702,3 +702,20 @@ def test_mjcf_file_is_a_path_or_a_shipped_name(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     plant = H.load_scenario("ur5e-polish", ["plant.mjcf.file=mj-copy.mjcf"]).build_plant()  # --set: the cwd
     assert plant.scene.source == "mj-copy.mjcf" and plant.model.nq == 6
+
+
+def test_path_past_a_limit_of_the_users_mjcf_names_the_mjcf(tmp_path):
+    """The reference's path leaves a joint range written in the user's MJCF: the DesignError says
+    the range is the MJCF's (plant.mjcf.file), not a URDF's."""
+    from hinfnn.errors import DesignError
+
+    text = open(UR5E_XML, encoding="utf-8").read().replace(
+        '<joint name="shoulder_pan_joint" class="size3" axis="0 0 1"/>',
+        '<joint name="shoulder_pan_joint" class="size3" axis="0 0 1" range="3.07 3.076"/>')
+    assert 'range="3.07 3.076"' in text
+    path = tmp_path / "narrow.xml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(DesignError) as err:
+        H.load_scenario("ur5e-polish", [f"plant.mjcf.file={path}"])
+    assert err.value.key == "reference" and "shoulder_pan_joint" in str(err.value), err.value
+    assert f"the true arm's MJCF, plant.mjcf.file = '{path}'" in str(err.value) and "URDF" not in str(err.value)
