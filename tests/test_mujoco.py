@@ -23,6 +23,7 @@ import mujoco  # noqa: E402  (installed by `make test`: the test extra; a missin
 
 import hinfnn as H  # noqa: E402
 from hinfnn.errors import ConfigError  # noqa: E402
+from hinfnn.scenario.core import scenario_names  # noqa: E402
 from hinfnn.plant import mujoco as hm  # noqa: E402
 from hinfnn.plant.mujoco import MujocoPlant, mjcf_two_link  # noqa: E402
 from mujoco_helpers import fit_oscillation  # noqa: E402
@@ -443,3 +444,72 @@ def test_ur5_closed_loop_on_mujoco_matches_the_builtin_plant():
     assert d_lam < 0.01 and d_u1 < 1e-7
     np.testing.assert_allclose(a["penetration"], b["penetration"], atol=1e-7)
     np.testing.assert_allclose(a["F_contact"], b["F_contact"], atol=0.01)
+
+
+# --------------------------------------------------------------------------------------------
+# Every shipped scenario on both engines
+# --------------------------------------------------------------------------------------------
+VISCOUS = ("plant.friction.viscous", "MuJoCo's contact has Coulomb friction only")
+#: (scenario, engine) -> (key, words) of the typed error that refuses it
+REFUSED = {**{(name, "mujoco"): VISCOUS for name in ("panda-table", "planar3-drum", "planar3-drum-stable",
+                                                      "ur5-sphere", "ur5-sphere-stable", "ur5-table",
+                                                      "ur5-table-stable")},
+           ("ur5e-polish", "hinfnn"): ("plant.engine", "does not take the key 'mjcf'"),
+           # its 1 ms step is MuJoCo's control period: hinfnn's RK4 at 1 ms cannot take its smoothed friction
+           ("ur5-polish", "hinfnn"): ("plant.friction.v_smooth", "too small for dt = 0.001 s")}
+#: refused ones run on MuJoCo without the viscous friction: the redundant Panda (its arm angle
+#: sensed from MuJoCo's joints); the UR5 runs on MuJoCo as ur5-polish (the others cost minutes each)
+WITHOUT_VISCOUS = ("panda-table",)
+
+
+def _short_run(name, overrides=()):
+    """The scenario's first controller for ten control periods (ten steps of continuous control)."""
+    sc = H.load_scenario(name, list(overrides))
+    t_final = 10 * (sc.control_period or sc.simulation.dt)
+    sc = sc.with_overrides([f"simulation.t_final={t_final!r}", f"controller.kind={sc.kinds[0]}"])
+    traj = sc.simulate(fields="metrics")
+    assert int(traj.status) == 0 and float(traj.t[-1]) == pytest.approx(t_final)
+    return sc
+
+
+@pytest.mark.xdist_group("every_scenario")
+@pytest.mark.parametrize("engine", ["hinfnn", "mujoco"])
+@pytest.mark.parametrize("name", scenario_names())
+def test_every_shipped_scenario_runs_on_both_engines_or_says_why_not(name, engine):
+    """Each shipped scenario runs briefly on the built-in plant and on MuJoCo (status ok), or the
+    engine is refused with the typed error naming why (MuJoCo has no viscous friction; a user's
+    MJCF is MuJoCo's; the built-in plant's RK4 at ur5-polish's 1 ms step cannot take its smoothed
+    Coulomb friction); panda-table also runs on MuJoCo once its viscous friction is 0 (the
+    redundant arm's arm angle sensed from MuJoCo's joint angles)."""
+    overrides = [f"plant.engine={engine}"]
+    if (name, engine) not in REFUSED:
+        sc = _short_run(name, overrides)
+        assert sc.plant.engine == engine
+        return
+    key, words = REFUSED[(name, engine)]
+    with pytest.raises(ConfigError) as err:
+        H.load_scenario(name, overrides)
+    assert err.value.key == key and words in str(err.value), err.value
+    if name in WITHOUT_VISCOUS:
+        _short_run(name, overrides + ["plant.friction.viscous=0"])
+
+
+@pytest.mark.xdist_group("every_scenario")
+def test_a_users_seven_joint_mjcf_runs_with_no_joint_locked(tmp_path):
+    """panda-table's Panda as a user's MJCF file (the generated one, written out): seven joints,
+    none locked, the arm angle a task coordinate; the MuJoCo sensing forms ψ from MuJoCo's joint
+    angles, the same as the generated plant's, and a short run ends ok."""
+    from hinfnn.model.augmented import AugmentedArm
+
+    base = ["plant.engine=mujoco", "plant.friction.viscous=0"]
+    generated = H.load_scenario("panda-table", base).build_plant()
+    path = tmp_path / "my-panda.mjcf"
+    path.write_text(hm.chain_xml(generated.arm.chain), encoding="utf-8")
+    sc = _short_run("panda-table", base + [f"plant.mjcf.file={path}", "plant.mjcf.tool_site=tool"])
+    plant = sc.build_plant()
+    assert plant.n == 7 and plant.model.nq == 7 and isinstance(plant.arm, AugmentedArm)
+    q0 = np.asarray(sc.initial_q())
+    user, gen = plant.initial_state(q0), generated.initial_state(q0)
+    assert np.asarray(user.x_true).shape == (7,)
+    np.testing.assert_allclose(np.asarray(user.x_true), np.asarray(gen.x_true), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(float(user.task_margin), float(gen.task_margin), rtol=1e-12)

@@ -558,8 +558,11 @@ def test_missing_mjcf_file_and_a_model_that_is_not_an_arm(tmp_path):
       'plant.mjcf.joints=["a","b","c","d","e","f"]'], "plant.mjcf.joints"),
     (["plant.mjcf.file=ur5e", "plant.mjcf.tool_site=tool0"], "plant.mjcf.tool_site"),
     (["plant.mjcf.file=ur5e"], "plant.mjcf.tool_site"),
-    (["plant.mjcf.file=ur5e", "plant.mjcf.tool_site=attachment_site", "plant.arm.payload_mass=1.0"],
-     "plant.arm.payload_mass"),
+    (["plant.mjcf.file=ur5e", "plant.mjcf.tool_site=attachment_site", "plant.arm.com_shift=[0.0,0.0,0.01]"],
+     "plant.arm.com_shift"),
+    (["plant.mjcf.tool_site=attachment_site"], "plant.mjcf.tool_site"),  # the MJCF is generated: it would be ignored
+    (['plant.mjcf.locked_joints=["elbow_joint"]'], "plant.mjcf.locked_joints"),
+    (["plant.mjcf.file=ur5f", "plant.mjcf.tool_site=attachment_site"], "plant.mjcf.file"),
     (["plant.friction.viscous=2.0"], "plant.friction.viscous"),
     (["plant.timestep=3e-4"], "plant.timestep"),
 ])
@@ -598,3 +601,121 @@ def test_shipped_mujoco_scenarios_check_and_design(name):
         np.testing.assert_array_equal(plant.model.dof_armature, 0.1)
     else:  # the payload is in the true arm's last body
         assert plant.model.body_mass[-1] == pytest.approx(0.1879 + 0.5)
+
+
+# --------------------------------------------------------------------------------------------
+# A user's MJCF adapted from the scenario (MjSpec): locked joints, masses, payload, torque limits
+# --------------------------------------------------------------------------------------------
+def _dynamics(chain, q):
+    q = jnp.asarray(q)
+    return np.asarray(chain.M(q)), np.asarray(chain.G(q)), np.asarray(chain.fk(q)[0]), np.asarray(chain.fk(q)[1])
+
+
+def test_user_mjcf_locked_joint_is_the_urdf_chain_with_that_joint_locked():
+    """plant.mjcf.locked_joints welds the joint's body at the position: the model's rigid-body part
+    is the URDF's chain with the same joint locked there (its keyframe and actuator go with it)."""
+    joints = UR5E_JOINTS[:2] + UR5E_JOINTS[3:]
+    plant = _user(joints=joints, locked=(("elbow_joint", 1.3),), surface=Sphere.build((5.0, 5.0, 5.0), 0.3))
+    m = plant.model
+    assert m.nq == m.nv == 5 and m.nkey == 0 and m.nu == 5
+    urdf = load_urdf(UR5E_URDF, "base_link", "tool0", locked={"elbow_joint": 1.3})
+    q = np.array([0.3, -1.0, -2.0, -1.5, 0.4])
+    for a, b in zip(_dynamics(plant.arm.chain, q), _dynamics(urdf, q)):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9)
+    with pytest.raises(ConfigError) as err:
+        _user(joints=joints, locked=(("elbow", 1.3),))
+    assert err.value.key == "plant.mjcf.locked_joints" and "'elbow_joint'" in str(err.value)
+    with pytest.raises(ConfigError) as err:  # a joint neither listed nor locked: the message says how to lock it
+        _user(joints=joints)
+    assert err.value.key == "plant.mjcf.joints" and "plant.mjcf.locked_joints" in str(err.value)
+
+
+def test_user_mjcf_mass_scale_and_payload_are_the_perturbed_urdf():
+    """plant.arm.mass_scale and payload_* on a user's MJCF: the compiled model's rigid-body part
+    is the URDF's chain perturbed the same way (UrdfChain.perturbed)."""
+    scale = np.array([1.2, 0.8, 1.1, 0.9, 1.3, 0.7])
+    plant = _user(mass_scale=scale, payload_mass=0.7, payload_xyz=(0.01, -0.02, 0.03), tool_xyz=(0.0, 0.0, 0.1),
+                  surface=Sphere.build((5.0, 5.0, 5.0), 0.3))
+    urdf = load_urdf(UR5E_URDF, "base_link", "tool0", tool_xyz=(0.0, 0.0, 0.1)).perturbed(
+        mass_scale=jnp.asarray(scale), payload_mass=0.7, payload_xyz=(0.01, -0.02, 0.03))
+    for a, b in zip(_dynamics(plant.arm.chain, Q_UR5), _dynamics(urdf, Q_UR5)):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9)
+    assert plant.model.body("hinfnn_payload").mass[0] == 0.7
+    with pytest.raises(ConfigError) as err:
+        _user(mass_scale=[1.0, 2.0])
+    assert err.value.key == "plant.arm.mass_scale" and "6" in str(err.value)
+
+
+def test_torque_limits_of_a_user_mjcf_fall_back_to_the_given_ones():
+    """The effort limits of a user's MJCF are its actuators' force ranges; a joint without one
+    takes the nominal URDF's (``effort_limit``)."""
+    urdf = load_urdf(UR5E_URDF, "base_link", "tool0")
+    plant = _user(surface=Sphere.build((5.0, 5.0, 5.0), 0.3))
+    np.testing.assert_array_equal(np.asarray(plant.arm.chain.effort_limit), [150, 150, 150, 28, 28, 28])
+    model = mujoco.MjModel.from_xml_string(chain_xml(urdf))  # no actuators
+    site = "tool"
+    assert np.all(np.isinf(np.asarray(chain_from_model(model, UR5E_JOINTS, site).effort_limit)))
+    given = chain_from_model(model, UR5E_JOINTS, site, effort_limit=urdf.effort_limit)
+    np.testing.assert_array_equal(np.asarray(given.effort_limit), np.asarray(urdf.effort_limit))
+
+
+def test_design_refuses_what_run_refuses(monkeypatch, capsys):
+    """`hinfnn design` runs the checks a run makes before it compiles (the plant's state at the
+    start pose, the start pose for the controller): what the run refuses, design refuses with the
+    same one-line message, exit 2."""
+    def refuse(self, q0, qd0=None):
+        raise ConfigError("MuJoCo cannot start from this pose", key="plant.mjcf.file")
+
+    monkeypatch.setattr(MujocoPlant, "initial_state", refuse)
+    sc = H.load_scenario("ur5-polish", ["simulation.t_final=0.01"])
+    with pytest.raises(ConfigError) as run_err:
+        sc.simulate()
+    code = cli.main(["design", "ur5-polish"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == f"hinfnn: ConfigError: {run_err.value}", err
+
+
+def test_mjcf_file_is_a_path_or_a_shipped_name(tmp_path, monkeypatch, capsys):
+    """plant.mjcf.file: a file of that name (any extension) is the user's, relative to the
+    scenario file in a file and to the working directory with --set; else a shipped model; an
+    unknown name lists the shipped ones."""
+    from hinfnn.scenario.sections import mjcf_path
+
+    mine = tmp_path / "mj-copy.mjcf"
+    mine.write_text(open(UR5E_XML, encoding="utf-8").read(), encoding="utf-8")
+    monkeypatch.chdir(tmp_path)
+    assert mjcf_path("mj-copy.mjcf") == "mj-copy.mjcf" and mjcf_path("ur5e") == UR5E_XML
+    with pytest.raises(ConfigError) as err:
+        mjcf_path("ur5f")
+    assert err.value.key == "plant.mjcf.file" and "'ur5e'" in str(err.value) and "shipped" in str(err.value)
+    with pytest.raises(ConfigError) as err:
+        mjcf_path("nope/mine.xml")
+    assert "no such file" in str(err.value)
+    # a scenario file beside the MJCF names it relative to itself, from any working directory
+    folder = tmp_path / "study"
+    folder.mkdir()
+    (folder / "arm.xml").write_text(mine.read_text(encoding="utf-8"), encoding="utf-8")
+    (folder / "s.toml").write_text('base = "ur5e-polish"\n[plant.mjcf]\nfile = "arm.xml"\n', encoding="utf-8")
+    monkeypatch.chdir(folder.parent.parent)
+    sc = H.load_scenario(str(folder / "s.toml"), check=False)
+    assert sc.plant.mjcf.file == str((folder / "arm.xml").resolve())
+    monkeypatch.chdir(tmp_path)
+    plant = H.load_scenario("ur5e-polish", ["plant.mjcf.file=mj-copy.mjcf"]).build_plant()  # --set: the cwd
+    assert plant.scene.source == "mj-copy.mjcf" and plant.model.nq == 6
+
+
+def test_path_past_a_limit_of_the_users_mjcf_names_the_mjcf(tmp_path):
+    """The reference's path leaves a joint range written in the user's MJCF: the DesignError says
+    the range is the MJCF's (plant.mjcf.file), not a URDF's."""
+    from hinfnn.errors import DesignError
+
+    text = open(UR5E_XML, encoding="utf-8").read().replace(
+        '<joint name="shoulder_pan_joint" class="size3" axis="0 0 1"/>',
+        '<joint name="shoulder_pan_joint" class="size3" axis="0 0 1" range="3.07 3.076"/>')
+    assert 'range="3.07 3.076"' in text
+    path = tmp_path / "narrow.xml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(DesignError) as err:
+        H.load_scenario("ur5e-polish", [f"plant.mjcf.file={path}"])
+    assert err.value.key == "reference" and "shoulder_pan_joint" in str(err.value), err.value
+    assert f"the true arm's MJCF, plant.mjcf.file = '{path}'" in str(err.value) and "URDF" not in str(err.value)

@@ -654,6 +654,7 @@ def design_report(scenario) -> dict:
     path = None
     for kind in scenario.kinds:
         one = scenario.single(kind)
+        one.build().check_start(kind)  # what `hinfnn run` refuses before it compiles, refused here too
         ctrl = one.build_controller(kind)
         d = ctrl.summary()
         if path is None:

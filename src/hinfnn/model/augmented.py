@@ -82,6 +82,20 @@ class AugmentedTask:
         base = list(self.base.names())
         return base[:-1] + [(c.name, c.unit) for c in self.extra] + base[-1:]
 
+    def of_pose(self, chain, p, R, q):
+        """x = (x_b[:-1], x_e, x_b[-1]) of a tool at (p, R) with joint angles q: the base map's
+        coordinates of the pose, the extra ones of ``chain`` at q (a plant that senses the tool's
+        pose, e.g. MuJoCo's, forms the true task coordinates with it)."""
+        return _insert(self.base(p, R), jnp.stack([c.value(chain, q) for c in self.extra]))
+
+    def margin_pose(self, chain, p, R, q):
+        """The smallest of the base map's margin at the pose (p, R) and the extra coordinates' at q
+        (rad or m; :meth:`AugmentedArm.task_margin` from a sensed pose)."""
+        out = self.base.margin(p, R)
+        for c in self.extra:
+            out = jnp.minimum(out, c.margin(chain, q))
+        return out
+
     def margin_x(self, x):
         """The base map's margin at its coordinates and each extra coordinate's from its value."""
         xb, xe = self.split(x)
@@ -195,6 +209,17 @@ class AugmentedArm(Arm):
 
     def plant_terms(self, q, qd) -> ArmTerms:
         return self._augment(self.arm.plant_terms(q, qd), q, qd, J_dot=False)
+
+
+def chain_arm(chain, task) -> Arm:
+    """The arm of a :class:`~hinfnn.model.urdf.UrdfChain` with the task coordinates ``task``: a
+    :class:`~hinfnn.model.urdf.UrdfArm`, or for an :class:`AugmentedTask` the
+    :class:`AugmentedArm` around the chain's arm with the task's base map."""
+    from .urdf import UrdfArm
+
+    if isinstance(task, AugmentedTask):
+        return AugmentedArm(arm=UrdfArm(chain, task.base), task=task)
+    return UrdfArm(chain, task)
 
 
 def augment(arm, extra) -> Arm:

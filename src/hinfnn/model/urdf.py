@@ -94,32 +94,35 @@ def asset_path(*parts: str) -> str:
     return str(importlib.resources.files("hinfnn").joinpath("assets", *parts))
 
 
-def shipped_robots() -> dict[str, str]:
+def shipped_robots(suffix: str = ".urdf") -> dict[str, str]:
     """The robots shipped with hinfnn by name (``"ur5"``, ``"panda"``, ``"planar/three_link"``):
-    ``assets/NAME/NAME.urdf`` is ``NAME``, any other ``assets/DIR/FILE.urdf`` is ``DIR/FILE``."""
+    ``assets/NAME/NAME.urdf`` is ``NAME``, any other ``assets/DIR/FILE.urdf`` is ``DIR/FILE``.
+    ``suffix`` ``".xml"``: the shipped MJCF models (``"ur5e"``: MuJoCo Menagerie's UR5e)."""
     root = importlib.resources.files("hinfnn").joinpath("assets")
     out = {}
     for folder in sorted((d for d in root.iterdir() if d.is_dir()), key=lambda d: d.name):
-        for f in sorted((f for f in folder.iterdir() if f.name.endswith(".urdf")), key=lambda f: f.name):
-            stem = f.name[:-5]
+        for f in sorted((f for f in folder.iterdir() if f.name.endswith(suffix)), key=lambda f: f.name):
+            stem = f.name[:-len(suffix)]
             out[folder.name if stem == folder.name else f"{folder.name}/{stem}"] = str(f)
     return out
 
 
-def robot_file(value: str) -> str:
+def robot_file(value: str, suffix: str = ".urdf") -> str:
     """The URDF a ``file`` value names: a file when a file of that name exists (any extension:
     ``.urdf``, ``.xml``, none), else a shipped robot (:func:`shipped_robots`). A folder, a xacro
-    file (``.xacro``) and a name that is neither raise :class:`UrdfError` saying what is allowed."""
+    file (``.xacro``) and a name that is neither raise :class:`UrdfError` saying what is allowed.
+    ``suffix`` ``".xml"``: the same for an MJCF (a file of that name, else a shipped MJCF model)."""
     value = os.fspath(value)
-    if value.endswith(".xacro"):
+    what = "URDF" if suffix == ".urdf" else "MJCF"
+    if suffix == ".urdf" and value.endswith(".xacro"):
         raise UrdfError("is a xacro file: expand it with xacro first (`xacro FILE.urdf.xacro > robot.urdf`, in a "
                         "ROS environment) and give the .urdf it writes", value)
     if os.path.isdir(value):
-        raise UrdfError("is a folder, not a URDF file; give the path of the .urdf file in it"
-                        + _urdf_in_folder(value), value)
+        raise UrdfError(f"is a folder, not a {what} file; give the path of the {suffix} file in it"
+                        + (_urdf_in_folder(value) if suffix == ".urdf" else ""), value)
     if os.path.isfile(value):
         return value
-    shipped = shipped_robots()
+    shipped = shipped_robots(suffix)
     if value in shipped:
         return shipped[value]
     looks_like_path = os.sep in value or "/" in value or os.path.splitext(value)[1] != ""
@@ -127,9 +130,11 @@ def robot_file(value: str) -> str:
     close = difflib.get_close_matches(value, list(shipped), n=1, cutoff=0.6)
     hint = f"; did you mean {close[0]!r}?" if close else ""
     if looks_like_path:
-        raise UrdfError(f"no such file; give the path of a URDF file (relative to the scenario file) or a robot "
-                        f"shipped with hinfnn: {names}{hint}", value)
-    raise UrdfError(f"is neither a file nor a robot shipped with hinfnn ({names}){hint}", value)
+        raise UrdfError(f"no such file; give the path of a {what} file (in a scenario file relative to that file, on "
+                        f"the command line to the working directory) or a robot shipped with hinfnn: {names}{hint}",
+                        value)
+    raise UrdfError(f"is neither a file nor a {'robot' if suffix == '.urdf' else 'model'} shipped with hinfnn "
+                    f"({names}){hint}", value)
 
 
 def _urdf_in_folder(folder) -> str:

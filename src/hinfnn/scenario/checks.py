@@ -193,7 +193,8 @@ def _unit(plant, i) -> str:
 
 
 def _check_path_joint_limits(sc, ctrl, plant, q0) -> None:
-    """The reference's path must keep every joint inside the TRUE arm's limits (its URDF): the
+    """The reference's path must keep every joint inside the TRUE arm's limits (its URDF, or a
+    user's MJCF: its joints' ranges): the
     joint angles along the path are the nominal arm's inverse kinematics of x_d(t) = (u1d(t),
     Ω(u1d(t))) on 201 samples over the run (Newton steps continued from the start pose); a
     DesignError at ``reference`` naming the joint, its value on the path, its range and the time.
@@ -218,8 +219,10 @@ def _check_path_joint_limits(sc, ctrl, plant, q0) -> None:
     k, i = np.unravel_index(np.argmin(margin), margin.shape)
     if margin[k, i] < 0:
         names = _joint_names(plant)
+        mjcf = getattr(getattr(sc.plant, "mjcf", None), "file", "")
+        source = f"the true arm's MJCF, plant.mjcf.file = {mjcf!r}" if mjcf else "the true arm's URDF"
         raise DesignError(f"the reference's path takes {names[i]} to {qs[k, i]:.4g} {_unit(plant, i)} at t = {t[k]:.3g} "
-                          f"s, outside its range [{lo[i]:.4g}, {hi[i]:.4g}] (the true arm's URDF; joint angles from the "
+                          f"s, outside its range [{lo[i]:.4g}, {hi[i]:.4g}] ({source}; joint angles from the "
                           "nominal model's inverse kinematics along the path): move the path, or start from another "
                           "pose (initial.q_guess, or the extra coordinates' reference)", key="reference",
                           value=float(qs[k, i]), bound=float(lo[i] if qs[k, i] < lo[i] else hi[i]))

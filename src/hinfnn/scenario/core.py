@@ -367,34 +367,28 @@ def resolve_base(raw: dict, source: str, _chain: tuple = ()) -> dict:
 
 
 def _resolve_paths(raw: dict, source: str) -> dict:
-    """URDF paths (``*.arm.file``) and a user's MJCF (``plant.mjcf.file`` ending in .xml)
-    relative to the scenario file that names them, made absolute (so a scenario.toml written
-    elsewhere still finds them): an arm's value is a path when a file or folder of that name
-    exists beside the scenario, or when it looks like one (a '/' or an extension) and is not the
-    name of a shipped robot (then the error names the path tried)."""
+    """URDF paths (``*.arm.file``) and a user's MJCF (``plant.mjcf.file``) relative to the
+    scenario file that names them, made absolute (so a scenario.toml written elsewhere still finds
+    them): a value is a path when a file or folder of that name exists beside the scenario, or
+    when it looks like one (a '/' or an extension) and is not the name of a shipped robot or MJCF
+    model (then the error names the path tried). A value given with ``--set`` is not resolved
+    here: it is relative to the working directory, as anything typed on a command line."""
     if source == "<dict>" or not Path(source).is_file():
         return raw
     from ..model.urdf import shipped_robots
 
     out = raw
-    for who in ("plant", "nominal"):
-        arm = raw.get(who, {}).get("arm") if isinstance(raw.get(who), dict) else None
-        f = arm.get("file") if isinstance(arm, dict) else None
+    for who, section, suffix in (("plant", "arm", ".urdf"), ("nominal", "arm", ".urdf"), ("plant", "mjcf", ".xml")):
+        part = raw.get(who, {}).get(section) if isinstance(raw.get(who), dict) else None
+        f = part.get("file") if isinstance(part, dict) else None
         if not isinstance(f, str) or not f or Path(f).is_absolute():
             continue
         candidate = Path(source).parent / f
         looks_like_path = "/" in f or Path(f).suffix != ""
-        if candidate.exists() or (looks_like_path and f not in shipped_robots()):
+        if candidate.exists() or (looks_like_path and f not in shipped_robots(suffix)):
             if out is raw:
                 out = copy.deepcopy(raw)
-            out[who]["arm"]["file"] = str(candidate.resolve())
-    plant = raw.get("plant") if isinstance(raw.get("plant"), dict) else {}
-    mjcf = plant.get("mjcf") if isinstance(plant.get("mjcf"), dict) else {}
-    f = mjcf.get("file")
-    if isinstance(f, str) and f.endswith(".xml") and not Path(f).is_absolute():  # a user's MJCF (MuJoCo plant)
-        if out is raw:
-            out = copy.deepcopy(raw)
-        out["plant"]["mjcf"]["file"] = str((Path(source).parent / f).resolve())
+            out[who][section]["file"] = str(candidate.resolve())
     return out
 
 

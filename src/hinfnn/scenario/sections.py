@@ -57,6 +57,21 @@ def _extra_joints(c) -> tuple:
     return (c.shoulder, c.elbow, c.wrist)
 
 
+def _check_locked(path, joints, positions):
+    """``locked_joints`` (no joint twice) and ``locked_positions`` (one per joint, or none) of the
+    section at ``path``."""
+    if positions and len(positions) != len(joints):
+        raise ConfigError(f"must give one position per locked joint ({len(joints)}), got {len(positions)}",
+                          key=f"{path}.locked_positions")
+    if len(set(joints)) != len(joints):
+        raise ConfigError(f"lists a joint twice: {list(joints)}", key=f"{path}.locked_joints")
+
+
+def _locked_pairs(joints, positions) -> tuple:
+    """(joint name, position) of each locked joint (position 0 where none is given)."""
+    return tuple(zip(joints, positions or (0.0,) * len(joints)))
+
+
 @section
 class ArmConfig:
     """An arm model (``model`` chooses the kind). ``build(task, key)`` returns the arm with the
@@ -87,18 +102,15 @@ class ArmConfig:
         """A chain arm with the task coordinates ``task`` (a task map, or an
         :class:`~hinfnn.model.augmented.AugmentedTask` whose extra coordinates were resolved on the
         nominal chain: the same joints must be there)."""
-        from ..model import UrdfArm
-        from ..model.augmented import AugmentedArm, AugmentedTask
+        from ..model.augmented import AugmentedTask, chain_arm
 
-        if not isinstance(task, AugmentedTask):
-            return UrdfArm(chain, task)
-        for c in task.extra:
+        for c in (task.extra if isinstance(task, AugmentedTask) else ()):
             for i in _extra_joints(c):
                 if i >= chain.n or (getattr(c, "name", "") in chain.joint_names and chain.joint_names[i] != c.name):
                     raise ConfigError(f"the extra coordinate {c.name!r} uses joint {i + 1} of the nominal chain, which "
                                       f"this chain ({', '.join(chain.joint_names)}) does not have in that place",
                                       key="task.extra")
-        return AugmentedArm(arm=UrdfArm(chain, task.base), task=task)
+        return chain_arm(chain, task)
 
 
 @ARMS.register("two_link")
@@ -209,7 +221,8 @@ class UrdfArmConfig(ArmConfig):
     perturb the file's inertial parameters: ``mass_scale``, ``com_shift``, ``payload_*``; the
     nominal arm is usually the file as written."""
 
-    file: str = param(doc="URDF: a path to a URDF file (any extension; relative to the scenario file), or a robot "
+    file: str = param(doc="URDF: a path to a URDF file (any extension; relative to the scenario file, or on the "
+                          "command line to the working directory), or a robot "
                           "shipped with hinfnn when no such file exists ('ur5', 'panda', 'ur10', 'kinova', "
                           "'planar/three_link', 'planar/sec6_two_link'); xacro files must be expanded first")
     base_link: str = param(doc="link the chain starts from (fixed)")
@@ -237,11 +250,7 @@ class UrdfArmConfig(ArmConfig):
     def validate(self, path):
         for name in ("tool_xyz", "tool_rpy_deg", "gravity", "payload_xyz"):
             _length(path, name, getattr(self, name), (3,))
-        if self.locked_positions and len(self.locked_positions) != len(self.locked_joints):
-            raise ConfigError(f"must give one position per locked joint ({len(self.locked_joints)}), got "
-                              f"{len(self.locked_positions)}", key=f"{path}.locked_positions")
-        if len(set(self.locked_joints)) != len(self.locked_joints):
-            raise ConfigError(f"lists a joint twice: {list(self.locked_joints)}", key=f"{path}.locked_joints")
+        _check_locked(path, self.locked_joints, self.locked_positions)
         if len(self.com_shift) % 3:
             raise ConfigError(f"must be 3 numbers, or 3 per body, got {len(self.com_shift)}", key=f"{path}.com_shift")
 
@@ -254,7 +263,7 @@ class UrdfArmConfig(ArmConfig):
             mtime = Path(path).stat().st_mtime_ns
         except OSError:
             mtime = None
-        locked = tuple(zip(self.locked_joints, self.locked_positions or (0.0,) * len(self.locked_joints)))
+        locked = _locked_pairs(self.locked_joints, self.locked_positions)
         try:
             chain = _load_chain(path, mtime, self.base_link, self.ee_link, tuple(self.tool_xyz),
                                 tuple(math.radians(v) for v in self.tool_rpy_deg), tuple(self.gravity), locked)
@@ -731,25 +740,26 @@ class RigidPlantConfig(PlantConfig):
         return dataclasses.replace(plant, **self.instruments(plant))
 
 
-def mjcf_path(value: str) -> str:
-    """A ``plant.mjcf.file`` value: a shipped MJCF (``"ur5e"``: a name without ``.xml``) or a path to
-    a ``.xml`` file."""
-    if value.endswith(".xml"):
-        return value
-    from ..model.urdf import asset_path
+def mjcf_path(value: str, key: str = "plant.mjcf.file") -> str:
+    """A ``plant.mjcf.file`` value: a file when one of that name exists (any extension), else an
+    MJCF shipped with hinfnn (``"ur5e"``: :func:`hinfnn.model.urdf.shipped_robots` with suffix
+    ``.xml``); a folder or a name that is neither: ConfigError at ``key`` listing the shipped ones."""
+    from ..model.urdf import UrdfError, robot_file
 
-    parts = value.split("/")
-    if len(parts) == 1:
-        parts = [parts[0], parts[0]]
-    return asset_path(*parts[:-1], parts[-1] + ".xml")
+    try:
+        return robot_file(value, ".xml")
+    except UrdfError as err:
+        raise ConfigError(f"{value}: {err.problem}", key=key) from None
 
 
 @section
 class MjcfConfig:
     """A user's MJCF as the true arm (``file`` empty: the MJCF is generated from ``plant.arm``)."""
 
-    file: str = param("", doc="MJCF of the true arm: a shipped model ('ur5e': MuJoCo Menagerie's UR5e) or a path to "
-                              "a .xml file (relative to the scenario file); empty: generated from plant.arm")
+    file: str = param("", doc="MJCF of the true arm: a path to an MJCF file (any extension; relative to the scenario "
+                              "file, or on the command line to the working directory), or a model shipped with "
+                              "hinfnn when no such file exists ('ur5e': MuJoCo Menagerie's UR5e); empty: generated "
+                              "from plant.arm")
     joints: tuple[str, ...] = param((), doc="the arm's joints in the MJCF, from the base to the tool (all of its degrees "
                                             "of freedom; default: the joint names of plant.arm)")
     tool_site: str = param("", doc="the MJCF site the tool hangs from (e.g. the flange)")
@@ -757,12 +767,35 @@ class MjcfConfig:
                                         le=10.0)
     tool_rpy_deg: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="the tool frame's roll, pitch, yaw in the site's "
                                             "frame, degrees", ge=-360.0, le=360.0)
+    locked_joints: tuple[str, ...] = param((), doc="joints of the MJCF held fixed (removed from the model, each body "
+                                                   "welded at its position), e.g. one of a 7-DOF arm")
+    locked_positions: tuple[float, ...] = param((), doc="their positions (rad or m, the MJCF's joint values; default 0 "
+                                                        "each)", ge=-100.0, le=100.0)
 
     def validate(self, path):
         for name in ("tool_xyz", "tool_rpy_deg"):
             _length(path, name, getattr(self, name), (3,))
-        if self.file and not self.tool_site:
+        if not self.file:  # generated from plant.arm: a key of the user's file would be ignored
+            default = MjcfConfig()
+            for name in ("joints", "tool_site", "tool_xyz", "tool_rpy_deg", "locked_joints", "locked_positions"):
+                if tuple(np.atleast_1d(getattr(self, name))) != tuple(np.atleast_1d(getattr(default, name))):
+                    raise ConfigError(f"applies to a user's MJCF only, got {getattr(self, name)!r} with {path}.file "
+                                      "empty (the MJCF is generated from plant.arm: its tool is plant.arm.tool_xyz, "
+                                      f"its joints plant.arm's); set {path}.file or leave the key at its default",
+                                      key=f"{path}.{name}")
+            return
+        if not self.tool_site:
             raise ConfigError("name the MJCF site the tool hangs from", key=f"{path}.tool_site")
+        _check_locked(path, self.locked_joints, self.locked_positions)
+        both = sorted(set(self.locked_joints) & set(self.joints))
+        if both:
+            raise ConfigError(f"{both[0]!r} is both locked and listed in {path}.joints; a joint is one or the other",
+                              key=f"{path}.locked_joints")
+
+    @property
+    def locked(self) -> tuple:
+        """(joint name, position) of each locked joint."""
+        return _locked_pairs(self.locked_joints, self.locked_positions)
 
 
 @PLANTS.register("mujoco")
@@ -812,15 +845,10 @@ class MujocoPlantConfig(PlantConfig):
             if self.arm.model not in ("urdf",):
                 raise ConfigError(f"a user's MJCF needs task coordinates of a spatial arm: give plant.arm as the "
                                   f"nominal's urdf arm (got {self.arm.model!r})", key=f"{path}.arm.model")
-            a = self.arm
-            perturbed = [k for k, v, default in (("mass_scale", a.mass_scale, 1.0), ("payload_mass", a.payload_mass, 0.0))
-                         if v != default and not (isinstance(v, tuple) and all(x == default for x in v))]
-            if any(c != 0.0 for c in a.com_shift):
-                perturbed.append("com_shift")
-            if perturbed:
-                raise ConfigError(f"has no effect on a user's MJCF (plant.mjcf.file = {self.mjcf.file!r}): the true arm is "
-                                  "the MJCF as written; edit the file, or leave the key at its default",
-                                  key=f"{path}.arm.{perturbed[0]}")
+            if any(c != 0.0 for c in self.arm.com_shift):
+                raise ConfigError(f"has no effect on a user's MJCF (plant.mjcf.file = {self.mjcf.file!r}): its bodies' "
+                                  "centres of mass are the file's (mass_scale, payload_mass and payload_xyz apply to "
+                                  "it); edit the file, or leave the key at its default", key=f"{path}.arm.com_shift")
 
     #: The longest MuJoCo step ``timestep = "auto"`` takes, s (RK4 resolves a 1e6 N/m contact on a
     #: 1 kg effective mass at it: ω h = 0.1).
@@ -844,10 +872,15 @@ class MujocoPlantConfig(PlantConfig):
                       control_period=dt, timestep=ts, integrator=self.integrator, callback=self.callback,
                       friction=self.friction.build(), friction_damping=self.friction_damping)
         if self.mjcf.file:
-            joints = self.mjcf.joints or tuple(self.arm.chain("plant.arm").joint_names)
+            nominal = self.arm.chain("plant.arm")  # the user's URDF of the arm: joint names, torque limits
+            joints = self.mjcf.joints or tuple(nominal.joint_names)
+            effort = np.asarray(nominal.effort_limit) if nominal.n == len(joints) else None
+            a = self.arm
             plant = MujocoPlant.from_mjcf(mjcf_path(self.mjcf.file), joints=joints, tool_site=self.mjcf.tool_site,
                                           tool_xyz=self.mjcf.tool_xyz, tool_rot=_rpy(self.mjcf.tool_rpy_deg),
-                                          task=task, **common)
+                                          task=task, locked=self.mjcf.locked, mass_scale=a.mass_scale,
+                                          payload_mass=a.payload_mass, payload_xyz=a.payload_xyz, effort_limit=effort,
+                                          **common)
         else:
             plant = MujocoPlant.from_models(self.arm.build(task, key="plant.arm"), **common)
         if self.sensor.ideal and self.actuator.ideal:

@@ -204,6 +204,22 @@ class Setup:
         return Run(name=name or kind, plant=self.plant, controller=controller or self.controller(kind),
                    reference=self.reference, q0=self.q0, info=info, **self.options())
 
+    def check_start(self, kind: str | None = None) -> None:
+        """What a run of ``kind`` checks before anything is compiled, as :func:`hinfnn.simulate`
+        checks it: the plant and the controller fit each other (:func:`hinfnn.protocols.check`),
+        the step plan, the plant's state at the start pose (MuJoCo: its first forward pass and the
+        task coordinates sensed from it) and the start pose for the controller
+        (``check_start``). ``hinfnn design`` runs it, so that it refuses what ``hinfnn run``
+        refuses, with the same message."""
+        from ..protocols import check
+        from ..sim.simulate import initial_state
+
+        r = self.run(kind)
+        check(r.plant, r.controller)
+        self.plan()
+        y0 = initial_state(r.plant, r.controller, q0=r.q0)
+        r.controller.check_start(r.plant.joints(y0.plant)[0])
+
     # --- names ----------------------------------------------------------------------------------
     @functools.cached_property
     def coordinate_names(self) -> list[tuple[str, str]] | None:

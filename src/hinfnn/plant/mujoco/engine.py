@@ -320,7 +320,7 @@ class LineSensing:
     def cartesian(self) -> bool:
         return False
 
-    def __call__(self, p, R, Jf, sensor):
+    def __call__(self, p, R, Jf, sensor, q):
         on_tool, f_n = _contact_force(sensor)
         x = jnp.stack([p[0], p[2]])
         force = -jnp.stack([on_tool[0], on_tool[2]])
@@ -335,24 +335,33 @@ class CartesianSensing:
     surface's exact signed distance at the tool point, ``force`` the Cartesian force the tool
     exerts on the surface at the tool point, in the base frame's axes of the arm's space (2-D for
     planar arms: the plane's coordinates), what :class:`~hinfnn.protocols.Measurement` carries
-    (the controller maps it into task coordinates with its nominal kinematics)."""
+    (the controller maps it into task coordinates with its nominal kinematics).
+
+    A redundant arm's task (an :class:`~hinfnn.model.augmented.AugmentedTask`: extra coordinates
+    such as the arm angle, functions of the joint angles) also needs ``chain``, the true arm's
+    chain: its extra coordinates and their margins are computed from it at MuJoCo's joint angles."""
 
     task: object
     surface: object
+    chain: object = None
 
     @property
     def cartesian(self) -> bool:
         return True
 
-    def __call__(self, p, R, Jf, sensor):
+    def __call__(self, p, R, Jf, sensor, q):
         on_tool, f_n = _contact_force(sensor)
         rows = tuple(self.task.space_rows)
         point = self.task.space(p)
         F_c = -jnp.stack([on_tool[i] for i in rows])
         n_in = self.surface.normal(point)
         F_t = F_c - la.mm(n_in, F_c) * n_in
-        return dict(x_true=self.task(p, R), force=F_c, normal_force=f_n, penetration=self.surface.signed_distance(point),
-                    friction_force=jnp.sqrt(jnp.sum(F_t * F_t)), task_margin=self.task.margin(p, R))
+        if self.chain is None:
+            x, margin = self.task(p, R), self.task.margin(p, R)
+        else:
+            x, margin = self.task.of_pose(self.chain, p, R, q), self.task.margin_pose(self.chain, p, R, q)
+        return dict(x_true=x, force=F_c, normal_force=f_n, penetration=self.surface.signed_distance(point),
+                    friction_force=jnp.sqrt(jnp.sum(F_t * F_t)), task_margin=margin)
 
 
 @pytree_dataclass
@@ -504,7 +513,7 @@ class MujocoPlant(DiscretePlant):
             task, rows = _task_of(arm, surface)
             scene = S.build_scene(surface, contact, rows=rows, arm_xml=S.chain_xml(arm.chain), friction=mu,
                                   friction_damping=friction_damping, timestep=ts, integrator=integrator)
-            sensing = CartesianSensing(task=task, surface=surface)
+            sensing = _cartesian_sensing(task, surface, arm.chain)
         meta = _Meta(arm, surface, contact, friction, scene, friction_damping)
         return cls._build(scene, meta, sensing, disturbance, control_period, callback)
 
@@ -512,14 +521,20 @@ class MujocoPlant(DiscretePlant):
     def from_mjcf(cls, path, *, joints, tool_site: str, task, surface, contact, disturbance,
                   control_period: float, tool_xyz=(0.0, 0.0, 0.0), tool_rot=None, timestep: float | None = None,
                   integrator: str = "RK4", callback: str = "host", friction=None,
-                  friction_damping: float = S.FRICTION_DAMPING) -> "MujocoPlant":
+                  friction_damping: float = S.FRICTION_DAMPING, locked=(), mass_scale=1.0,
+                  payload_mass: float = 0.0, payload_xyz=(0.0, 0.0, 0.0), effort_limit=None) -> "MujocoPlant":
         """The MuJoCo plant of a user's MJCF arm: ``joints`` its joint names from the base to the
-        tool (all its degrees of freedom), ``tool_site`` the site the tool hangs from, the tool
-        point at ``tool_xyz`` (rotation ``tool_rot``) in that site's frame; ``task`` the task map the
-        controller's coordinates use (x_true and the task-space F are formed with it from MuJoCo's
-        tool pose and Jacobian). The model keeps what it has (armature, damping, friction loss,
-        springs); its actuators are switched off. The rest as :meth:`from_models`."""
-        from ...model.urdf import UrdfArm
+        tool (all its degrees of freedom once the joints ``locked`` ((name, position) pairs) are
+        welded), ``tool_site`` the site the tool hangs from, the tool point at ``tool_xyz``
+        (rotation ``tool_rot``) in that site's frame; ``task`` the task map the controller's
+        coordinates use (x_true and the task-space F are formed with it from MuJoCo's tool pose and
+        Jacobian; an :class:`~hinfnn.model.augmented.AugmentedTask`'s extra coordinates from the
+        joint angles). The model keeps what it has (armature, damping, friction loss, springs); its
+        actuators are switched off. ``mass_scale``, ``payload_mass``, ``payload_xyz``: the true
+        arm's perturbation, applied to the file (:func:`~hinfnn.plant.mujoco.scene.build_scene`);
+        ``effort_limit``: the joints' torque limits where the file has no actuator force range
+        (e.g. the nominal URDF's). The rest as :meth:`from_models`."""
+        from ...model.augmented import chain_arm
 
         S.require_mujoco()
         control_period, ts = cls._periods(control_period, timestep)
@@ -527,10 +542,12 @@ class MujocoPlant(DiscretePlant):
         _, rows = _task_of(None, surface, task)
         scene = S.build_scene(surface, contact, rows=rows, arm_file=os.fspath(path), joints=tuple(joints),
                               tool_site=tool_site, tool_xyz=tool_xyz, tool_rot=tool_rot, friction=mu,
-                              friction_damping=friction_damping, timestep=ts, integrator=integrator)
-        arm = UrdfArm(S.chain_from_model(scene.model, joints, scene.site), task)
+                              friction_damping=friction_damping, timestep=ts, integrator=integrator,
+                              locked=tuple(locked), mass_scale=mass_scale, payload_mass=payload_mass,
+                              payload_xyz=payload_xyz)
+        arm = chain_arm(S.chain_from_model(scene.model, joints, scene.site, effort_limit), task)
         meta = _Meta(arm, surface, contact, friction, scene, friction_damping)
-        return cls._build(scene, meta, CartesianSensing(task=task, surface=surface), disturbance, control_period,
+        return cls._build(scene, meta, _cartesian_sensing(task, surface, arm.chain), disturbance, control_period,
                           callback)
 
     def replace(self, **changes) -> "MujocoPlant":
@@ -649,7 +666,7 @@ class MujocoPlant(DiscretePlant):
         sense = self.sensing
         for _ in lead:
             sense = jax.vmap(sense)
-        sensed = sense(p, R, Jf, sensor)
+        sensed = sense(p, R, Jf, sensor, qpos)
         return MujocoState(q=qpos, qd=qvel, qacc_warmstart=warm, **sensed), qacc
 
     def _row(self, parts):
@@ -731,6 +748,14 @@ def _friction_values(friction):
                           "only (plant.friction.coulomb; its slope below the cone is plant.friction_damping)",
                           key="plant.friction.viscous")
     return mu, c_v
+
+
+def _cartesian_sensing(task, surface, chain) -> CartesianSensing:
+    """The sensing of a chain arm with the task map ``task``: with the true ``chain`` where the
+    task has extra coordinates of the joint angles (a redundant arm's arm angle)."""
+    from ...model.augmented import AugmentedTask
+
+    return CartesianSensing(task=task, surface=surface, chain=chain if isinstance(task, AugmentedTask) else None)
 
 
 def _task_of(arm, surface, task=None):

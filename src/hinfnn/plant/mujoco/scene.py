@@ -375,9 +375,23 @@ def _load_spec(mujoco, arm_xml: str | None, arm_file: str | None):
     if not os.path.isfile(path):
         raise ConfigError(f"no MJCF file {path}", key="plant.mjcf.file")
     try:
-        return mujoco.MjSpec.from_file(path), path
+        if path.lower().endswith(".xml"):
+            return mujoco.MjSpec.from_file(path), path
+        # MuJoCo picks its reader by the extension: another one (a user's "arm.mjcf") is read as
+        # text, its assets (meshes) still found beside it
+        with open(path, encoding="utf-8") as f:
+            spec = mujoco.MjSpec.from_string(f.read())
+        spec.modelfiledir = os.path.dirname(os.path.abspath(path))
+        return spec, path
     except Exception as err:  # MuJoCo's parser error: a ValueError with its message
         raise ConfigError(f"{path}: MuJoCo cannot read it: {err}", key="plant.mjcf.file") from None
+
+
+def _compile_user(spec, source, key):
+    try:
+        return spec.compile()
+    except Exception as err:  # MuJoCo's compiler error: a ValueError with its message
+        raise ConfigError(f"{source}: MuJoCo cannot compile it: {err}", key=key) from None
 
 
 def _hint(name, names) -> str:
@@ -413,8 +427,9 @@ def _check_user_model(mujoco, model, joints, site_name, source):
     if model.nv != len(ids) or model.nq != len(ids):
         others = [x for x in names if x not in joints]
         raise ConfigError(f"{source}: the model has {model.nv} degrees of freedom but {len(ids)} joints are listed; "
-                          f"hinfnn drives every degree of freedom of the model (remove or list: "
-                          f"{', '.join(repr(x) for x in others) or 'free/ball joints'})", key="plant.mjcf.joints")
+                          f"hinfnn drives every degree of freedom of the model (list, or lock with "
+                          f"plant.mjcf.locked_joints: {', '.join(repr(x) for x in others) or 'free/ball joints'})",
+                          key="plant.mjcf.joints")
     sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site_name)
     sites = [model.site(s).name for s in range(model.nsite)]
     if sid < 0:
@@ -440,7 +455,8 @@ def _check_user_model(mujoco, model, joints, site_name, source):
 def build_scene(surface, contact, *, rows=(0, 1), arm_xml: str | None = None, arm_file: str | None = None,
                 joints=(), tool_site: str = "tool", tool_xyz=(0.0, 0.0, 0.0), tool_rot=None,
                 friction: float = 0.0, friction_damping: float = FRICTION_DAMPING, timestep: float = 1e-4,
-                integrator: str = "RK4") -> Scene:
+                integrator: str = "RK4", locked=(), mass_scale=1.0, payload_mass: float = 0.0,
+                payload_xyz=(0.0, 0.0, 0.0)) -> Scene:
     """The compiled MuJoCo model of a true plant (module docstring).
 
     ``arm_xml`` (hinfnn's own arm: :func:`chain_xml`, :func:`two_link_xml`) or ``arm_file`` (a
@@ -450,6 +466,14 @@ def build_scene(surface, contact, *, rows=(0, 1), arm_xml: str | None = None, ar
     ``rows``: base axes of a planar arm's plane; ``contact``: k (N/m), c (N·s/m);
     ``friction``: Coulomb μ (0: frictionless, ``condim`` 1); ``friction_damping``: MuJoCo's
     tangential damping below the cone (N·s/m); ``timestep``, ``integrator``: MuJoCo's.
+
+    A user's MJCF is adapted with MuJoCo's model editing (``MjSpec``) before it is compiled with the
+    surface: ``locked`` ((joint name, position) pairs) removes those joints, each body welded at
+    the position (:func:`_lock_joints`); ``mass_scale`` (one number, or one per listed joint)
+    scales the mass and rotational inertia of each arm body (:func:`_scale_masses`);
+    ``payload_mass`` (kg) adds a point mass at ``payload_xyz`` in the tool frame, welded to the
+    tool site's body (the true arm's ``plant.arm.mass_scale``, ``payload_mass``, ``payload_xyz``,
+    as the built-in arm's :meth:`~hinfnn.model.urdf.UrdfChain.perturbed` applies them).
 
     Options set on every model: ``solver = Newton``, ``tolerance = 1e-12`` (a contact solved to
     round-off, in one or two iterations), ``cone = elliptic``, ``impratio = IMPRATIO``, autoreset
@@ -470,12 +494,21 @@ def build_scene(surface, contact, *, rows=(0, 1), arm_xml: str | None = None, ar
     geom = surface_geom(surface, rows)
     user = arm_file is not None
     spec, source = _load_spec(mujoco, arm_xml, arm_file)
-    if user:  # check the names on a compiled copy of the user's model as it is
-        try:
-            plain = spec.copy().compile()
-        except Exception as err:
-            raise ConfigError(f"{source}: MuJoCo cannot compile it: {err}", key="plant.mjcf.file") from None
+    if user:  # check the names on a compiled copy of the user's model as it is (its locked joints removed)
+        plain = _compile_user(spec.copy(), source, "plant.mjcf.file")
+        if locked:
+            _lock_joints(mujoco, spec, plain, tuple(locked), source)
+            plain = _compile_user(spec.copy(), source, "plant.mjcf.locked_joints")
         _check_user_model(mujoco, plain, list(joints), tool_site, source)
+        scale = np.asarray(mass_scale, dtype=float).reshape(-1)
+        if scale.size not in (1, len(joints)):
+            raise ConfigError(f"must be a number or a list of {len(joints)} (one per joint of plant.mjcf.joints), got "
+                              f"{scale.size}: {scale.tolist()}", key="plant.arm.mass_scale")
+        if np.any(scale != 1.0):
+            _scale_masses(mujoco, spec, _compile_user(spec, source, "plant.mjcf.file"), list(joints),
+                          np.broadcast_to(scale, (len(joints),)))
+    elif locked or payload_mass or np.any(np.asarray(mass_scale) != 1.0):  # pragma: no cover - the chain has them
+        raise ValueError("locked, mass_scale and payload apply to a user's MJCF; hinfnn's arms carry them in the chain")
     site = spec.site(tool_site)
     if site is None:
         raise ConfigError(f"{source}: no site named {tool_site!r}", key="plant.mjcf.tool_site")
@@ -489,6 +522,13 @@ def build_scene(surface, contact, *, rows=(0, 1), arm_xml: str | None = None, ar
     pos = np.asarray(site.pos, dtype=float) + R_site @ np.asarray(tool_xyz, dtype=float)
     tool = body.add_site(name=TOOL_SITE, pos=pos, quat=_quat(R_site @ R_off), size=[0.005, 0.0, 0.0])
     del tool
+    if payload_mass:
+        _check_number("plant.arm.payload_mass", payload_mass)
+        m = float(payload_mass)
+        r2 = m * POINT_MASS_GYRATION_RADIUS**2
+        load = body.add_body(name="hinfnn_payload")
+        load.pos = pos + R_site @ R_off @ np.asarray(payload_xyz, dtype=float)
+        load.explicitinertial, load.mass, load.inertia, load.ipos = True, m, [r2, r2, r2], [0.0, 0.0, 0.0]
     body.add_geom(name=TIP_GEOM, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[TIP_RADIUS, 0.0, 0.0], pos=pos,
                   contype=0, conaffinity=0, density=0.0, mass=0.0, group=3, rgba=[0.8, 0.2, 0.2, 1.0])
     gtype = {"plane": mujoco.mjtGeom.mjGEOM_PLANE, "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
@@ -595,7 +635,87 @@ def _check_two_link(arm, surface):
 # --------------------------------------------------------------------------------------------
 # Back to hinfnn: a compiled model as a chain, a chain as URDF
 # --------------------------------------------------------------------------------------------
-def chain_from_model(model, joints, site: str | int):
+def _owners(model, jids):
+    """owner(body id) -> the index (into ``jids``) of the nearest listed joint at or above the
+    body, -1 for a body above the first one (the base): the arm's body i is every MuJoCo body
+    whose owner is i."""
+    jbody = {int(model.jnt_bodyid[j]): i for i, j in enumerate(jids)}
+
+    def owner(b):
+        while b > 0:
+            if b in jbody:
+                return jbody[b]
+            b = int(model.body_parentid[b])
+        return -1
+
+    return owner
+
+
+def _lock_joints(mujoco, spec, model, locked, source):
+    """A user's MJCF with the joints ``locked`` ((name, position) pairs) removed: each joint's body
+    is turned (hinge) or moved (slide) to the position (rad or m, MuJoCo's joint value: ``ref`` is
+    the body as written) about the joint's axis through its anchor and welded to its parent
+    there; actuators and sensors on the joint and the file's keyframes go with it. ``model``: the
+    file compiled as it is (the body's pose in its parent, the joint's axis and anchor)."""
+    key = "plant.mjcf.locked_joints"
+    names = [model.joint(j).name for j in range(model.njnt)]
+    for name, value in locked:
+        jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if jid < 0:
+            raise ConfigError(f"{source}: no joint named {name!r}{_hint(name, names)}", key=key)
+        jtype = int(model.jnt_type[jid])
+        if jtype not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+            raise ConfigError(f"{source}: joint {name!r} is not a hinge or a slide (allowed: hinge, slide)", key=key)
+        b = int(model.jnt_bodyid[jid])
+        R = np.zeros(9)
+        mujoco.mju_quat2Mat(R, model.body_quat[b])
+        R = R.reshape(3, 3)
+        axis = model.jnt_axis[jid] / np.linalg.norm(model.jnt_axis[jid])
+        delta = float(value) - float(model.qpos0[model.jnt_qposadr[jid]])
+        anchor = np.asarray(model.jnt_pos[jid], dtype=float)
+        if jtype == int(mujoco.mjtJoint.mjJNT_SLIDE):
+            turn, shift = np.eye(3), axis * delta
+        else:  # Rodrigues: the body turned by delta about the axis through the anchor
+            K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+            turn = np.eye(3) + math.sin(delta) * K + (1.0 - math.cos(delta)) * (K @ K)
+            shift = anchor - turn @ anchor
+        body = spec.joint(name).parent
+        body.pos = model.body_pos[b] + R @ shift
+        body.quat = _quat(R @ turn)
+        body.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
+        for el in list(spec.actuators) + list(spec.sensors):
+            if getattr(el, "target", getattr(el, "objname", None)) == name or getattr(el, "objname", None) == name:
+                spec.delete(el)
+        spec.delete(spec.joint(name))
+    if locked:
+        for k in list(spec.keys):
+            spec.delete(k)
+
+
+def _scale_masses(mujoco, spec, model, joints, mass_scale):
+    """Each arm body's mass and rotational inertia times its joint's ``mass_scale`` entry (the
+    MuJoCo bodies of arm body i, as :func:`chain_from_model` lumps them): every body's inertial
+    written explicitly from the compiled ``model`` (so inferred ones keep their values), scaled."""
+    jids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in joints]
+    owner = _owners(model, jids)
+    by_id = {int(b.id): b for b in spec.bodies}
+    for b in range(1, model.nbody):
+        sb = by_id.get(b)
+        if sb is None:
+            continue
+        i = owner(b)
+        k = float(mass_scale[i]) if i >= 0 else 1.0
+        sb.explicitinertial = True
+        sb.mass = float(model.body_mass[b]) * k
+        sb.inertia = np.asarray(model.body_inertia[b], dtype=float) * k
+        sb.fullinertia = [np.nan] + [0.0] * 5
+        sb.ipos = model.body_ipos[b]
+        sb.iquat = model.body_iquat[b]
+        sb.ialt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
+    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
+
+
+def chain_from_model(model, joints, site: str | int, effort_limit=None):
     """The :class:`~hinfnn.model.urdf.UrdfChain` of a compiled MuJoCo arm: its rigid-body part.
 
     ``joints``: the arm's joint names from the base to the tool (hinges and slides, the model's
@@ -605,7 +725,8 @@ def chain_from_model(model, joints, site: str | int):
     joint i, lumped (parallel-axis theorem) in that frame; bodies above the first joint are the
     base. Not in the chain: armature, damping, friction loss, springs, limits' forces, actuators
     (what the nominal of a user's MJCF does not know); its effort limits are the force ranges of the
-    actuators on the joints (infinite without one)."""
+    actuators on the joints, where a joint has none ``effort_limit``'s entry (e.g. the nominal
+    URDF's; infinite without it)."""
     import jax.numpy as jnp
 
     from ...model.urdf import UrdfChain
@@ -616,19 +737,11 @@ def chain_from_model(model, joints, site: str | int):
     mujoco.mj_kinematics(model, d)
     jids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in joints]
     sid = site if isinstance(site, (int, np.integer)) else mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site)
-    jbody = {int(model.jnt_bodyid[j]): i for i, j in enumerate(jids)}
     frames = []
     for j in jids:
         b = int(model.jnt_bodyid[j])
         frames.append((d.xmat[b].reshape(3, 3).copy(), d.xanchor[j].copy()))
-
-    def owner(b):
-        while b > 0:
-            if b in jbody:
-                return jbody[b]
-            b = int(model.body_parentid[b])
-        return -1
-
+    owner = _owners(model, jids)
     n = len(jids)
     parts = [[] for _ in range(n)]
     for b in range(1, model.nbody):
@@ -657,7 +770,8 @@ def chain_from_model(model, joints, site: str | int):
     lower = [model.jnt_range[j, 0] if model.jnt_limited[j] else -np.inf for j in jids]
     upper = [model.jnt_range[j, 1] if model.jnt_limited[j] else np.inf for j in jids]
     names = [[model.body(b).name for b in range(1, model.nbody) if owner(b) == i] for i in range(n)]
-    effort = np.full(n, np.inf)  # the force range of an actuator on the joint, if it has one
+    # the force range of an actuator on the joint, if it has one; else the one given
+    effort = np.full(n, np.inf) if effort_limit is None else np.array(effort_limit, dtype=float).reshape(n)
     for a in range(model.nu):
         if int(model.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and model.actuator_forcelimited[a]:
             j = int(model.actuator_trnid[a, 0])
