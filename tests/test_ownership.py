@@ -339,8 +339,9 @@ def test_a_full_disk_before_the_first_part_leaves_nothing_resume_refuses(tmp_pat
     assert res.simulated_now == 2 and H.load_sweep(left).attrs["complete"]
 
 
-def test_a_damaged_part_says_which_and_that_deleting_it_lets_resume_recompute(tmp_path):
-    from hinfnn.sweep import run_sweep, store
+def _interrupted_after_one_part(tmp_path):
+    """A sweep of two runs interrupted after its first part: (spec, folder)."""
+    from hinfnn.sweep import run_sweep
 
     spec = _spec()
     folder = tmp_path / "s"
@@ -350,6 +351,13 @@ def test_a_damaged_part_says_which_and_that_deleting_it_lets_resume_recompute(tm
 
     with pytest.raises(KeyboardInterrupt):
         run_sweep(spec, folder, max_batch=1, on_part=stop)
+    return spec, folder
+
+
+def test_a_damaged_part_says_which_and_that_deleting_it_lets_resume_recompute(tmp_path):
+    from hinfnn.sweep import run_sweep, store
+
+    spec, folder = _interrupted_after_one_part(tmp_path)
     part = folder / store.PARTS / store.part_name(0)
     part.write_bytes(part.read_bytes()[:100])
     with pytest.raises(H.LoadError) as ex:
@@ -363,14 +371,7 @@ def test_a_damaged_part_says_which_and_that_deleting_it_lets_resume_recompute(tm
 def test_a_cut_plan_is_a_load_error_not_rows(tmp_path):
     from hinfnn.sweep import run_sweep, store
 
-    spec = _spec()
-    folder = tmp_path / "s"
-
-    def stop(batch):
-        raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        run_sweep(spec, folder, max_batch=1, on_part=stop)
+    spec, folder = _interrupted_after_one_part(tmp_path)
     assert len(H.load_sweep(folder)) == 1
     plan = folder / store.PLAN
     plan.write_text(plan.read_text()[:20])
