@@ -42,8 +42,9 @@ PROCESSES_FROM_S = 60.0
 
 
 def per_step_s(n_joints: int) -> float:
-    """A rough single-core cost of one member's RK4 step in a batch, the choice's only input: the
-    two-link arm 2.5 µs, a 6-DOF arm 26 µs (docs/performance.md), growing as n²."""
+    """A rough single-core cost in seconds of one member's RK4 step in a batch, the choice's only
+    input: a constant for the two-link arm and one for a 6-DOF arm (from `make bench`'s batch
+    rows, docs/performance.md), growing as n²."""
     return 2.5e-6 if n_joints <= 2 else 26e-6 * (n_joints / 6) ** 2
 
 
