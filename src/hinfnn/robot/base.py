@@ -73,4 +73,14 @@ class Robot(abc.ABC):
         return False
 
 
-__all__ = ["Reading", "Robot"]
+def require_sampled(scenario) -> None:
+    """A robot runs the controller at a fixed rate: ConfigError naming ``simulation.control``
+    unless the scenario's control is sampled."""
+    from ..errors import ConfigError
+
+    if scenario.simulation.control != "sampled":
+        raise ConfigError("a robot runs the controller at a fixed rate: set simulation.control = \"sampled\", got "
+                          f"{scenario.simulation.control!r}", key="simulation.control")
+
+
+__all__ = ["Reading", "Robot", "require_sampled"]

@@ -9,6 +9,7 @@ import time
 import numpy as np
 
 from ..errors import ConfigError
+from .base import require_sampled
 from .loop import run_loop, trajectory
 from .safety import SafetyLimits
 
@@ -40,9 +41,7 @@ def safety_limits(sc, setup=None) -> SafetyLimits:
 def _single(sc):
     if len(sc.kinds) != 1:
         raise ConfigError(f"a robot runs one controller: give one kind, got {sc.kinds}", key="controller.kind")
-    if sc.simulation.control != "sampled":
-        raise ConfigError("a robot runs the controller at a fixed rate: set simulation.control = \"sampled\", got "
-                          f"{sc.simulation.control!r}", key="simulation.control")
+    require_sampled(sc)
     return sc.kinds[0]
 
 

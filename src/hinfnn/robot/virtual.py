@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, SimulationError
-from .base import Reading, Robot
+from .base import Reading, Robot, require_sampled
 
 #: The fault kinds :class:`VirtualRobot` injects (``stall`` on the loop's side, the others in the server).
 FAULTS = ("force_spike", "dropout", "nan", "lost_contact", "joint_limit", "time_back", "stall")
@@ -211,9 +211,7 @@ class VirtualRobot(Robot):
         if scenario.plant.engine != "mujoco":
             raise ConfigError(f"the virtual robot serves the MuJoCo plant: set plant.engine = \"mujoco\", got "
                               f"{scenario.plant.engine!r}", key="plant.engine")
-        if scenario.simulation.control != "sampled":
-            raise ConfigError("a robot runs the controller at a fixed rate: set simulation.control = \"sampled\", got "
-                              f"{scenario.simulation.control!r}", key="simulation.control")
+        require_sampled(scenario)
         self.scenario = scenario
         self.realtime = bool(realtime)
         self.period = float(scenario.simulation.control_period)
