@@ -15,7 +15,13 @@ STAMP  := $(VENV)/.installed
 UV     := uv==0.13.9
 unexport PYTHONDONTWRITEBYTECODE
 
-.PHONY: demo test venv bench clean
+# franka-sim (a server speaking libfranka's protocol over MuJoCo) for the Franka loopback test
+# (tests/test_franka.py): its own environment, since it pins numpy 1.26.4 and mujoco < 3.3.
+FRANKA_ENV   := .franka-env
+FRANKA_STAMP := $(FRANKA_ENV)/.installed
+FRANKA_PINS  := franka-sim==1.1.7 pylibfranka==0.21.3
+
+.PHONY: demo test venv bench clean franka-env
 
 venv: $(STAMP)
 
@@ -28,16 +34,24 @@ $(STAMP): pyproject.toml
 	       && $(BIN)/python -m pip install --quiet --no-compile -e '.[test]'; }
 	@touch $(STAMP)
 
+franka-env: $(FRANKA_STAMP)
+
+$(FRANKA_STAMP): $(STAMP)
+	$(PYTHON) -m venv $(FRANKA_ENV)
+	$(BIN)/python -m uv pip install --quiet --native-tls --python $(FRANKA_ENV)/bin/python $(FRANKA_PINS) \
+	  || $(FRANKA_ENV)/bin/python -m pip install --quiet $(FRANKA_PINS)
+	@touch $(FRANKA_STAMP)
+
 demo: $(STAMP)
 	$(BIN)/hinfnn reproduce --out results/paper --force
 
 # Two pytest-xdist workers (CI and this project's machines have 2 cores); the modules whose tests
 # share compiled programs and expensive fixtures stay on one worker (xdist_group marks).
-test: $(STAMP)
+test: $(STAMP) $(FRANKA_STAMP)
 	$(BIN)/python -m pytest -q -n 2 --dist loadgroup
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py
 
 clean:
-	rm -rf $(VENV) results .pytest_cache .hypothesis
+	rm -rf $(VENV) $(FRANKA_ENV) results .pytest_cache .hypothesis

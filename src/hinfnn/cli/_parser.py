@@ -63,9 +63,11 @@ states the fractions that stayed bounded and held contact; see docs/sweeps.md fo
 EXAMPLES_ROBOT = """examples:
   hinfnn robot run ur5-polish --robot virtual                 # results/robots/ur5-polish-<UTC time>/
   hinfnn robot run ur5-polish --set simulation.t_final=2 --set safety.force_limit=60 --out results/r1
+  hinfnn robot run fr3-table --robot franka --host 127.0.0.1   # a Franka, or franka-sim on this machine
 
 The virtual robot is the scenario's MuJoCo plant (plant.engine = "mujoco") in its own process, advancing
-in wall-clock real time; the loop reaches it only through the robot interface. See docs/robot.md.
+in wall-clock real time; the loop reaches it only through the robot interface. The Franka is driven
+through libfranka (pip install 'hinfnn[franka]'). See docs/robot.md.
 """
 EXAMPLES_MAIN = """examples:
   hinfnn reproduce                 the paper's Sec. VI study into results/paper/
@@ -143,8 +145,11 @@ def _parser() -> argparse.ArgumentParser:
                          description="Run SCENARIO (one controller, simulation.control = \"sampled\") on the robot "
                                      "for simulation.t_final s of robot time and write the result folder.")
     rr.add_argument("scenario", help="shipped scenario name (see `hinfnn scenarios`) or path to a .toml file")
-    rr.add_argument("--robot", choices=("virtual",), default="virtual",
-                    help="virtual: the scenario's MuJoCo plant served in its own process in real time (default)")
+    rr.add_argument("--robot", choices=("virtual", "franka"), default="virtual",
+                    help="virtual: the scenario's MuJoCo plant served in its own process in real time (default); "
+                         "franka: a Franka (or franka-sim) through libfranka's pylibfranka at --host (docs/robot.md)")
+    rr.add_argument("--host", default="127.0.0.1", metavar="ADDRESS",
+                    help="the Franka's address for --robot franka (default: 127.0.0.1, franka-sim on this machine)")
     rr.add_argument("--out", default=None, metavar="DIR",
                     help="output folder (default: results/robots/<scenario name>-<UTC time>)")
     rr.add_argument("--no-figures", dest="figures", action="store_false", help="write no figures")

@@ -17,7 +17,7 @@ def main(args) -> int:
         return 2
     sc = Scenario.load(args.scenario, args.overrides)
     res = run_robot(sc, robot=args.robot, out=args.out, force=args.force, command=command_line(args), log=log_stderr,
-                    figures=args.figures)  # no printing inside the loop: the events are in robot.log
+                    figures=args.figures, host=args.host)  # no printing inside the loop: the events are in robot.log
     doc, target, s = res.doc, res.target, res.doc["robot"]
     if not args.quiet:
         from ..report.markdown import metrics_table

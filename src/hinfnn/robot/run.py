@@ -14,7 +14,7 @@ from .loop import run_loop, trajectory
 from .safety import SafetyLimits
 
 #: The robots ``hinfnn robot run --robot`` knows.
-ROBOTS = ("virtual",)
+ROBOTS = ("virtual", "franka")
 
 
 @dataclasses.dataclass
@@ -45,12 +45,19 @@ def _single(sc):
     return sc.kinds[0]
 
 
-def make_robot(sc, robot: str, faults=()):
-    """The robot named ``robot`` (:data:`ROBOTS`) for scenario ``sc``."""
+def make_robot(sc, robot: str, faults=(), host: str = "127.0.0.1"):
+    """The robot named ``robot`` (:data:`ROBOTS`) for scenario ``sc`` (``host``: the Franka's
+    address)."""
     if robot == "virtual":
         from .virtual import VirtualRobot
 
         return VirtualRobot(sc, faults=faults)
+    if robot == "franka":
+        if faults:
+            raise ConfigError("faults are injected in the virtual robot only", key="faults")
+        from .franka import FrankaRobot
+
+        return FrankaRobot(sc, host=host)
     raise ConfigError(f"unknown robot {robot!r}; allowed: {', '.join(ROBOTS)}", key="--robot")
 
 
@@ -82,7 +89,7 @@ def prepared(sc):
 
 
 def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, command: str = "", log=print,
-              figures: bool = True, event_log=None) -> RobotRunResult:
+              figures: bool = True, event_log=None, host: str = "127.0.0.1") -> RobotRunResult:
     """Run the scenario's one controller on ``robot`` (a :class:`~hinfnn.robot.Robot`, or a name of
     :data:`ROBOTS`; ``faults`` for the virtual one) for ``simulation.t_final`` s of robot time,
     through the safety layer, and write the result folder as ``hinfnn run`` does (reserved before
@@ -90,7 +97,8 @@ def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, 
     run, and ``robot``: latency, lateness, late and rejected cycles, the safety events and the stop),
     trajectory.npz, scenario.toml, robot.log (the events, one per line) and figures. A stop by the
     safety layer is a result (status ``diverged``, the rule in its reason), not an error.
-    ``event_log(line)``: each safety event as it fires."""
+    ``event_log(line)``: each safety event as it fires; ``host``: the Franka's address (``robot =
+    "franka"``). A robot with a ``report()`` method adds its dict as ``robot.device``."""
     from ..experiment import Outcome, cases, result_folder, write_result
     from ..io import atomic_write_text
     from ..metrics import compute_metrics
@@ -101,7 +109,7 @@ def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, 
     with result_folder(out, command="robot", name=result_name(sc), kind="run", force=force, log=log,
                        command_line=command) as written:
         sampled, limits, gravity, jacobian = prepared(sc)
-        bot = make_robot(sc, robot, faults) if isinstance(robot, str) else robot
+        bot = make_robot(sc, robot, faults, host) if isinstance(robot, str) else robot
         t0 = time.perf_counter()
         with bot:
             loop_log = run_loop(bot, sampled, limits, t_final=sc.simulation.t_final, gravity=gravity,
@@ -111,6 +119,8 @@ def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, 
         outcome = Outcome(cases=[case], trajectories={case.name: traj}, metrics={case.name: metrics},
                           designs={case.name: sampled.controller.summary()}, seconds=time.perf_counter() - t0)
         summary = {**loop_log.summary(), "limits": limits.summary()}
+        if callable(getattr(bot, "report", None)):
+            summary["device"] = bot.report()
         doc = write_result(written.path, sc, outcome, command=command, save_interval=sc.simulation.control_period,
                            extra={"robot": summary})
         atomic_write_text(written.path / "robot.log", "\n".join(loop_log.lines()) + "\n")
