@@ -18,8 +18,12 @@ the client's answer to the previous state. The protocol, the server's checks (co
 constraints, motion limits, torque rate) and the MuJoCo model are franka-sim's own.
 """
 
+import os
 import threading
 import time
+
+import mujoco
+import numpy as np
 
 from franka_sim import mujoco_franka_sim as _sim
 from franka_sim.server import state_stream as _stream
@@ -51,7 +55,36 @@ def _get_state_stepped(self):
             time.sleep(2e-5)
     with _lock:
         self.step(1)  # apply the newest command, one mj_step, publish the snapshot
+        if _truth is not None:
+            _record(self)
     return _get_state(self)
+
+
+#: ``HINFNN_FRANKA_SIM_TRUTH=path.npy``: the true contact force of every step is written there when
+#: the server stops (the test compares the robot's force estimate with it).
+_truth_path = os.environ.get("HINFNN_FRANKA_SIM_TRUTH")
+_truth = [] if _truth_path else None
+
+
+def _record(sim):
+    """One row per physics step: the contact force the tool exerts on the surface (world frame,
+    summed over the contacts) and q."""
+    m, d = sim.model, sim.data
+    force = np.zeros(3)
+    f6 = np.zeros(6)
+    for i in range(d.ncon):
+        c = d.contact[i]
+        mujoco.mj_contactForce(m, d, i, f6)
+        frame = np.asarray(c.frame).reshape(3, 3)  # rows: the contact normal (geom1 -> geom2) and tangents
+        on_geom2 = frame.T @ f6[:3]  # the force geom1 exerts on geom2 (world)
+        # the pair is (surface, tool tip): the force the tool exerts on the surface is the opposite
+        force -= on_geom2
+    _truth.append(np.concatenate([[d.time], force, d.qpos[sim.arm_qpos_adr]]))
+
+
+def _save_truth():
+    if _truth:
+        np.save(_truth_path, np.asarray(_truth))
 
 
 _transmit = _stream.StateStreamMixin.start_robot_state_transmission
@@ -91,6 +124,12 @@ _stream.StateStreamMixin.start_robot_state_transmission = _transmit_marked
 _patch_server()
 
 if __name__ == "__main__":
+    import atexit
+    import signal
+    import sys
+
     from franka_sim.run_server import main
 
+    atexit.register(_save_truth)
+    signal.signal(signal.SIGTERM, lambda *a: sys.exit(0))
     main()

@@ -48,6 +48,10 @@ TORQUE_RATE_LIMIT = 1000.0
 FORCE_SOURCES = ("auto", "robot", "observer")
 #: How long the move to the start pose holds q0 before it ends, s.
 SETTLE_TIME = 0.5
+#: The move to the start pose comes from this far off the surface (m, along its normal) ...
+APPROACH = 0.02
+#: ... in this long, s.
+APPROACH_TIME = 1.5
 #: Default bandwidth of the momentum observer, 1/s (time constant 10 ms).
 OBSERVER_GAIN = 100.0
 
@@ -88,6 +92,24 @@ def franka_sim_mjcf(scenario) -> str:
     return re.sub(r'<body name="([^"+]+)\+[^"]*"', r'<body name="\1"', xml)
 
 
+def _lifted(arm, surface, q0, distance: float) -> np.ndarray:
+    """The joint angles that put the tool point ``distance`` m off the nominal surface along its
+    normal at the start pose (the world's z where the surface has no Cartesian normal): three
+    Newton steps on the tool point from q0, minimum-norm in the joints."""
+    import jax
+    import jax.numpy as jnp
+
+    point, jac = jax.jit(arm.point), jax.jit(arm.point_jacobian)
+    p0 = np.asarray(point(jnp.asarray(q0)))
+    normal = getattr(surface, "normal", None)
+    n = np.asarray(normal(jnp.asarray(p0)), dtype=float) if callable(normal) else np.array([0.0, 0.0, -1.0])
+    target = p0 - distance * n / np.linalg.norm(n)  # the normal points into the material
+    q = np.array(q0, dtype=float)
+    for _ in range(3):
+        q = q + np.linalg.pinv(np.asarray(jac(jnp.asarray(q)))) @ (target - np.asarray(point(jnp.asarray(q))))
+    return q
+
+
 class FrankaRobot(Robot):
     """A Franka through ``pylibfranka``: ``FrankaRobot(scenario, host="127.0.0.1", ...)``.
 
@@ -106,7 +128,7 @@ class FrankaRobot(Robot):
     period = PERIOD
 
     def __init__(self, scenario, host: str = "127.0.0.1", *, force_source: str = "auto",
-                 observer_gain: float = OBSERVER_GAIN, move_to_start: bool = True, move_speed: float = 0.3,
+                 observer_gain: float = OBSERVER_GAIN, observer_armature=0.0, move_to_start: bool = True, move_speed: float = 0.3,
                  start_tolerance: float = 1e-3, realtime: str = "ignore", collision_torque: float = 100.0,
                  collision_force: float = 100.0):
         require_sampled(scenario)
@@ -139,7 +161,8 @@ class FrankaRobot(Robot):
         effort = None if chain is None else np.asarray(chain.effort_limit, dtype=float)
         self.effort = np.where(np.isfinite(effort) & (effort > 0), effort, np.inf) if effort is not None \
             else np.full(7, np.inf)
-        self.observer = MomentumObserver(arm, observer_gain)  # compiled here, before any connection
+        self.q_above = _lifted(arm, setup.nominal_surface, self.q0, APPROACH)
+        self.observer = MomentumObserver(arm, observer_gain, observer_armature)  # compiled here, before any connection
         self._pf = self._robot = self._ctrl = None
         self._reset()
 
@@ -189,23 +212,26 @@ class FrankaRobot(Robot):
         self._first = self._reading(state, 0.0)
 
     def _move(self, q) -> None:
-        """Joint position motion from q to q0 (libfranka's joint impedance controller), then wait
-        until the arm is still."""
+        """Joint position motions (libfranka's joint impedance controller): from q to
+        :attr:`q_above` (the start pose lifted by :data:`APPROACH` off the surface, in free space),
+        then down to q0 in :data:`APPROACH_TIME`, q0 then held for :data:`SETTLE_TIME`."""
         pf = self._pf
-        dq = self.q0 - q
-        T = max(1.0, 1.875 * float(np.max(np.abs(dq))) / self.move_speed)
-        self.moved = float(np.max(np.abs(dq)))
+        self.moved = float(np.max(np.abs(self.q0 - q)))
         ctrl = self._robot.start_joint_position_control(pf.ControllerMode.JointImpedance)
-        t = 0.0
-        while True:  # the motion, then q0 held for SETTLE_TIME (the joint servo's lag closed before the job)
-            _, d = ctrl.readOnce()
-            t += d.to_sec()
-            cmd = pf.JointPositions(list(q + dq * quintic(t / T)))
-            if t >= T + SETTLE_TIME:
-                cmd.motion_finished = True
+        legs = [(q, self.q_above, max(1.0, 1.875 * float(np.max(np.abs(self.q_above - q))) / self.move_speed), 0.0),
+                (self.q_above, self.q0, APPROACH_TIME, SETTLE_TIME)]
+        for i, (a, b, T, hold) in enumerate(legs):
+            t = 0.0
+            while True:
+                _, d = ctrl.readOnce()
+                t += d.to_sec()
+                cmd = pf.JointPositions(list(a + (b - a) * quintic(t / T)))
+                if t >= T + hold:
+                    if i == len(legs) - 1:
+                        cmd.motion_finished = True
+                    ctrl.writeOnce(cmd)
+                    break
                 ctrl.writeOnce(cmd)
-                break
-            ctrl.writeOnce(cmd)
 
     def read(self) -> Reading:
         """The next robot state as a :class:`~hinfnn.robot.Reading` (blocks until it comes)."""

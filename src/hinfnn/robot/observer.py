@@ -45,9 +45,12 @@ class ObserverState:
 
 
 class MomentumObserver:
-    """``MomentumObserver(arm, gain)``: the generalized-momentum observer of module docstring on the
-    nominal ``arm`` (a :class:`hinfnn.model.arm.Arm`: M, C, G and the tool point's Jacobian),
-    ``gain`` K_O in 1/s (the residual's bandwidth; K_O h must stay below 1 at the sample period h).
+    """``MomentumObserver(arm, gain, armature=0)``: the generalized-momentum observer of module
+    docstring on the nominal ``arm`` (a :class:`hinfnn.model.arm.Arm`: M, C, G and the tool point's
+    Jacobian), ``gain`` K_O in 1/s (the residual's bandwidth; K_O h must stay below 1 at the sample
+    period h), ``armature``: the motors' reflected inertia per joint (kg·m², a number or one per
+    joint) added to M̂'s diagonal: a URDF does not hold it, and the observer would read it, times
+    q̈, as an external torque.
 
     ``init()`` gives the state; ``step(state, q, qd, tau_net, h)`` advances it to a new sample
     and returns ``(state, force, r, G)``: the estimated contact force the tool exerts (d,), the
@@ -55,7 +58,7 @@ class MomentumObserver:
     the previous sample, τ − G (for a gravity-compensating robot, the torque written to it).
     """
 
-    def __init__(self, arm, gain: float = 100.0):
+    def __init__(self, arm, gain: float = 100.0, armature=0.0):
         import jax
         import jax.numpy as jnp
 
@@ -65,9 +68,14 @@ class MomentumObserver:
         self.arm, self.gain = arm, gain
         self.n = int(arm.n)
         self.d = int(arm.space_dim)
+        a = np.broadcast_to(np.asarray(armature, dtype=float), (self.n,)).copy() if np.size(armature) in (1, self.n) \
+            else None
+        if a is None or not np.all(np.isfinite(a)) or np.any(a < 0):
+            raise ConfigError(f"must be a number or {self.n} numbers >= 0 (kg m^2), got {armature!r}", key="armature")
+        self.armature = a
 
         def momentum_terms(q, qd):
-            M = arm.M(q)
+            M = arm.M(q) + jnp.diag(a)  # the motors' reflected inertia (constant: Ṁ and Ĉ unchanged)
             ctq = arm.M_dot(q, qd) @ qd - arm.C_times(q, qd, qd)  # Ĉᵀq̇ = Ṁq̇ − Ĉq̇ (Ṁ = Ĉ + Ĉᵀ)
             return M @ qd, ctq, arm.G(q), arm.point_jacobian(q)
 
