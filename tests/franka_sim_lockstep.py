@@ -60,8 +60,8 @@ def _get_state_stepped(self):
     return _get_state(self)
 
 
-#: ``HINFNN_FRANKA_SIM_TRUTH=path.npy``: the true contact force of every step is written there when
-#: the server stops (the test compares the robot's force estimate with it).
+#: ``HINFNN_FRANKA_SIM_TRUTH=path.npy``: the true contact force of every step so far is written there
+#: at the end of each motion (the test compares the robot's force estimate with it).
 _truth_path = os.environ.get("HINFNN_FRANKA_SIM_TRUTH")
 _truth = [] if _truth_path else None
 
@@ -84,7 +84,9 @@ def _record(sim):
 
 def _save_truth():
     if _truth:
-        np.save(_truth_path, np.asarray(_truth))
+        tmp = _truth_path + ".part.npy"
+        np.save(tmp, np.asarray(_truth))
+        os.replace(tmp, _truth_path)
 
 
 _transmit = _stream.StateStreamMixin.start_robot_state_transmission
@@ -112,7 +114,10 @@ def _patch_server():
 
     def finished(self, command, *args, **kwargs):
         self._hinfnn_streaming = False
-        return finish(self, command, *args, **kwargs)
+        out = finish(self, command, *args, **kwargs)
+        with _lock:
+            _save_truth()
+        return out
 
     cls._dispatch_control_command = dispatched
     cls._finish_motion = finished
@@ -124,12 +129,6 @@ _stream.StateStreamMixin.start_robot_state_transmission = _transmit_marked
 _patch_server()
 
 if __name__ == "__main__":
-    import atexit
-    import signal
-    import sys
-
     from franka_sim.run_server import main
 
-    atexit.register(_save_truth)
-    signal.signal(signal.SIGTERM, lambda *a: sys.exit(0))
     main()

@@ -128,7 +128,8 @@ class FrankaRobot(Robot):
     period = PERIOD
 
     def __init__(self, scenario, host: str = "127.0.0.1", *, force_source: str = "auto",
-                 observer_gain: float = OBSERVER_GAIN, observer_armature=0.0, move_to_start: bool = True, move_speed: float = 0.3,
+                 observer_gain: float = OBSERVER_GAIN, observer_armature=0.0, move_to_start: bool = True,
+                 move_speed: float = 0.5,
                  start_tolerance: float = 1e-3, realtime: str = "ignore", collision_torque: float = 100.0,
                  collision_force: float = 100.0):
         require_sampled(scenario)
@@ -176,7 +177,7 @@ class FrankaRobot(Robot):
         self.torque_clamped = 0  # writes clamped to the effort limits
         self.moved = 0.0        # largest joint motion of the move to the start pose, rad
         self.force_sources = {"robot": 0, "observer": 0}
-        self.success_rate_min = math.nan  # lowest control_command_success_rate seen
+        self.success_rate_min = math.nan  # lowest control_command_success_rate seen (from the 100th write on)
         self.written = 0
 
     # --- Robot ------------------------------------------------------------------------------------
@@ -257,8 +258,8 @@ class FrankaRobot(Robot):
         if use_robot:
             force = wrench
         self.force_sources["robot" if use_robot else "observer"] += 1
-        rate = float(state.control_command_success_rate)
-        if self.written > 0 and not rate >= self.success_rate_min:  # NaN-safe minimum, from the first write on
+        rate = float(state.control_command_success_rate)  # over the last 100 ticks: judged once 100 writes went
+        if self.written >= 100 and not rate >= self.success_rate_min:
             self.success_rate_min = rate
         missed = max(0, int(round(dt / PERIOD)) - 1)
         return Reading(t=self._t, q=q, qd=qd, force=np.asarray(force, dtype=float), missed=missed, wall=wall)

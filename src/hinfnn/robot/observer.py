@@ -87,7 +87,8 @@ class MomentumObserver:
             p0 = jnp.where(first, p, p0)
             integral = jnp.where(first, jnp.zeros_like(p), integral + h * (tau_net + ctq_prev + r))
             r = gain * (p - p0 - integral)
-            force = -jnp.linalg.solve(Jp @ Jp.T, Jp @ r)  # F = −pinv(J_pᵀ) r (J_p of full row rank): the tool's force
+            # F = −pinv(J_pᵀ) r (J_p of full row rank): the force the tool exerts
+            force = -jnp.linalg.solve(Jp @ Jp.T, Jp @ r)
             return p0, integral, r, ctq, force, G
 
         self._step = jax.jit(step)
