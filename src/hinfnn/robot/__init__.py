@@ -6,14 +6,19 @@ and a :class:`VirtualRobot` (docs/robot.md).
   safety layer (:mod:`hinfnn.robot.safety`), latency and lateness of every cycle;
 * :func:`run_robot` — a scenario on a robot, written as a result folder (``hinfnn robot run``);
 * :class:`VirtualRobot`, :class:`Fault` — the scenario's MuJoCo plant in its own process, in real
-  time, with faults to inject.
+  time, with faults to inject;
+* :class:`FrankaRobot` — a Franka through libfranka's ``pylibfranka`` (imported when it starts);
+* :class:`MomentumObserver` — the contact force from q, q̇ and the torques, without a force sensor.
 """
 
 from .base import Reading, Robot
 from .loop import LoopLog, run_loop, trajectory
 from .run import ROBOTS, RobotRunResult, run_robot, safety_limits
 from .safety import RULES, Event, SafetyLimits
+from .franka import FrankaRobot
+from .observer import MomentumObserver
 from .virtual import FAULTS, Fault, VirtualRobot
 
 __all__ = ["Reading", "Robot", "LoopLog", "run_loop", "trajectory", "ROBOTS", "RobotRunResult", "run_robot",
-           "safety_limits", "RULES", "Event", "SafetyLimits", "FAULTS", "Fault", "VirtualRobot"]
+           "safety_limits", "RULES", "Event", "SafetyLimits", "FAULTS", "Fault", "VirtualRobot", "FrankaRobot",
+           "MomentumObserver"]
