@@ -116,7 +116,8 @@ class FrankaRobot(Robot):
     ``scenario``: a single-controller :class:`~hinfnn.scenario.Scenario` with a 7-joint nominal arm,
     ``simulation.control = "sampled"`` and ``simulation.control_period = 0.001`` (ConfigError naming
     the key otherwise). ``force_source``, ``observer_gain`` (1/s): the contact force (module
-    docstring). ``move_to_start``: move the arm to the scenario's start pose q0 first when it is
+    docstring; ``observer_armature``: the motors' reflected inertia per joint, kg·m², when known).
+    ``move_to_start``: move the arm to the scenario's start pose q0 first when it is
     more than ``start_tolerance`` rad away on a joint (a quintic joint motion at most
     ``move_speed`` rad/s); False: a ConfigError naming ``initial.u1`` instead. ``realtime``:
     libfranka's real-time scheduling check (``"ignore"``, as for a simulator or a machine without
@@ -129,9 +130,8 @@ class FrankaRobot(Robot):
 
     def __init__(self, scenario, host: str = "127.0.0.1", *, force_source: str = "auto",
                  observer_gain: float = OBSERVER_GAIN, observer_armature=0.0, move_to_start: bool = True,
-                 move_speed: float = 0.5,
-                 start_tolerance: float = 1e-3, realtime: str = "ignore", collision_torque: float = 100.0,
-                 collision_force: float = 100.0):
+                 move_speed: float = 0.5, start_tolerance: float = 1e-3, realtime: str = "ignore",
+                 collision_torque: float = 100.0, collision_force: float = 100.0):
         require_sampled(scenario)
         if abs(scenario.simulation.control_period - PERIOD) > 1e-12:
             raise ConfigError(f"a Franka is controlled at 1 kHz: set simulation.control_period = 0.001, got "
@@ -163,7 +163,8 @@ class FrankaRobot(Robot):
         self.effort = np.where(np.isfinite(effort) & (effort > 0), effort, np.inf) if effort is not None \
             else np.full(7, np.inf)
         self.q_above = _lifted(arm, setup.nominal_surface, self.q0, APPROACH)
-        self.observer = MomentumObserver(arm, observer_gain, observer_armature)  # compiled here, before any connection
+        # compiled here, before any connection
+        self.observer = MomentumObserver(arm, observer_gain, observer_armature)
         self._pf = self._robot = self._ctrl = None
         self._reset()
 
