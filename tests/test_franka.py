@@ -40,7 +40,8 @@ def test_momentum_observer_recovers_a_known_tool_force():
     and a wobble through ZOH torques at 1 kHz, with a constant force of the surface on its tool
     point: integrated by RK4 at 0.1 ms (the oracle); the observer (K_O = 100/s) on the 1 kHz samples
     of q, q̇ and the written torque recovers the force the tool exerts, −F_robot, to 1 % of |F| once
-    its 10 ms lag has passed (5 time constants), while the arm moves at up to 0.3 rad/s."""
+    its 10 ms lag has passed (5 time constants), while the arm moves (up to 0.75 rad/s; measured: 0.032 N
+    of 8.5 N)."""
     import jax
     import jax.numpy as jnp
 
@@ -87,6 +88,8 @@ def test_momentum_observer_recovers_a_known_tool_force():
         speeds.append(float(np.max(np.abs(qd))))
         q, qd = (np.asarray(a) for a in period(q, qd, tau))
     errors = np.asarray(errors)
+    print(f"observer error after 50 ms: max {np.max(errors[50:]):.3g} N of |F| = {float(jnp.linalg.norm(F_robot)):.3g} N; "
+          f"fastest joint {max(speeds):.3g} rad/s")
     assert errors[0] > 0.5 * float(jnp.linalg.norm(F_robot))  # it starts from zero: the check can fail
     assert np.max(errors[50:]) < 0.01 * float(jnp.linalg.norm(F_robot)), np.max(errors[50:])
     assert max(speeds) > 0.05  # the arm moved
