@@ -374,11 +374,12 @@ def _execute(spec, manifest, by_id, ready, folder, be, n_joints, progress, log, 
 
 
 def outcome_counts(rows: list[dict], controllers) -> dict:
-    """Per controller: runs, invalid, simulated, bounded, held_contact, diverged."""
-    out = {k: dict(runs=0, invalid=0, simulated=0, bounded=0, held_contact=0, diverged=0) for k in controllers}
+    """Per controller: runs, invalid, simulated, bounded, held_contact, did_its_job, diverged."""
+    out = {k: dict(runs=0, invalid=0, simulated=0, bounded=0, held_contact=0, did_its_job=0, diverged=0)
+           for k in controllers}
     for r in rows:
         c = out.setdefault(r["controller"], dict(runs=0, invalid=0, simulated=0, bounded=0, held_contact=0,
-                                                  diverged=0))
+                                                  did_its_job=0, diverged=0))
         c["runs"] += 1
         if r["status"] == "invalid":
             c["invalid"] += 1
@@ -386,6 +387,7 @@ def outcome_counts(rows: list[dict], controllers) -> dict:
         c["simulated"] += 1
         c["bounded"] += bool(r["bounded"])
         c["held_contact"] += bool(r["held_contact"])
+        c["did_its_job"] += bool(r.get("did_its_job"))
         c["diverged"] += r["status"] == "diverged"
     return out
 
