@@ -113,11 +113,46 @@ def range_notes(spec) -> list[str]:
                 f"[{smin:g}, {smax:g}] N/m (controller.force_rate.stiffness_min/max)")
         if limit:
             period = d.get("period")
-            held = "holds" if hi <= limit else "cannot hold the draws above it"
-            text += (f"; at the control period {period:g} s the design holds contacts up to {limit:.3g} N/m "
-                     f"({held}: the largest range it can hold is [{min(lo, smin):g}, {limit:.3g}] N/m)")
+            own = stiffest_held(d, spec.base.controller.gains)
+            text += (f"; under sampled control at {period:g} s its κ = {float(d['kappa']):.3g} s keeps the contact "
+                     f"mode stable with ζ >= {SAMPLED_ZETA_MIN():g} up to {own:.3g} N/m, and a design for a wider "
+                     f"range holds at most [{smin:g}, {limit:.3g}] N/m at this period"
+                     + (" (the declared range is wider: the draws above it cannot be held)" if hi > limit else
+                        " (set controller.force_rate.stiffness_max to the declared range)"))
         notes.append(text)
     return notes
+
+
+def SAMPLED_ZETA_MIN() -> float:  # noqa: N802 - the design's constant, read where it is defined
+    from ..controllers.force_rate import SAMPLED_ZETA_MIN as z
+
+    return z
+
+
+def stiffest_held(design: dict, gains) -> float:
+    """The stiffest contact (N/m) at which a sampled force-rate design's own κ keeps the sampled
+    force loop stable with a damping ratio of at least the design's minimum
+    (:func:`hinfnn.controllers.force_rate.sampled_damping`, at the lightest pose of the path; the
+    design's lower stiffness when even that fails)."""
+    from ..controllers.force_rate import jury_window, sampled_damping
+
+    h, mn, kap = float(design["period"]), float(design["m_n_min"]), float(design["kappa"])
+    g_P = float(design["K_prime"]) - 1.0
+    mu_z, alpha_z = float(gains.mu_z), float(gains.alpha_z)
+
+    def ok(k):
+        x = math.sqrt(k / mn) * h
+        w = jury_window(x, g_P, h)
+        return w is not None and w[0] < kap < w[1] and sampled_damping(x, g_P, kap, h, mu_z, alpha_z)[1] >= \
+            SAMPLED_ZETA_MIN()
+
+    lo, hi = float(design["stiffness_min"]), 1e10
+    if not ok(lo):
+        return lo
+    for _ in range(80):
+        mid = math.sqrt(lo * hi)
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return lo
 
 
 def require_holdable(scenario, kind: str, lo: float, hi: float) -> None:
@@ -383,6 +418,32 @@ def _to_unit(values: dict, knobs) -> np.ndarray:
     return np.array([(math.log(values[k.name]) - math.log(k.lo)) / (math.log(k.hi) - math.log(k.lo)) for k in knobs])
 
 
+def cross_entropy(objective: Callable, start, *, generations: int, population: int, seed: int, std: float = 0.25,
+                  elite: float = 0.25, smoothing: float = 0.7, min_std: float = 0.04):
+    """Maximise ``objective(points, generation) -> scores`` over the unit box by a seeded
+    cross-entropy method: each generation evaluates the current mean and ``population − 1``
+    Gaussian samples around it (clipped to [0, 1]) as one call, then moves the mean and the
+    spread towards the best ``elite`` share (at least two; candidates scored −1, refused, are
+    never elite) with ``smoothing``. Returns (best point, best score); the same seed gives the same
+    points."""
+    rng = np.random.default_rng(seed)
+    mean = np.clip(np.asarray(start, dtype=float), 0.0, 1.0)
+    sd = np.full(mean.shape, float(std))
+    best_u, best_s = mean, -math.inf
+    for g in range(1, generations + 1):
+        us = [mean] + [np.clip(mean + sd * rng.standard_normal(mean.shape), 0.0, 1.0) for _ in range(population - 1)]
+        scores = list(objective(us, g))
+        ranked = sorted(range(len(us)), key=lambda i: -scores[i])
+        for i in ranked[:1]:
+            if scores[i] > best_s:
+                best_u, best_s = us[i], scores[i]
+        top = [us[i] for i in ranked[:max(2, int(round(population * elite)))] if scores[i] > -1.0]
+        if top:
+            mean = (1 - smoothing) * mean + smoothing * np.mean(top, axis=0)
+            sd = np.maximum((1 - smoothing) * sd + smoothing * np.std(top, axis=0), min_std)
+    return best_u, best_s
+
+
 def tune(spec, *, kind: str | None = None, knobs=KNOB_NAMES, draws: int = 16, held_out: int = 64,
          generations: int = 4, population: int = 8, seed: int = 0, t_final: float | None = None,
          log: Callable[[str], None] | None = None) -> TuneResult:
@@ -446,34 +507,32 @@ def tune(spec, *, kind: str | None = None, knobs=KNOB_NAMES, draws: int = 16, he
     run_generation([base_cand], tdraws, t_final)
     history.append(base_cand)
     log(f"base design: {base_cand.done}/{base_cand.judged} tuning draws did their job (score {base_cand.score:.4f})")
-    rng = np.random.default_rng(seed)
     start = {k.name: 1.0 for k in use}
     if "zeta" in start:
         start["zeta"] = base_values.get("zeta") or 0.7
-    mean = np.clip(_to_unit(start, use), 0.0, 1.0)
-    std = np.full(len(use), 0.25)
     best = base_cand
-    for g in range(generations):
-        us = [mean] + [np.clip(mean + std * rng.standard_normal(len(use)), 0.0, 1.0) for _ in range(population - 1)]
+
+    def objective(us, g):
+        nonlocal best
         cands = []
         for u in us:
             vals = _to_values(u, use)
-            cands.append(Candidate(values=vals, overrides=candidate_overrides(base, vals, stiffness), generation=g + 1))
+            cands.append(Candidate(values=vals, overrides=candidate_overrides(base, vals, stiffness), generation=g))
         run_generation(cands, tdraws, t_final)
-        history += cands
-        ranked = sorted(range(len(cands)), key=lambda i: -cands[i].score)
-        elite = [us[i] for i in ranked[:max(2, population // 4)] if cands[i].error is None]
-        if elite:
-            mean = 0.3 * mean + 0.7 * np.mean(elite, axis=0)
-            std = np.maximum(0.3 * std + 0.7 * np.std(elite, axis=0), 0.04)
-        top = cands[ranked[0]]
+        history.extend(cands)
+        top = max(cands, key=lambda c: c.score)
         if top.score > best.score:
             best = top
-        log(f"generation {g + 1}: best {top.done}/{top.judged} ({top.score:.4f}) at "
+        log(f"generation {g}: best {top.done}/{top.judged} ({top.score:.4f}) at "
             + ", ".join(f"{k}={v:.3g}" for k, v in top.values.items())
             + f"; {sum(c.error is not None for c in cands)} refused by the design")
+        return [c.score for c in cands]
+
+    if use and generations:
+        cross_entropy(objective, np.clip(_to_unit(start, use), 0.0, 1.0), generations=generations,
+                      population=population, seed=seed)
     # held out: the base and the best at the scenario's horizon
-    hdraws = build_draws(spec, kind, range(draws, draws + held_out), base) if held_out else Draws(*[[]] * 6)
+    hdraws = build_draws(spec, kind, range(draws, draws + held_out), base) if held_out else Draws([], [], [], [], [], [])
     before = after = []
     if hdraws.plants:
         ctrl_b = base.single(kind).build_controller(kind)
@@ -490,4 +549,4 @@ def tune(spec, *, kind: str | None = None, knobs=KNOB_NAMES, draws: int = 16, he
 
 
 __all__ = ["declared_range", "range_notes", "require_holdable", "Knob", "KNOBS", "KNOB_NAMES", "candidate_overrides",
-           "build_draws", "evaluate", "score", "tune", "TuneResult", "Candidate", "Outcome", "Draws", "STIFFNESS_KEY"]
+           "stiffest_held", "build_draws", "evaluate", "score", "cross_entropy", "tune", "TuneResult", "Candidate", "Outcome", "Draws", "STIFFNESS_KEY"]
