@@ -352,7 +352,7 @@ def _outcome(m: dict, status: int, tol: dict, coords) -> Outcome:
     tracked = bool(v["tracking_within_tolerance"])
     done = bool(bounded and held is not False and tracked)
     if not bounded:
-        return Outcome(False, held, False, False, 10.0 + (1.0 - float(m.get("t_end", 0.0)) / 1e3))
+        return Outcome(False, held, False, False, 10.0)
     ratios = []
     for (name, unit), e in zip(coords or [], m["rms_e_u1_each_last2s"]):
         ratios.append(e / (tol["angle_tolerance"] if unit == "rad" else tol["position_tolerance"]))
@@ -473,8 +473,8 @@ def tune(spec, *, kind: str | None = None, knobs=KNOB_NAMES, draws: int = 16, he
     stiffness = declared_range(spec, STIFFNESS_KEY)
     if stiffness is not None and not all(math.isfinite(x) for x in stiffness):
         stiffness = None
-    if stiffness is not None and "zeta" in knobs:
-        require_holdable(base, kind, *stiffness)  # before anything runs
+    if stiffness is not None:
+        require_holdable(base, kind, *stiffness)  # before anything runs: a range no design holds is refused
 
     base_values = {}
     if "zeta" in knobs:
