@@ -68,6 +68,9 @@ def main(args) -> int:
             pct = (lambda k: f"{100 * k / n:.1f} %") if n else (lambda k: "-")
             print(f"{KINDS[kind].label if kind in KINDS else kind:<16} {c['runs']:>6} {c['invalid']:>8} {n:>10} "
                   f"{pct(c['bounded']):>9} {pct(c['held_contact']):>13} {pct(c.get('did_its_job', 0)):>12}")
+            if c.get("not_judged"):
+                print(f"{'':<16} contact not judged in {c['not_judged']} bounded run(s): they end before "
+                      "verdict.contact_after")
         if res.simulated_now:
             print(f"{res.simulated_now} runs simulated in {res.run_wall_s:.1f} s ({res.runs_per_s:.2f} runs/s, "
                   f"{res.backend} backend, compilation included)"

@@ -388,6 +388,7 @@ def outcome_counts(rows: list[dict], controllers) -> dict:
         c["bounded"] += bool(r["bounded"])
         c["held_contact"] += bool(r["held_contact"])
         c["did_its_job"] += bool(r.get("did_its_job"))
+        c["not_judged"] = c.get("not_judged", 0) + (r["bounded"] and r["held_contact"] is None)
         c["diverged"] += r["status"] == "diverged"
     return out
 
