@@ -136,3 +136,18 @@ def test_design_tune_writes_a_scenario_that_reproduces_the_tuned_design(tmp_path
     g1, g2 = loaded.build_controller("hinf").gains, expected.build_controller("hinf").gains
     for f in ("K_p", "K_v", "alpha_lam", "beta_lam", "Q_p"):
         assert np.array_equal(np.asarray(getattr(g1, f)), np.asarray(getattr(g2, f))), f
+
+
+def test_the_sweep_warns_before_it_runs_plants_the_design_was_not_made_for(tmp_path, capsys, monkeypatch):
+    from hinfnn.errors import ConfigError
+    from hinfnn.sweep import run as sweep_run
+
+    def stop(*args, **kwargs):
+        raise ConfigError("stopped here", key="--test")
+
+    monkeypatch.setattr(sweep_run, "run_sweep", stop)  # nothing runs: the warning comes first
+    (tmp_path / "s.toml").write_text(textwrap.dedent(SAMPLED))
+    assert cli.main(["sweep", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    warning = err.index("hinfnn sweep: warning: plant.contact.stiffness: the spec draws [10000, 1e+07] N/m")
+    assert warning < err.index("stopped here") and "holds at most [10000, " in err
