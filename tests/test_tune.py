@@ -93,10 +93,11 @@ def test_a_range_the_design_cannot_hold_is_named_before_anything_runs(tmp_path, 
     notes = range_notes(spec)
     assert len(notes) == 1 and notes[0].startswith("plant.contact.stiffness: the spec draws [10000, 1e+07] N/m")
     assert "design is for [10000, 100000] N/m" in notes[0] and "cannot be held" in notes[0]
+    assert "damps the softest contact only with ζ = " in notes[0]
     with pytest.raises(DesignError) as err:
         require_holdable(spec.base, "hinf_nn", 1e4, 1e7)
     assert err.value.key == "plant.contact.stiffness" and 1e5 < err.value.bound < 1e7
-    assert f"[10000, {err.value.bound:.3g}] N/m" in str(err.value)
+    assert f"at most [10000, {err.value.bound:.3g}] N/m" in str(err.value)
     require_holdable(spec.base, "hinf_nn", 1e4, 0.9 * err.value.bound)  # inside: accepted
     # the command refuses it with exit 2, before any run (nothing is written)
     (tmp_path / "s.toml").write_text(textwrap.dedent(SAMPLED))
@@ -150,4 +151,4 @@ def test_the_sweep_warns_before_it_runs_plants_the_design_was_not_made_for(tmp_p
     assert cli.main(["sweep", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     warning = err.index("hinfnn sweep: warning: plant.contact.stiffness: the spec draws [10000, 1e+07] N/m")
-    assert warning < err.index("stopped here") and "holds at most [10000, " in err
+    assert warning < err.index("stopped here") and "no design at this period keeps contacts stiffer than" in err

@@ -115,12 +115,30 @@ def range_notes(spec) -> list[str]:
             period = d.get("period")
             own = stiffest_held(d, spec.base.controller.gains)
             text += (f"; under sampled control at {period:g} s its κ = {float(d['kappa']):.3g} s keeps the contact "
-                     f"mode stable with ζ >= {SAMPLED_ZETA_MIN():g} up to {own:.3g} N/m, and a design for a wider "
-                     f"range holds at most [{smin:g}, {limit:.3g}] N/m at this period"
+                     f"mode stable with ζ >= {SAMPLED_ZETA_MIN():g} up to {own:.3g} N/m, and no design at this period "
+                     f"keeps contacts stiffer than {limit:.3g} N/m stable"
                      + (" (the declared range is wider: the draws above it cannot be held)" if hi > limit else
                         " (set controller.force_rate.stiffness_max to the declared range)"))
+            wide = _softest_zeta(spec.base, kind, max(lo, smin) if lo > 0 else smin, min(hi, 0.999 * limit))
+            if wide is not None:
+                text += (f"; a design up to {min(hi, 0.999 * limit):.3g} N/m has a smaller κ = {wide[0]:.3g} s that damps "
+                         f"the softest contact only with ζ = {wide[1]:.2f} (the shipped design: "
+                         f"{float(d['zeta_softest']):.2f}; docs/sweeps.md measured soft contacts stopping below "
+                         "about 0.25)")
         notes.append(text)
     return notes
+
+
+def _softest_zeta(scenario, kind: str, lo: float, hi: float):
+    """(κ, ζ at the softest contact) of the force-rate design for [lo, hi], or None when the
+    design refuses it."""
+    over = {"controller.force_rate.stiffness_min": lo, "controller.force_rate.stiffness_max": hi,
+            "controller.force_rate.kappa": "rule"}
+    try:
+        d = _force_rate_design(scenario.single(kind).with_overrides(over), kind)
+    except HinfnnError:
+        return None
+    return None if d is None else (float(d["kappa"]), float(d["zeta_softest"]))
 
 
 def SAMPLED_ZETA_MIN() -> float:  # noqa: N802 - the design's constant, read where it is defined
@@ -171,9 +189,9 @@ def require_holdable(scenario, kind: str, lo: float, hi: float) -> None:
         if bound is None:
             raise
         raise DesignError(f"the spec declares contacts up to {hi:g} N/m, which no force-rate design holds at the "
-                          f"control period {period:g} s: the largest range the design can hold there is "
-                          f"[{lo:g}, {bound:.3g}] N/m (narrow the spec's {STIFFNESS_KEY}, or shorten "
-                          f"simulation.control_period). The design said: {err}", key=STIFFNESS_KEY, value=hi,
+                          f"control period {period:g} s: the largest range a design can hold there is at most "
+                          f"[{lo:g}, {bound:.3g}] N/m, its soft end then barely damped (narrow the spec's "
+                          f"{STIFFNESS_KEY}, or shorten simulation.control_period). The design said: {err}", key=STIFFNESS_KEY, value=hi,
                           bound=bound) from None
 
 
