@@ -179,7 +179,7 @@ PRINTS = {
     "gallery": r"^report: (?P<folder>\S+)/report\.md",
     "design": r"^\w+: terms .*\n  gains: K_p .*\n(.*\n)*  P_p \[",
     "compare": r"^results: (?P<folder>\S+)/ \(compare\.md",
-    "sweep": r"^controller +runs +invalid +simulated +bounded +held contact\n(.*\n)+^results: (?P<folder>\S+)/ "
+    "sweep": r"^controller +runs +invalid +simulated +bounded +held contact +did its job\n(.*\n)+^results: (?P<folder>\S+)/ "
              r"\(results\.parquet",
     "sweep --list": (r"^paper-uncertainty +\S", r"^paper-map +\S"),
     "keys": r"^plant\.contact\.stiffness +\S",

@@ -322,7 +322,7 @@ def test_table_has_one_row_per_run_with_every_metric(small):
     assert len(df) == 4 and list(df["run"]) == [0, 1, 2, 3]
     assert df.attrs["complete"] and (df["status"] == "ok").all()
     for col in ["plant.arm.m1", "plant.contact.damping", "controller", "status", "reason", "t_fail",
-                *metric_columns(2), "bounded", "held_contact"]:
+                *metric_columns(2), "bounded", "held_contact", "out_of_contact_after", "tracked", "did_its_job"]:
         assert col in df.columns, col
     assert df["dissipation_holds"].dtype == "boolean"
     manifest = json.loads((folder / "manifest.json").read_text())
@@ -370,6 +370,14 @@ def test_resume_after_an_interruption_gives_the_same_table(small, tmp_path):
     other = dataclasses.replace(spec, seed=4)
     with pytest.raises(ConfigError, match="different sweep"):
         run_sweep(other, folder, resume=True)
+    # a sweep written in the older table format (held_contact over the whole run) is read, never resumed
+    manifest_path = folder / "manifest.json"
+    manifest = json.loads(manifest_path.read_text())
+    manifest_path.write_text(json.dumps({**manifest, "format": "hinfnn-sweep-1"}))
+    assert len(H.load_sweep(folder)) == 2
+    with pytest.raises(ConfigError, match="older format 'hinfnn-sweep-1'"):
+        run_sweep(spec, folder, resume=True)
+    manifest_path.write_text(json.dumps(manifest))
     res = run_sweep(spec, folder, resume=True, report=False)
     assert res.simulated_now == 2 and res.already_done == 2
     pd.testing.assert_frame_equal(H.load_sweep(folder), whole, check_exact=True)
@@ -400,7 +408,8 @@ def test_diverged_and_invalid_members_are_rows_not_crashes(tmp_path):
     c = res.counts["hinf"]
     assert (c["runs"], c["invalid"], c["simulated"], c["bounded"], c["diverged"]) == (4, 2, 2, 1, 1)
     ok = df.iloc[0]
-    assert ok["held_contact"] == (ok["fraction_out_of_contact"] <= spec.max_out_of_contact)
+    # contact is judged after the verdict's contact_after (0.5 s): a 0.05-s run is not judged
+    assert pd.isna(ok["held_contact"]) and pd.isna(ok["did_its_job"]) and np.isnan(ok["out_of_contact_after"])
     report = (tmp_path / "g" / "report.md").read_text()
     assert "| H∞-only | 4 | 2 | 2 | 50.0 %" in report and "`initial.u1` 2" in report
     import matplotlib.image

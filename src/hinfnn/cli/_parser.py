@@ -178,9 +178,30 @@ def _parser() -> argparse.ArgumentParser:
                     "the force-rate term's design, and the linearised contact mode (frequency, damping ratio) at the "
                     "scenario's contact stiffness with and without the force-rate term.",
         epilog="examples:\n  hinfnn design paper\n  hinfnn design paper-stable --set controller.kind=hinf\n"
-               "  hinfnn design paper --json > design.json\n")
-    d.add_argument("scenario", help="shipped scenario name or path to a .toml file")
+               "  hinfnn design paper --json > design.json\n"
+               "  hinfnn design --tune ur5-table-uncertainty --tune-t-final 4 --out results/tuned\n")
+    d.add_argument("scenario", nargs="?", default=None,
+                   help="shipped scenario name or path to a .toml file (with --tune: default the spec's scenario)")
     d.add_argument("--json", action="store_true", help="print the design as JSON")
+    d.add_argument("--tune", default=None, metavar="SPEC",
+                   help="tune the gains over the uncertainty a sweep spec declares (its draws of the truth): a seeded "
+                        "cross-entropy search maximising the share of draws that did their job, then the base and "
+                        "tuned designs on held-out draws; writes OUT/scenario.toml, report.md, tune.json, design.txt")
+    d.add_argument("--out", default=None, metavar="DIR", help="with --tune: output folder (default: "
+                                                               "results/designs/<spec>-<UTC time>)")
+    d.add_argument("--force", action="store_true", help="with --tune: replace OUT if hinfnn wrote it")
+    d.add_argument("--tune-draws", type=int, default=16, metavar="N", help="with --tune: tuning draws (default 16)")
+    d.add_argument("--held-out", type=int, default=64, metavar="M",
+                   help="with --tune: held-out draws the base and tuned designs are compared on (default 64)")
+    d.add_argument("--generations", type=int, default=4, metavar="G", help="with --tune: generations (default 4)")
+    d.add_argument("--population", type=int, default=8, metavar="P",
+                   help="with --tune: candidates per generation (default 8)")
+    d.add_argument("--seed", type=int, default=0, help="with --tune: seed of the search (default 0)")
+    d.add_argument("--tune-t-final", type=float, default=None, metavar="T",
+                   help="with --tune: horizon of the tuning runs, s (default the scenario's; held-out runs use it)")
+    d.add_argument("--knobs", default=None, metavar="NAMES",
+                   help="with --tune: the design parameters to move, separated by commas (default all: "
+                        "omega,q,alpha_lam,alpha_z,zeta)")
     d.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario value (repeatable)")
     d.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)

@@ -40,6 +40,11 @@ def main(args) -> int:
         if not args.quiet:
             print(f"hinfnn sweep: {message}", file=sys.stderr, flush=True)
 
+    if not args.resume:
+        from ..sweep.tune import range_notes
+
+        for note in range_notes(spec):  # before anything runs: plants the design was not made for
+            print(f"hinfnn sweep: warning: {note}", file=sys.stderr, flush=True)
     log(f"{spec.n_runs:,} runs: {spec.points:,} grid point(s) × {spec.samples:,} sample(s) × "
         f"{len(spec.controllers)} controller(s)")
 
@@ -56,12 +61,16 @@ def main(args) -> int:
     if not args.quiet:
         from ..controllers import KINDS
 
-        print(f"{'controller':<16} {'runs':>6} {'invalid':>8} {'simulated':>10} {'bounded':>9} {'held contact':>13}")
+        print(f"{'controller':<16} {'runs':>6} {'invalid':>8} {'simulated':>10} {'bounded':>9} {'held contact':>13} "
+              f"{'did its job':>12}")
         for kind, c in res.counts.items():
             n = c["simulated"]
             pct = (lambda k: f"{100 * k / n:.1f} %") if n else (lambda k: "-")
             print(f"{KINDS[kind].label if kind in KINDS else kind:<16} {c['runs']:>6} {c['invalid']:>8} {n:>10} "
-                  f"{pct(c['bounded']):>9} {pct(c['held_contact']):>13}")
+                  f"{pct(c['bounded']):>9} {pct(c['held_contact']):>13} {pct(c.get('did_its_job', 0)):>12}")
+            if c.get("not_judged"):
+                print(f"{'':<16} contact not judged in {c['not_judged']} bounded run(s): they end before "
+                      "verdict.contact_after")
         if res.simulated_now:
             print(f"{res.simulated_now} runs simulated in {res.run_wall_s:.1f} s ({res.runs_per_s:.2f} runs/s, "
                   f"{res.backend} backend, compilation included)"

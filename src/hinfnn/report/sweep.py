@@ -469,6 +469,8 @@ def summary_counts(df, meta) -> dict:
         sim = int((df.loc[m, "status"] != "invalid").sum())
         out[kind] = dict(runs=int(m.sum()), invalid=int((o == "invalid").sum()), simulated=sim,
                          bounded=int((df.loc[m, "status"] == "ok").sum()), held_contact=int((o == "held_contact").sum()),
+                         did_its_job=int(df.loc[m, "did_its_job"].fillna(False).astype(bool).sum())
+                         if "did_its_job" in df else None,
                          torque=int((o == "torque").sum()), penetration=int((o == "penetration").sum()),
                          nonfinite=int((o == "nonfinite").sum()))
     return out
@@ -511,17 +513,21 @@ def sweep_markdown(df, meta, figures: list[str]) -> str:
     L.append("Shares are of the simulated runs, with 95 % Wilson intervals. *Stayed bounded*: ran to the "
              "horizon without a non-finite state, |τ| above the torque limit or penetration past its limit. "
              f"*Held contact*: stayed bounded and was out of contact for at most "
-             f"{100 * meta['max_out_of_contact']:g} % of its steps. *Invalid*: the draw could not start "
+             f"{100 * meta['max_out_of_contact']:g} % of its steps after the verdict's contact_after (the force's "
+             "build-up is not judged). *Did its job*: held contact and tracked within the verdict's tolerances "
+             "over the last 2 s. *Invalid*: the draw could not start "
              "(start pose out of the true arm's reach, singular nominal Jacobian, infeasible design, a step "
              "too large for the contact): not simulated.")
     L.append("")
-    L.append("| controller | runs | invalid | simulated | stayed bounded | held contact | stopped: torque | "
-             "stopped: penetration | stopped: non-finite |")
-    L.append("|---|---|---|---|---|---|---|---|---|")
+    L.append("| controller | runs | invalid | simulated | stayed bounded | held contact | did its job | "
+             "stopped: torque | stopped: penetration | stopped: non-finite |")
+    L.append("|---|---|---|---|---|---|---|---|---|---|")
     for k in kinds:
         c = counts[k]
+        job = _pct(c["did_its_job"], c["simulated"]) if c["did_its_job"] is not None else "–"
         L.append(f"| {_label(meta, k)} | {c['runs']} | {c['invalid']} | {c['simulated']} | "
-                 f"{_pct(c['bounded'], c['simulated'])} | {_pct(c['held_contact'], c['simulated'])} | {c['torque']} | "
+                 f"{_pct(c['bounded'], c['simulated'])} | {_pct(c['held_contact'], c['simulated'])} | {job} | "
+                 f"{c['torque']} | "
                  f"{c['penetration']} | {c['nonfinite']} |")
     L.append("")
     for k in kinds:

@@ -254,6 +254,10 @@ def _same_base(folder: Path, spec: SweepSpec) -> bool:
 def _check_same_sweep(manifest: dict, spec: SweepSpec, fingerprint: str, folder: Path) -> None:
     from .. import __version__
 
+    if manifest.get("format") != store.FORMAT:
+        raise ConfigError(f"{folder} is a sweep in the older format {manifest.get('format')!r} (its held_contact "
+                          "counts the start's force build-up; this hinfnn judges contact after verdict.contact_after): "
+                          "a resumed table would mix the two; start it again with --force", key="--resume")
     if manifest.get("fingerprint") != fingerprint:
         raise ConfigError(f"{folder} holds a different sweep (its spec, --samples, --set or base scenario differ: "
                           f"see {folder / 'sweep.toml'}); resume with the same arguments, e.g. "
@@ -374,11 +378,12 @@ def _execute(spec, manifest, by_id, ready, folder, be, n_joints, progress, log, 
 
 
 def outcome_counts(rows: list[dict], controllers) -> dict:
-    """Per controller: runs, invalid, simulated, bounded, held_contact, diverged."""
-    out = {k: dict(runs=0, invalid=0, simulated=0, bounded=0, held_contact=0, diverged=0) for k in controllers}
+    """Per controller: runs, invalid, simulated, bounded, held_contact, did_its_job, diverged."""
+    out = {k: dict(runs=0, invalid=0, simulated=0, bounded=0, held_contact=0, did_its_job=0, diverged=0)
+           for k in controllers}
     for r in rows:
         c = out.setdefault(r["controller"], dict(runs=0, invalid=0, simulated=0, bounded=0, held_contact=0,
-                                                  diverged=0))
+                                                  did_its_job=0, diverged=0))
         c["runs"] += 1
         if r["status"] == "invalid":
             c["invalid"] += 1
@@ -386,6 +391,8 @@ def outcome_counts(rows: list[dict], controllers) -> dict:
         c["simulated"] += 1
         c["bounded"] += bool(r["bounded"])
         c["held_contact"] += bool(r["held_contact"])
+        c["did_its_job"] += bool(r.get("did_its_job"))
+        c["not_judged"] = c.get("not_judged", 0) + (r["bounded"] and r["held_contact"] is None)
         c["diverged"] += r["status"] == "diverged"
     return out
 

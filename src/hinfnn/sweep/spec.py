@@ -229,7 +229,8 @@ class SweepSpec:
     map_metric: str = param("rms_e_lam_last2s", doc="metric of the robustness maps (two-key grids)",
                             allowed=_metrics_allowed)
     max_out_of_contact: float = param(0.01, doc="a run held contact if it stayed bounded and was out of contact "
-                                                "for at most this fraction of its steps", ge=0.0, le=1.0)
+                                                "for at most this fraction of its steps after the verdict's "
+                                                "contact_after (the force's build-up is not judged)", ge=0.0, le=1.0)
     varied: tuple = dataclasses.field(default=(), compare=True)
     overrides: tuple = dataclasses.field(default=(), compare=True)
     base: Any = dataclasses.field(default=None, compare=False, repr=False)

@@ -35,7 +35,11 @@ from ..io.folders import INSIDE_PREFIX
 from ..metrics import METRIC_KEYS, UNITS
 from .spec import BOOL_METRICS, PER_COORDINATE_METRICS, PER_JOINT_METRICS
 
-FORMAT = "hinfnn-sweep-1"
+FORMAT = "hinfnn-sweep-2"
+#: Formats :func:`load_sweep` still reads: ``hinfnn-sweep-1`` tables judged ``held_contact`` over the whole
+#: run (the start's force build-up included) and have no ``out_of_contact_after``, ``tracked``,
+#: ``did_its_job`` columns; a sweep in that format cannot be resumed (its rows would mix two criteria).
+READABLE_FORMATS = (FORMAT, "hinfnn-sweep-1")
 MANIFEST = SWEEP_MANIFEST
 PLAN = "plan.json"
 PARTS = "parts"
@@ -47,7 +51,7 @@ ID_COLUMNS = ("run", "point", "sample", "controller")
 #: Columns after the varied keys, before the metrics.
 STATUS_COLUMNS = ("status", "reason", "error_key", "t_fail")
 #: Columns after the metrics.
-TAIL_COLUMNS = ("t_end", "partial", "bounded", "held_contact")
+TAIL_COLUMNS = ("t_end", "partial", "bounded", "held_contact", "out_of_contact_after", "tracked", "did_its_job")
 STATUSES = ("ok", "diverged", "invalid")
 
 
@@ -70,7 +74,7 @@ def column_units(n_joints: int) -> dict[str, str]:
             units.update({f"{k}_{i + 1}": UNITS[k] for i in range(n_joints)})
         else:
             units[k] = UNITS[k]
-    units.update(t_fail="s", t_end="s")
+    units.update(t_fail="s", t_end="s", out_of_contact_after="-")
     return units
 
 
@@ -105,7 +109,8 @@ def schema(spec, n_joints: int):
     fields += [pa.field(c, pa.bool_() if c in BOOL_METRICS else pa.list_(pa.float64()) if c in PER_COORDINATE_METRICS
                         else pa.float64()) for c in metric_columns(n_joints)]
     fields += [pa.field("t_end", pa.float64()), pa.field("partial", pa.bool_()), pa.field("bounded", pa.bool_()),
-               pa.field("held_contact", pa.bool_())]
+               pa.field("held_contact", pa.bool_()), pa.field("out_of_contact_after", pa.float64()),
+               pa.field("tracked", pa.bool_()), pa.field("did_its_job", pa.bool_())]
     meta = {"hinfnn_sweep": json.dumps({"format": FORMAT, "spec": spec.name, "units": column_units(n_joints)})}
     return pa.schema(fields, metadata=meta)
 
@@ -162,7 +167,7 @@ def read_manifest(folder: Path) -> dict:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError, OSError) as err:
         raise LoadError(f"{path} is not valid JSON: {err}") from None
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+    if not isinstance(doc, dict) or doc.get("format") not in READABLE_FORMATS:
         raise LoadError(f"{path} is not a hinfnn sweep manifest (format {doc.get('format') if isinstance(doc, dict) else None!r}, "
                         f"expected {FORMAT!r})")
     return doc
@@ -308,7 +313,8 @@ def load_sweep(path):
     Columns: ``run``, ``point``, ``sample``, ``controller``, the varied scenario keys (by their
     dotted names), ``status`` ("ok", "diverged" or "invalid"), ``reason``, ``error_key``,
     ``t_fail``, every metric of :func:`hinfnn.compute_metrics` (per-joint ones as ``NAME_1``,
-    ``NAME_2``), ``t_end``, ``partial``, ``bounded``, ``held_contact`` (true/false columns are
+    ``NAME_2``), ``t_end``, ``partial``, ``bounded``, ``held_contact``, ``out_of_contact_after``,
+    ``tracked``, ``did_its_job`` (true/false columns are
     pandas' nullable boolean: invalid runs have no value). An unfinished sweep gives the rows
     written so far. ``df.attrs`` holds ``complete``, ``spec``, ``n_runs`` (planned), ``units``.
     Raises :class:`~hinfnn.io.LoadError` for a folder that is not a sweep.

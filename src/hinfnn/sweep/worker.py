@@ -296,19 +296,42 @@ def execute_batch(job: BatchJob, progress: Callable[[float], None] | None = None
                           limits=limits, bookkeeping=first.bookkeeping, progress=report)
     from ..metrics import lam_is_normal_force
 
-    normal = lam_is_normal_force(first.info.scenario)  # the members' λ means what the first's does
-    rows = [member_row(r, traj.member(j), job.max_out_of_contact, normal) for j, r in enumerate(job.members)]
+    sc = first.info.scenario
+    normal = lam_is_normal_force(sc)  # the members' λ means what the first's does
+    judging = _judging_of(sc, first.controller if not isinstance(controllers, list) else controllers[0])
+    rows = [member_row(r, traj.member(j), job.max_out_of_contact, normal, **judging)
+            for j, r in enumerate(job.members)]
     return {"batch": job.batch.id, "rows": rows, "wall_s": time.perf_counter() - t0,
             "cpu_s": time.process_time() - c0, "host": socket.gethostname(), "pid": os.getpid(), "members": n_real,
             "size": job.batch.size}
 
 
-def member_row(r: RunSpec, traj, max_out_of_contact: float, normal: bool | None = None) -> dict:
+def _judging_of(scenario, controller) -> dict:
+    """The verdict's tolerances and the motion coordinates' (name, unit) of a batch's runs (its
+    first member's scenario: the spec varies the truth, not the verdict)."""
+    if scenario is None or not hasattr(scenario, "verdict"):
+        return {}
+    try:
+        names = scenario.coordinate_names()
+    except Exception:  # noqa: BLE001 - judged in m, as compute_metrics does
+        names = None
+    m = int(getattr(controller, "m", 0) or 0)
+    return {"tolerances": scenario.verdict.tolerances(), "coordinates": list(names[:m]) if names and m else None}
+
+
+def member_row(r: RunSpec, traj, max_out_of_contact: float, normal: bool | None = None, tolerances=None,
+               coordinates=None) -> dict:
     """The table row of one simulated run (``normal``: λ is the normal force, for its true force
-    error: :func:`hinfnn.metrics.lam_is_normal_force`)."""
+    error: :func:`hinfnn.metrics.lam_is_normal_force`; ``tolerances``, ``coordinates``: the
+    verdict's, :func:`hinfnn.metrics.verdicts`). Contact is judged after the verdict's
+    ``contact_after`` (the force's build-up is not judged), as a single run's verdict judges it:
+    ``held_contact`` is bounded and out of contact for at most ``max_out_of_contact`` of the
+    steps after it (empty for a bounded run that ends before it: not judged); ``did_its_job`` is held
+    contact and tracking within tolerance over the last 2 s."""
     from ..metrics import compute_metrics
 
-    m = compute_metrics(traj, lam_is_normal_force=normal)
+    m = compute_metrics(traj, lam_is_normal_force=normal, tolerances=tolerances, coordinates=coordinates)
+    verdict = m.pop("verdict", None) or {}
     code = int(traj.status)
     row = id_row(r)
     row.update(status=traj.run_status.outcome, reason=traj.reason, error_key=None,
@@ -320,8 +343,12 @@ def member_row(r: RunSpec, traj, max_out_of_contact: float, normal: bool | None 
             row[k] = v
     bounded = code == 0
     row["bounded"] = bounded
-    frac = row.get("fraction_out_of_contact", math.nan)
-    row["held_contact"] = bool(bounded and frac <= max_out_of_contact)
+    after = verdict.get("out_of_contact_after")
+    judged = after is not None and math.isfinite(after)  # a bounded run no longer than contact_after: not judged
+    row["out_of_contact_after"] = float(after) if judged else math.nan
+    row["held_contact"] = bool(after <= max_out_of_contact) if bounded and judged else (None if bounded else False)
+    row["tracked"] = bool(bounded and verdict.get("tracking_within_tolerance"))
+    row["did_its_job"] = None if row["held_contact"] is None else bool(row["held_contact"] and row["tracked"])
     return row
 
 

@@ -1,0 +1,154 @@
+"""`hinfnn design --tune SPEC` and the pre-run check of a spec's drawn stiffness against the design
+(hinfnn.sweep.tune): the seeded search improves a toy objective, the declared range a design
+cannot hold at the control period is refused before anything runs (naming the key and the largest
+range), and the written scenario loads back to the tuned design.
+
+The one simulating test tunes the paper's H∞-only law on 2 draws of 0.05 s (one compiled program,
+shared with tests/test_sweep.py's H∞-only batches where the cache holds it)."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+import tomllib
+
+import numpy as np
+import pytest
+
+from hinfnn import cli
+from hinfnn.errors import DesignError
+from hinfnn.scenario import Scenario
+from hinfnn.sweep import spec_from_dict
+from hinfnn.sweep.tune import candidate_overrides, cross_entropy, declared_range, range_notes, require_holdable
+
+SAMPLED = """
+name = "sampled"
+scenario = "paper-stable"
+controllers = ["hinf_nn"]
+samples = 2
+seed = 5
+[set]
+"simulation.t_final" = 0.05
+"simulation.control" = "sampled"
+"controller.force_rate.stiffness_max" = 100000.0
+[vary]
+"plant.contact.stiffness" = { distribution = "log-uniform", low = 1e4, high = 1e7 }
+"""
+
+TINY = """
+name = "tiny"
+scenario = "paper"
+controllers = ["hinf"]
+samples = 2
+seed = 3
+[set]
+"simulation.t_final" = 0.05
+[vary]
+"plant.arm.m2" = { distribution = "relative", percent = 20 }
+"plant.contact.damping" = { distribution = "uniform", low = 0.0, high = 200.0 }
+"""
+
+
+def spec_of(text):
+    return spec_from_dict(tomllib.loads(textwrap.dedent(text)))
+
+
+def test_cross_entropy_improves_a_toy_objective_deterministically():
+    target = np.array([0.8, 0.2, 0.6])
+
+    def objective(us, g):
+        return [-float(np.sum((u - target) ** 2)) for u in us]
+
+    start = np.array([0.3, 0.7, 0.1])
+    u1, s1 = cross_entropy(objective, start, generations=12, population=10, seed=4)
+    u2, s2 = cross_entropy(objective, start, generations=12, population=10, seed=4)
+    assert s1 == s2 and np.array_equal(u1, u2)  # seeded: the same points
+    assert s1 > objective([start], 0)[0] + 0.5 and np.max(np.abs(u1 - target)) < 0.1
+
+
+def test_refused_candidates_are_never_elite():
+    calls = []
+
+    def objective(us, g):  # everything right of 0.5 is "refused by the design"
+        calls.append(us)
+        return [-1.0 if u[0] > 0.5 else float(u[0]) for u in us]
+
+    u, s = cross_entropy(objective, np.array([0.45]), generations=6, population=8, seed=1)
+    assert 0.4 < s <= 0.5 and u[0] <= 0.5
+
+
+def test_declared_ranges():
+    spec = spec_of(TINY)
+    lo, hi = declared_range(spec, "plant.arm.m2")
+    base = float(spec.base.plant.arm.m2)
+    assert (lo, hi) == pytest.approx((0.8 * base, 1.2 * base))
+    assert declared_range(spec, "plant.contact.damping") == (0.0, 200.0)
+    assert declared_range(spec, "plant.contact.stiffness") is None
+    # the paper law without a force-rate term: the drawn damping is the contact mode's only damping
+    assert range_notes(spec) == []  # the stiffness is not drawn: nothing to compare
+
+
+def test_a_range_the_design_cannot_hold_is_named_before_anything_runs(tmp_path, capsys):
+    spec = spec_of(SAMPLED)
+    notes = range_notes(spec)
+    assert len(notes) == 1 and notes[0].startswith("plant.contact.stiffness: the spec draws [10000, 1e+07] N/m")
+    assert "design is for [10000, 100000] N/m" in notes[0] and "cannot be held" in notes[0]
+    assert "damps the softest contact only with ζ = " in notes[0]
+    with pytest.raises(DesignError) as err:
+        require_holdable(spec.base, "hinf_nn", 1e4, 1e7)
+    assert err.value.key == "plant.contact.stiffness" and 1e5 < err.value.bound < 1e7
+    assert f"at most [10000, {err.value.bound:.3g}] N/m" in str(err.value)
+    require_holdable(spec.base, "hinf_nn", 1e4, 0.9 * err.value.bound)  # inside: accepted
+    # the command refuses it with exit 2, before any run (nothing is written)
+    (tmp_path / "s.toml").write_text(textwrap.dedent(SAMPLED))
+    code = cli.main(["design", "--tune", str(tmp_path / "s.toml"), "--out", str(tmp_path / "out")])
+    assert code == 2 and not (tmp_path / "out").exists()
+    assert "plant.contact.stiffness" in capsys.readouterr().err
+
+
+def test_candidate_keeps_the_riccati_weights_structure():
+    sc = Scenario.load("ur5-table", check=False)
+    over = dict(candidate_overrides(sc, {"omega": 2.0, "q": 3.0, "alpha_lam": 2.0, "zeta": 0.5}, (3e4, 3e5)))
+    assert over["controller.gains.K_p"] == pytest.approx(1600.0) and over["controller.gains.K_v"] == pytest.approx(80.0)
+    assert over["controller.gains.Q_p"] == pytest.approx([3e4] * 5 + [75.0 / 4] * 5)  # diag(q I, q/ω_n² I)
+    assert over["controller.gains.alpha_lam"] == pytest.approx(0.025) and over["controller.gains.beta_lam"] == "min"
+    assert over["controller.force_rate.kappa"] == "rule" and over["controller.force_rate.stiffness_max"] == 3e5
+
+
+def test_design_tune_writes_a_scenario_that_reproduces_the_tuned_design(tmp_path, capsys):
+    (tmp_path / "tiny.toml").write_text(textwrap.dedent(TINY))
+    out = tmp_path / "tuned"
+    code = cli.main(["design", "--tune", str(tmp_path / "tiny.toml"), "--tune-draws", "2", "--held-out", "2",
+                     "--generations", "1", "--population", "3", "--seed", "2", "--knobs", "omega,alpha_lam",
+                     "--out", str(out)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "held-out did its job" in printed and "results:" in printed
+    record = json.loads((out / "tune.json").read_text())
+    assert record["tuning_draws"] == [0, 1] and record["held_out_draws"] == [2, 3]
+    assert len(record["history"]) == 1 + 3
+    judged = sum(c["judged"] for c in record["history"] if c["error"] is None)  # a refused design runs nothing
+    assert record["runs"] == judged + 2 * (2 if record["best"]["overrides"] else 1)
+    assert all(c["judged"] == 2 for c in record["history"] if c["error"] is None)
+    for name in ("scenario.toml", "report.md", "design.txt"):
+        assert (out / name).stat().st_size > 0
+    loaded = Scenario.load(out / "scenario.toml")
+    expected = spec_of(TINY).base.with_overrides([tuple(x) for x in record["best"]["overrides"]])
+    g1, g2 = loaded.build_controller("hinf").gains, expected.build_controller("hinf").gains
+    for f in ("K_p", "K_v", "alpha_lam", "beta_lam", "Q_p"):
+        assert np.array_equal(np.asarray(getattr(g1, f)), np.asarray(getattr(g2, f))), f
+
+
+def test_the_sweep_warns_before_it_runs_plants_the_design_was_not_made_for(tmp_path, capsys, monkeypatch):
+    from hinfnn.errors import ConfigError
+    from hinfnn.sweep import run as sweep_run
+
+    def stop(*args, **kwargs):
+        raise ConfigError("stopped here", key="--test")
+
+    monkeypatch.setattr(sweep_run, "run_sweep", stop)  # nothing runs: the warning comes first
+    (tmp_path / "s.toml").write_text(textwrap.dedent(SAMPLED))
+    assert cli.main(["sweep", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    warning = err.index("hinfnn sweep: warning: plant.contact.stiffness: the spec draws [10000, 1e+07] N/m")
+    assert warning < err.index("stopped here") and "no design at this period keeps contacts stiffer than" in err
