@@ -295,7 +295,7 @@ class SampledController:
 
     # --- compiled entry points (built once per wrapper, on first use) --------------------------
     def _check_parts(self):
-        if not isinstance(self.controller, ReducedOrderController):
+        if not isinstance(self.controller, ReducedOrderController) and not hasattr(self.controller, "law"):
             raise TypeError("SampledController.controller must be a designed controller "
                             "(e.g. hinfnn.HinfNNController.design(...)), got "
                             f"{type(self.controller).__name__}")
