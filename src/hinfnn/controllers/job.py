@@ -80,18 +80,21 @@ class JobParams:
 class JobState:
     """The job's state: ``phase`` (1,) (:data:`PHASES`), ``clock`` (3,) the times the approach, the
     contact and the lift began, ``lam_c`` (k,) the measured λ at contact, ``x0`` (n,) the task
-    coordinates where the free motion (approach or lift) began, and the law's own state ``law``
-    (frozen outside the contact phases)."""
+    coordinates where the free motion (approach or lift) began, ``xi`` (n,) the free-space law's
+    integral of its error (:func:`free_space_torque`), and the law's own state ``law`` (frozen
+    outside the contact phases; ``xi`` inside them)."""
 
     phase: jax.Array
     clock: jax.Array
     lam_c: jax.Array
     x0: jax.Array
+    xi: jax.Array
     law: object
 
     def arrays(self) -> dict:
-        """{"phase", "clock", "lam_c", "x0", then the law's arrays}."""
-        return {"phase": self.phase, "clock": self.clock, "lam_c": self.lam_c, "x0": self.x0, **self.law.arrays()}
+        """{"phase", "clock", "lam_c", "x0", "xi", then the law's arrays}."""
+        return {"phase": self.phase, "clock": self.clock, "lam_c": self.lam_c, "x0": self.x0, "xi": self.xi,
+                **self.law.arrays()}
 
     def names(self) -> tuple[str, ...]:
         return tuple(self.arrays())
@@ -128,14 +131,17 @@ class JobReference:
         return RefSample(u1_d=r.u1_d, u1_d_dot=r.u1_d_dot, u1_d_ddot=r.u1_d_ddot, lam_d=lam)
 
 
-def free_space_torque(arm, q, qd, x_d, xd_d, xdd_d, gain):
-    """Computed torque on the NOMINAL model in task coordinates, critically damped at ``gain``
-    (ω, rad/s): τ = M̂ Ĵ⁻¹ (a − J̇̂ q̇) + Ĉ(q, q̇) q̇ + Ĝ with a = ẍ_d − 2ω (ẋ − ẋ_d) − ω² (x − x_d).
-    Returns (τ, x, ẋ)."""
+def free_space_torque(arm, q, qd, x_d, xd_d, xdd_d, xi, gain):
+    """Computed torque on the NOMINAL model in task coordinates with integral action, its three
+    poles at −ω (ω = ``gain``, rad/s): τ = M̂ Ĵ⁻¹ (a − J̇̂ q̇) + Ĉ(q, q̇) q̇ + Ĝ with
+    a = ẍ_d − 3ω (ẋ − ẋ_d) − 3ω² (x − x_d) − ω³ ξ, ξ = ∫ (x − x_d) dt (``xi``): the integral
+    takes up what the nominal model gets wrong at rest (gravity of a light model, a payload it
+    does not know), which would otherwise sag the tool by that error over ω². Returns (τ, x, ẋ)."""
     at = arm.law_terms(q, qd)
     x, J = at.x, at.J
     xd = la.mm(J, qd)
-    a = xdd_d - 2.0 * gain * (xd - xd_d) - gain * gain * (x - x_d)
+    w = gain
+    a = xdd_d - 3.0 * w * (xd - xd_d) - 3.0 * w * w * (x - x_d) - w * w * w * xi
     Jd_qd = arm.J_dot_times(at, q, qd, qd[:, None])[:, 0]
     qdd = la.solve(J, a - Jd_qd)
     tau = la.mm(at.M, qdd) + arm.C_product(at, q, qd, qd) + at.G
@@ -184,11 +190,11 @@ class JobController(Controller):
     def init(self, **given) -> JobState:
         """Phase 0 (approach), the clocks at 0, the law's state as ``law.init(**given)``."""
         return JobState(phase=jnp.zeros(1), clock=jnp.zeros(3), lam_c=jnp.zeros(self.k), x0=jnp.zeros(self.n),
-                        law=self.law.init(**given))
+                        xi=jnp.zeros(self.n), law=self.law.init(**given))
 
     def state_from_arrays(self, arrays: dict) -> JobState:
         return JobState(phase=arrays["phase"], clock=arrays["clock"], lam_c=arrays["lam_c"], x0=arrays["x0"],
-                        law=self.law.state_from_arrays(arrays))
+                        xi=arrays["xi"], law=self.law.state_from_arrays(arrays))
 
     def state_arrays(self, state: JobState) -> dict:
         return state.arrays()
@@ -253,7 +259,7 @@ class JobController(Controller):
         ph = state.phase[0]
         law = self.law.evaluate(t, state.law, meas, self._reference(state, ref))
         x_d, xd_d, xdd_d, travel = self._motion(t, state)
-        tau_f, x, xd = free_space_torque(self.law.arm, meas.q, meas.qd, x_d, xd_d, xdd_d, self.job.gain)
+        tau_f, x, xd = free_space_torque(self.law.arm, meas.q, meas.qd, x_d, xd_d, xdd_d, state.xi, self.job.gain)
         contact = (ph == RAMP) | (ph == PROCESS) | (ph == UNLOAD)
         m = self.m
         sig = dict(law.signals)
@@ -265,7 +271,7 @@ class JobController(Controller):
         dlaw = jax.tree.map(lambda d: jnp.where(contact, d, jnp.zeros_like(d)), law.dstate)
         zero = jnp.zeros(1)
         dstate = JobState(phase=zero, clock=jnp.zeros(3), lam_c=jnp.zeros_like(state.lam_c),
-                          x0=jnp.zeros_like(state.x0), law=dlaw)
+                          x0=jnp.zeros_like(state.x0), xi=jnp.where(contact, 0.0, x - x_d), law=dlaw)
         no_contact = ph == NO_CONTACT
         return ControllerOutput(
             tau=jnp.where(contact, law.tau, tau_f), dstate=dstate,

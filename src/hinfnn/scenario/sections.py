@@ -1510,7 +1510,8 @@ class JobConfig:
     approach_margin: float = param(0.02, doc="how far past the nominal surface the guarded move goes before it gives "
                                    "up (the run stops: no contact found), m", ge=0.0, le=1.0)
     approach_gain: float = param(20.0, doc="bandwidth of the free-space motion law (computed torque on the nominal "
-                                 "model, critically damped), rad/s", gt=0.0, le=1e3)
+                                 "model with integral action, its three poles at -approach_gain), rad/s", gt=0.0,
+                                 le=1e3)
     contact_force: float = param(2.0, doc="contact is detected when the MEASURED force at the tool reaches this, N "
                                  "(above the sensor's noise and bias)", gt=0.0, le=1e6)
     ramp_time: float = param(0.5, doc="lam_d ramps from the force at contact to the reference's over this time, s "
