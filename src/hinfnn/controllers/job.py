@@ -15,12 +15,16 @@ sample, from that sample's measurement):
    started there (z = 0, the networks' weights at their initial values, the force-rate filter
    started at e_λ(t_c)) and its reference's time origin at t_c; λd ramps from the measured
    λ_c to the reference's over ``ramp_time`` (:class:`JobReference`), so the law does not start
-   with a force step.
+   with a force step. The hand-over is bumpless: the step between the free-space law's torque and
+   the law's at t_c (what the free-space law's integral had learnt of the model's error, mostly)
+   is added to the law's torque and faded out over the ramp (the same quintic), so the torque
+   sent is continuous and a robot's torque-rate limit does not clip the law's first samples.
 2. **process** — the law with the reference as given (shifted by t_c), for ``process_time`` s
    (0: to the end of the run).
 3. **unload** — λd ramps back down to λ_c over ``ramp_time``.
 4. **lift** — the free-space law moves the tool ``lift_height`` out along the normal over
-   ``lift_time`` (a quintic), then holds.
+   ``lift_time`` (a quintic), then holds; its torque's step from the law's is faded out the same
+   way over ``lift_time``.
 5. **no contact** — the guarded move found nothing: the tool holds where the move ended, and the
    controller's guard stops the run (:attr:`JobController.fault_name`).
 
@@ -81,20 +85,22 @@ class JobState:
     """The job's state: ``phase`` (1,) (:data:`PHASES`), ``clock`` (3,) the times the approach, the
     contact and the lift began, ``lam_c`` (k,) the measured λ at contact, ``x0`` (n,) the task
     coordinates where the free motion (approach or lift) began, ``xi`` (n,) the free-space law's
-    integral of its error (:func:`free_space_torque`), and the law's own state ``law`` (frozen
-    outside the contact phases; ``xi`` inside them)."""
+    integral of its error (:func:`free_space_torque`), ``tau0`` (n,) the torque step at the last
+    hand-over between the free-space law and the law (faded out after it: a bumpless transfer), and
+    the law's own state ``law`` (frozen outside the contact phases; ``xi`` inside them)."""
 
     phase: jax.Array
     clock: jax.Array
     lam_c: jax.Array
     x0: jax.Array
     xi: jax.Array
+    tau0: jax.Array
     law: object
 
     def arrays(self) -> dict:
-        """{"phase", "clock", "lam_c", "x0", "xi", then the law's arrays}."""
+        """{"phase", "clock", "lam_c", "x0", "xi", "tau0", then the law's arrays}."""
         return {"phase": self.phase, "clock": self.clock, "lam_c": self.lam_c, "x0": self.x0, "xi": self.xi,
-                **self.law.arrays()}
+                "tau0": self.tau0, **self.law.arrays()}
 
     def names(self) -> tuple[str, ...]:
         return tuple(self.arrays())
@@ -190,11 +196,11 @@ class JobController(Controller):
     def init(self, **given) -> JobState:
         """Phase 0 (approach), the clocks at 0, the law's state as ``law.init(**given)``."""
         return JobState(phase=jnp.zeros(1), clock=jnp.zeros(3), lam_c=jnp.zeros(self.k), x0=jnp.zeros(self.n),
-                        xi=jnp.zeros(self.n), law=self.law.init(**given))
+                        xi=jnp.zeros(self.n), tau0=jnp.zeros(self.n), law=self.law.init(**given))
 
     def state_from_arrays(self, arrays: dict) -> JobState:
         return JobState(phase=arrays["phase"], clock=arrays["clock"], lam_c=arrays["lam_c"], x0=arrays["x0"],
-                        xi=arrays["xi"], law=self.law.state_from_arrays(arrays))
+                        xi=arrays["xi"], tau0=arrays["tau0"], law=self.law.state_from_arrays(arrays))
 
     def state_arrays(self, state: JobState) -> dict:
         return state.arrays()
@@ -261,6 +267,10 @@ class JobController(Controller):
         x_d, xd_d, xdd_d, travel = self._motion(t, state)
         tau_f, x, xd = free_space_torque(self.law.arm, meas.q, meas.qd, x_d, xd_d, xdd_d, state.xi, self.job.gain)
         contact = (ph == RAMP) | (ph == PROCESS) | (ph == UNLOAD)
+        # the torque step of the last hand-over, faded out over the ramp (into contact) or the lift
+        fade_c = 1.0 - smoothstep(t - state.clock[1], self.job.ramp_time)[0]
+        fade_l = 1.0 - smoothstep(t - state.clock[2], self.job.lift_time)[0]
+        bump = state.tau0 * jnp.where(ph == RAMP, fade_c, jnp.where(ph == LIFT, fade_l, 0.0))
         m = self.m
         sig = dict(law.signals)
         lam = sig["lam"]
@@ -271,10 +281,11 @@ class JobController(Controller):
         dlaw = jax.tree.map(lambda d: jnp.where(contact, d, jnp.zeros_like(d)), law.dstate)
         zero = jnp.zeros(1)
         dstate = JobState(phase=zero, clock=jnp.zeros(3), lam_c=jnp.zeros_like(state.lam_c),
-                          x0=jnp.zeros_like(state.x0), xi=jnp.where(contact, 0.0, x - x_d), law=dlaw)
+                          x0=jnp.zeros_like(state.x0), xi=jnp.where(contact, 0.0, x - x_d),
+                          tau0=jnp.zeros_like(state.tau0), law=dlaw)
         no_contact = ph == NO_CONTACT
         return ControllerOutput(
-            tau=jnp.where(contact, law.tau, tau_f), dstate=dstate,
+            tau=jnp.where(contact, law.tau, tau_f) + bump, dstate=dstate,
             e_u1=jnp.where(contact, law.e_u1, (x - x_d)[:m]), e_lam=jnp.where(contact, law.e_lam, lam),
             signals=sig, fault=law.fault | no_contact,
             fault_value=jnp.where(no_contact, travel, law.fault_value), deferred=law.deferred,
@@ -305,12 +316,22 @@ class JobController(Controller):
         clock = jnp.where(unloaded, clock.at[2].set(t), clock)
         x0 = jnp.where(unloaded, out.aux["x"], new.x0)
         moved = dataclasses.replace(new, phase=jnp.reshape(phase, (1,)), clock=clock, lam_c=lam_c, x0=x0)
-        if self.law.needs_start:  # the law's filters start at the contact, on its reference from there
+
+        def at_touch():  # the law starts here (its filters on its reference from t_c); the torque's step kept
             started = dataclasses.replace(moved, law=self.law.init())
-            law = jax.lax.cond(touched, lambda: self.law.start(t, started.law, meas, self._reference(started, ref)),
-                               lambda: moved.law)
-            moved = dataclasses.replace(moved, law=law)
-        return tau, moved
+            ref_c = self._reference(started, ref)
+            law = self.law.start(t, started.law, meas, ref_c) if self.law.needs_start else started.law
+            return law, tau - self.law.evaluate(t, law, meas, ref_c).tau
+
+        def at_lift():  # the free-space law from where the tool is; the torque's step kept
+            x = out.aux["x"]
+            zero = jnp.zeros_like(x)
+            tau_f = free_space_torque(self.law.arm, meas.q, meas.qd, x, zero, zero, moved.xi, j.gain)[0]
+            return moved.law, tau - tau_f
+
+        law, tau0 = jax.lax.cond(touched, at_touch, lambda: jax.lax.cond(unloaded, at_lift,
+                                                                             lambda: (moved.law, moved.tau0)))
+        return tau, dataclasses.replace(moved, law=law, tau0=tau0)
 
 
 @jit_by_joints
