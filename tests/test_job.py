@@ -184,3 +184,25 @@ def test_a_job_without_contact_stops_the_robot():
     log, loop = drive([0] * 5 + [NO_CONTACT] * 20, [0.0] * 25, t_final=0.02)
     assert log.stop.rule == "no_contact" and log.stop.action == "stop" and loop.calls == 5
     assert math.isclose(log.stop.t, 0.005)
+
+
+def test_a_job_on_the_virtual_robot_is_its_simulation(tmp_path):
+    """The same job through ``hinfnn robot run`` (the virtual robot in lock-step): the contact-loss rule, armed
+    from 10 ms, does not fire in the approach; the phases and the law's torques are the simulation's."""
+    pytest.importorskip("mujoco")
+    from hinfnn.robot import VirtualRobot, run_robot
+
+    sc = Scenario.load("paper", [
+        "plant.engine=mujoco", "simulation.control=sampled", "controller.kind=hinf_nn", "plant.contact.damping=200",
+        "simulation.t_final=0.1", "safety.torque_rate_limit=1e6", "safety.contact_loss_after=0.01",
+        "job.start=approach", "job.approach_height=0.005", "job.approach_speed=0.2", "job.ramp_time=0.02"])
+    res = run_robot(sc, robot=VirtualRobot(sc, realtime=False), out=tmp_path / "job", figures=False,
+                    log=lambda _: None)
+    assert res.log.stop is None and res.doc["runs"][0]["status"] == "ok"
+    traj = H.load(res.target).trajectories["hinf_nn"]
+    sim = sc.simulate()
+    np.testing.assert_array_equal(traj.phase, sim.phase)
+    assert set(np.unique(traj.phase)) == {APPROACH, RAMP, PROCESS}
+    np.testing.assert_allclose(traj.tau_law[:-1], sim.tau[:-1], rtol=0, atol=1e-9)
+    job = res.doc["runs"][0]["metrics"]["job"]
+    assert job["contact_time"] == pytest.approx(float(np.asarray(sim.t)[first(np.asarray(sim.phase) == RAMP)]))
