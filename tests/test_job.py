@@ -92,6 +92,23 @@ def test_an_offset_part_is_found_where_it_is(base, offset):
     assert compute_metrics(tr)["job"]["out_of_contact_process"] == 0.0
 
 
+def test_the_job_unloads_and_lifts_off():
+    sc, tr = job_run("plant.surface.d_G=0.79", "job.process_time=0.5", "job.lift_time=0.2")
+    assert int(tr.status) == 0
+    ph, t = np.asarray(tr.phase), np.asarray(tr.t)
+    assert list(np.unique(ph)) == [0, 1, 2, 3, 4] and np.all(np.diff(ph) >= 0)
+    i_u, i_l = first(ph == 3), first(ph == 4)
+    assert t[i_l] - t[i_u] == pytest.approx(sc.job.ramp_time, abs=2e-3)
+    # λd back down to the force measured at contact by the end of the unload
+    lam_d, lam = np.asarray(tr.lam_d).reshape(-1), np.asarray(tr.lam).reshape(-1)
+    lam_c = lam[first(ph == RAMP) - 1]
+    assert lam_d[i_l - 1] == pytest.approx(lam_c, abs=1e-3)
+    # lifted lift_height off the part (0.5 degrees between the nominal normal and the true one) and in the air
+    done = t >= t[i_l] + sc.job.lift_time + 0.05
+    np.testing.assert_allclose(-np.asarray(tr.penetration)[done], sc.job.lift_height, atol=1e-3)
+    assert np.all(np.asarray(tr.normal_force)[done] == 0.0)
+
+
 def test_no_contact_within_the_travel_stops_with_a_clear_status():
     sc, tr = job_run("plant.surface.d_G=0.9", "job.approach_speed=0.05", "job.approach_margin=0.005")
     assert H.RunStatus(int(tr.status)) is H.RunStatus.CONTROLLER_FAULT
