@@ -405,6 +405,12 @@ def least_damped(eigs) -> complex:
     return complex(max(oscillatory, key=lambda e: e.real / abs(e)) if oscillatory else max(eigs, key=lambda e: e.real))
 
 
+def _law(ctrl):
+    """The law a job's controller wraps (:class:`hinfnn.controllers.job.JobController`), else the
+    controller itself: the loop linearised here is the law's, in contact."""
+    return getattr(ctrl, "law", ctrl)
+
+
 def with_kappa(ctrl, kappa: float):
     """The same controller with the force-rate term's κ replaced (0: the paper's law, same compiled
     structure; the term's filter then acts on nothing)."""
@@ -441,7 +447,7 @@ def operating_point(scenario, stiffness: float, u1d=None, lam_d=None, ctrl=None)
     if closed:
         q_eq = equilibrium_q(plant, float(u1d[0]), float(lam_d[0]), elbow_up=scenario.initial.elbow == "up")
     else:
-        ctrl = ctrl if ctrl is not None else scenario.build_controller(scenario.kinds[0])
+        ctrl = _law(ctrl if ctrl is not None else scenario.build_controller(scenario.kinds[0]))
         q_eq = equilibrium_q(plant, u1d, lam_d, ctrl=ctrl, q_guess=scenario.initial_q())
     return plant, ref, np.asarray(q_eq, dtype=float), u1d, lam_d
 
@@ -488,7 +494,7 @@ def contact_modes(scenario, kind: str, stiffness: float, u1d=None, lam_d=None, c
     (neutral network directions dropped), those of the force and position loops, the least
     damped force mode, the polynomial's roots (FL-like, H∞-only, and the adaptive law at Θ̂ = 0)
     and the largest relative difference between the two, and whether the loop is stable."""
-    ctrl = ctrl if ctrl is not None else scenario.build_controller(kind)
+    ctrl = _law(ctrl if ctrl is not None else scenario.build_controller(kind))
     plant, ref, q_eq, u1d, lam_d = operating_point(scenario, stiffness, u1d, lam_d, ctrl=ctrl)
     if not np.all(np.isfinite(q_eq)):
         from .errors import DesignError
@@ -655,7 +661,7 @@ def design_report(scenario) -> dict:
     for kind in scenario.kinds:
         one = scenario.single(kind)
         one.build().check_start(kind)  # what `hinfnn run` refuses before it compiles, refused here too
-        ctrl = one.build_controller(kind)
+        ctrl = _law(one.build_controller(kind))
         d = ctrl.summary()
         if path is None:
             path = path_report(one, ctrl, q0)
@@ -667,7 +673,7 @@ def design_report(scenario) -> dict:
         else:
             labels = ("as designed (the paper's law)", "with the force-rate term (kappa by the rule)")
             try:
-                after = _with_force_rate(one, "rule").build_controller(kind)
+                after = _law(_with_force_rate(one, "rule").build_controller(kind))
             except (DesignError, ConfigError) as err:
                 after, rule_error = None, str(err)
         before = with_kappa(after, 0.0) if after is not None else ctrl

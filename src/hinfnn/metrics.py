@@ -56,6 +56,11 @@ VERDICT_KEYS = ("contact_held", "tracking_within_tolerance", "within_joint_limit
 UNITS.update({"contact_held": "bool", "tracking_within_tolerance": "bool", "within_joint_limits": "bool",
               "notes": "-", "out_of_contact_after": "-", "force_error_ratio_last2s": "-",
               "min_joint_limit_margin": "rad or m", "min_joint_limit_margin_each": "rad or m"})
+#: A job's entry (``compute_metrics(...)["job"]``, only for a run that records its ``phase``).
+JOB_KEYS = ("contact_time", "process_start", "peak_normal_force_touch", "peak_touch_over_lam_d",
+            "out_of_contact_process", "last_phase")
+UNITS.update({"contact_time": "s", "process_start": "s", "peak_normal_force_touch": "N", "peak_touch_over_lam_d": "-",
+              "out_of_contact_process": "-", "last_phase": "-"})
 #: The verdicts' tolerances when the scenario does not give them (``[verdict]``, the same defaults).
 DEFAULT_TOLERANCES = {"position_tolerance": 0.005, "angle_tolerance": 0.02, "force_tolerance": 0.1,
                       "contact_after": 0.5, "out_of_contact": 0.0}
@@ -172,13 +177,18 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
     # contact after the build-up, the force error relative to the force asked, the joints' limits
     tol, coords = _judging(traj, tolerances, coordinates, arr["e_u1"].reshape(n, -1).shape[1])
     # None when no step came after contact_after: nothing was judged
+    phase = np.asarray(arr["phase"], dtype=float).reshape(n) if "phase" in arr else None
     if summaries:
         t_sum = np.append(t, t_end) if tail else t  # the last step each sample summarises
         after = t_sum > tol["contact_after"] + 1e-9 * max(1.0, abs(tol["contact_after"]))
+        if phase is not None:  # a job (hinfnn.controllers.job): contact is judged in its process phase only
+            after = _in_process(np.append(phase, phase[-1]) if tail else phase)
         steps_after = float(np.sum(steps[after]))
         out_after = float(np.sum(arr["steps_out_of_contact"][after]) / steps_after) if steps_after else None
     elif "penetration" in arr:
         after = t > tol["contact_after"] + 1e-9 * max(1.0, abs(tol["contact_after"]))
+        if phase is not None:
+            after = _in_process(phase)
         out_after = float(np.mean(arr["penetration"][after] < -1e-9)) if after.any() else None
     else:
         out_after = math.nan
@@ -195,7 +205,9 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
         margin_joint = min(finite) if finite else None
     else:
         margin_joints, margin_joint = None, None
+    job = None if phase is None else _job_metrics(t, phase, arr, n, out_after)
     return {
+        **({} if job is None else {"job": job}),
         "rms_e_u1_each": [float(v) for v in u1_each],
         "rms_e_u1_each_last2s": [float(v) for v in u1_each_w],
         "rms_e_lam_each": [float(v) for v in lam_each],
@@ -228,6 +240,47 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
                     "out_of_contact_after": out_after, "force_error_ratio_last2s": ratio,
                     "min_joint_limit_margin": margin_joint, "min_joint_limit_margin_each": margin_joints},
     }
+
+
+#: The phase in which a job's contact is judged (:data:`hinfnn.controllers.job.PHASES`: "process").
+PROCESS_PHASE = 2
+#: A job's touch: its approach and force ramp and this long of its process after them, s (the
+#: ramp's overshoot, if any, comes just after its end).
+TOUCH_SETTLE = 0.5
+
+
+def _in_process(phase):
+    """The samples of a job's process phase, whose steps the contact verdict judges (the approach,
+    the force ramp, the unload and the lift-off are not: the tool is meant to leave or reach the
+    surface there)."""
+    return np.asarray(phase) == PROCESS_PHASE
+
+
+def _job_metrics(t, phase, arr, n: int, out_after) -> dict:
+    """A job's phases (:mod:`hinfnn.controllers.job`): when contact was found and the process
+    began (None: never), the largest normal force during the touch (the approach, the ramp and
+    :data:`TOUCH_SETTLE` s of the process: the plant's normal force, or a robot run's measured
+    force, N), the largest measured λ there over the largest λd, the share of the process's steps
+    off the surface, and the last phase reached."""
+    def first(mask):
+        i = np.nonzero(mask)[0]
+        return (float(t[i[0]]), int(i[0])) if i.size else (None, None)
+    contact_t, _ = first(phase >= 1)
+    process_t, _ = first(phase >= PROCESS_PHASE)
+    force = (np.asarray(arr["normal_force"], dtype=float).reshape(n) if "normal_force" in arr else
+             np.linalg.norm(np.asarray(arr["force_measured"], dtype=float).reshape(n, -1), axis=1)
+             if "force_measured" in arr else None)
+    peak = ratio = None
+    if contact_t is not None:
+        end = np.inf if process_t is None else process_t + TOUCH_SETTLE
+        touch = t <= end + 1e-12
+        if force is not None:
+            peak = float(np.max(force[touch]))
+        lam_d = float(np.max(np.abs(arr["lam_d"]))) if "lam_d" in arr else math.nan
+        if "lam" in arr and lam_d > 0:  # in λ's units, as λd (λ is the normal force for a unit constraint)
+            ratio = float(np.max(np.asarray(arr["lam"], dtype=float).reshape(n, -1)[touch])) / lam_d
+    return {"contact_time": contact_t, "process_start": process_t, "peak_normal_force_touch": peak,
+            "peak_touch_over_lam_d": ratio, "out_of_contact_process": out_after, "last_phase": int(phase[-1])}
 
 
 def _stopping_step(traj) -> int | None:

@@ -295,7 +295,7 @@ class SampledController:
 
     # --- compiled entry points (built once per wrapper, on first use) --------------------------
     def _check_parts(self):
-        if not isinstance(self.controller, ReducedOrderController):
+        if not isinstance(self.controller, ReducedOrderController) and not hasattr(self.controller, "law"):
             raise TypeError("SampledController.controller must be a designed controller "
                             "(e.g. hinfnn.HinfNNController.design(...)), got "
                             f"{type(self.controller).__name__}")
@@ -498,7 +498,7 @@ class SampledLoop:
     """
 
     __slots__ = ("controller", "_buf", "_leaves", "_packed", "_fn", "_n", "_d", "_ns", "_i_q", "_i_qd", "_i_F",
-                 "rejected", "_pending_start", "_shape_q", "_shape_F")
+                 "rejected", "_pending_start", "_shape_q", "_shape_F", "phased")
 
     def __init__(self, controller: SampledController, state: ControllerState, start: bool = False):
         self.controller = controller
@@ -514,6 +514,16 @@ class SampledLoop:
         self._fn = controller._update_packed if self._packed else controller._update_kept
         self.rejected = 0
         self._pending_start = start and controller.controller.needs_start
+        #: Whether the controller is a job's (:class:`hinfnn.controllers.job.JobController`): its
+        #: state's first array is the phase (:meth:`phase`).
+        self.phased = hasattr(controller.controller, "job")
+
+    def phase(self) -> int | None:
+        """The job's phase (:data:`hinfnn.controllers.job.PHASES`) the next update starts from, read
+        from the state's first value without copying the rest; None for a controller without phases."""
+        if not self.phased:
+            return None
+        return int(self._buf[self._ns] if self._packed else np.asarray(self._leaves[0])[0])
 
     def _set_state(self, state: ControllerState) -> None:
         if self._packed:

@@ -382,6 +382,9 @@ def _draw_main(ax, p: "_Panel", t_end: float, window: float, zoom_windows, lette
     _style_axes(ax, p.ylabel)
     if p.log:
         _log_limits(ax, p.series, t_end)
+    for run, t, y in p.series:  # a job's phase changes (hinfnn.controllers.job), as dotted lines
+        for tc in _phase_changes(run.traj):
+            ax.axvline(tc, color=run.color, linestyle=":", linewidth=0.9, alpha=0.8, zorder=0.6)
     trans = blended_transform_factory(ax.transData, ax.transAxes)
     for letter, (a, b) in zip("AB", zoom_windows):
         ax.axvspan(a, b, color="0.55", alpha=0.22, linewidth=0, zorder=0.5)
@@ -389,6 +392,16 @@ def _draw_main(ax, p: "_Panel", t_end: float, window: float, zoom_windows, lette
             ax.text((a + b) / 2, 1.01, letter, transform=trans, ha="center", va="bottom",
                     fontsize=_FONT["panel"], fontweight="bold")
     return dense
+
+
+def _phase_changes(traj: Trajectory) -> np.ndarray:
+    """The times a job's recorded ``phase`` changes (none for a run without phases)."""
+    if "phase" not in traj.arrays:
+        return np.zeros(0)
+    end = traj.valid_samples()
+    ph = np.asarray(traj.arrays["phase"], dtype=float).reshape(-1)[:end]
+    t = np.asarray(traj.arrays["t"], dtype=float)[:end]
+    return t[1:][np.diff(ph) != 0]
 
 
 def _detail_range(p: "_Panel"):
@@ -589,7 +602,7 @@ def _t_end(runs: list[_Run]) -> float:
 MIN_SAMPLES_PER_PERIOD = 50
 
 #: Names of the figures each function can draw (``only=``).
-RUN_FIGURES = ("u1", "errors", "lambda", "tau", "J", "contact", "weights")
+RUN_FIGURES = ("u1", "errors", "lambda", "tau", "J", "contact", "weights", "phases")
 PAPER_FIGURES = ("fig3_u1_fl", "fig4_lambda_fl", "fig5_u1", "fig6_lambda", "fig7_tau1", "fig8_tau2", "fig9_J")
 
 
@@ -764,8 +777,10 @@ def run_figures(runs: dict[str, Trajectory], out_dir, *,
     ``u1.png`` (u1 and u1d), ``errors.png`` (e_u1 per coordinate and e_λ; arms other than the
     paper's), ``lambda.png`` (λ, λd, with zooms), ``tau.png`` (τ1, τ2, with
     zooms), ``J.png`` (eq. (34), log scale), ``contact.png`` (normal force in N, penetration
-    in mm, with zooms) and ``weights.png`` (‖Θ̂p‖, ‖Θ̂f‖) when some run has nonzero
-    weights (:data:`RUN_FIGURES`, the names ``hinfnn plot --figures`` takes). Run names other
+    in mm, with zooms), ``weights.png`` (‖Θ̂p‖, ‖Θ̂f‖) when some run has nonzero
+    weights and ``phases.png`` when some run is a job's (:mod:`hinfnn.controllers.job`; its phase
+    changes also dotted on every panel) (:data:`RUN_FIGURES`, the names ``hinfnn plot --figures``
+    takes). Run names other
     than the controller kind are shown beside its description.
     ``only``: draw just these (names without ``.png``, e.g. ``["u1", "tau"]``).
     """
@@ -832,6 +847,12 @@ def run_figures(runs: dict[str, Trajectory], out_dir, *,
                               title="tangential (friction) force of the tool on the surface"))
     emit("contact.png", "Contact: normal force and penetration of the true surface", contact,
          size=SIZE_TALL if len(contact) == 2 else _tall(3, True), extra=_CONTACT_NOTE)
+
+    phased = [r for r in group if "phase" in r.traj.arrays]
+    if phased:
+        emit("phases.png", "The job's phases (dotted lines on every figure)",
+             [_Panel("phase", _series(phased, "phase"),
+                     title="0 approach, 1 force ramp, 2 process, 3 unload, 4 lift-off, 5 no contact found")])
 
     learners = [r for r in group if any(
         f in r.traj.arrays and np.any(np.asarray(r.traj.arrays[f])[: r.traj.valid_samples()] != 0)

@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 
+from ..controllers.job import PROCESS
 from ..protocols import Measurement
 from ..status import RunStatus
 from . import safety as S
@@ -110,6 +111,7 @@ def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, g
     robot must be started; the loop does not stop it."""
     period = robot.period
     loop = sampled.loop()
+    phase_of = getattr(loop, "phase", None) or (lambda: None)
     n = robot.n
     rows = {k: [] for k in ("t", "q", "qd", "tau", *LOOP_FIELDS)}
     events, counts = [], {}
@@ -151,8 +153,13 @@ def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, g
             elif ev is None:
                 rejected_row = 0
                 ev = S.check_state(limits, t, r.q, r.qd, r.force)
-                if ev is None:
+                phase = phase_of()  # a job's phase (None: the paper's law alone, in contact throughout)
+                if ev is None and phase is not None:
+                    ev = S.no_contact(t, phase)
+                if ev is None and phase in (None, PROCESS):
                     low_since, ev = S.contact_loss(limits, t, r.force, low_since)
+                elif ev is None:
+                    low_since = None  # approach, ramp, unload, lift-off: off the surface by design
                 if ev is None:
                     h = period if t_prev is None else t_read - t_prev
                     tau_law = loop.update(t_read, h, r.q, r.qd, r.force)

@@ -17,7 +17,10 @@ The rules, in the order the loop applies them to each reading:
 2. :func:`check_state` on an accepted reading — the force ceiling (``force_limit``), the joint
    speed (``velocity_limit``) and the joints' limits less a margin (``joint_limit_margin``): stop.
 3. :func:`contact_loss` — the force below ``contact_loss_force`` for ``contact_loss_time`` after
-   ``contact_loss_after`` (``contact_loss``): hold and retract.
+   ``contact_loss_after`` (``contact_loss``): hold and retract; for a job
+   (:mod:`hinfnn.controllers.job`) only in its process phase (the tool is meant to be off the
+   surface in the approach and the lift-off, and the force builds up in the ramp). A job whose
+   guarded move found no contact (``no_contact``, :func:`no_contact`): stop.
 4. :func:`watchdog` — ``watchdog_misses`` control periods in a row without a fresh torque at the
    robot (``watchdog``): stop; :func:`too_many_rejected` — ``max_rejected`` readings rejected in a
    row (``rejected_readings``): stop.
@@ -48,6 +51,7 @@ RULES = {
     "velocity_limit": "stop",
     "joint_limit_margin": "stop",
     "contact_loss": "retract",
+    "no_contact": "stop",
     "watchdog": "stop",
     "rejected_readings": "stop",
     "nonfinite_torque": "stop",
@@ -230,6 +234,17 @@ def contact_loss(limits: SafetyLimits, t: float, force, low_since: float | None)
     return since, None
 
 
+def no_contact(t: float, phase) -> Event | None:
+    """Rule 3, for a job: its guarded move went its whole travel without finding contact
+    (:data:`hinfnn.controllers.job.NO_CONTACT`, phase 5): a stop."""
+    from ..controllers.job import NO_CONTACT
+
+    if phase != NO_CONTACT:
+        return None
+    return Event("no_contact", float(t), "the job's approach went its whole travel (job.approach_height + "
+                 "job.approach_margin) without the force reaching job.contact_force", {"phase": int(phase)})
+
+
 def watchdog(limits: SafetyLimits, t: float, missed_in_a_row: int) -> Event | None:
     """Rule 4: the robot reports ``missed_in_a_row`` control periods in a row that got no fresh
     torque (it held the previous one): at ``watchdog_misses`` or more, a stop."""
@@ -301,5 +316,5 @@ def retract_step(point_jacobian, force, distance: float):
     return np.linalg.pinv(J) @ (-distance * f / fn)
 
 
-__all__ = ["RULES", "Event", "SafetyLimits", "check_reading", "check_state", "contact_loss", "watchdog",
+__all__ = ["RULES", "Event", "SafetyLimits", "check_reading", "check_state", "contact_loss", "no_contact", "watchdog",
            "too_many_rejected", "clamp_torque", "hold_torque", "retract_target", "retract_step"]

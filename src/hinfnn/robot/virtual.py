@@ -117,7 +117,7 @@ def serve(config: dict) -> None:
         sc = Scenario.from_dict(config["scenario"], source=config["source"], check=False)
         setup = sc.build()
         plant = setup.plant
-        state = plant.initial_state(np.asarray(setup.q0, dtype=float))
+        state = plant.initial_state(np.asarray(setup.start_q, dtype=float))
         n = int(plant.n)
         step = jax.jit(lambda t, s, tau: plant.step(t, s, tau, period)[0])
         step(0.0, state, jnp.zeros(n)).q.block_until_ready()  # compiled before the clock starts

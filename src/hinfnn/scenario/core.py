@@ -32,8 +32,8 @@ from typing import Any
 from ..errors import ConfigError
 from . import schema
 from .schema import param, section
-from .sections import (ControllerConfig, InitialConfig, NativeTaskConfig, NominalConfig, PlantConfig, ReferenceConfig,
-                       SafetyConfig, SimulationConfig, TaskConfig, VerdictConfig)
+from .sections import (ControllerConfig, InitialConfig, JobConfig, NativeTaskConfig, NominalConfig, PlantConfig,
+                       ReferenceConfig, SafetyConfig, SimulationConfig, TaskConfig, VerdictConfig)
 
 SHIPPED = "files"
 
@@ -55,6 +55,8 @@ class Scenario:
     simulation: SimulationConfig = param(doc="the simulation")
     verdict: VerdictConfig = param(VerdictConfig(), doc="when a run did its job")
     safety: SafetyConfig = param(SafetyConfig(), doc="the safety layer of a robot loop (hinfnn robot run)")
+    job: JobConfig = param(JobConfig(), doc="the phases of a job: start in contact (the paper) or approach from "
+                           "free space")
     source: str = dataclasses.field(default="<dict>", compare=False)
     overrides: tuple = dataclasses.field(default=(), compare=False)
 

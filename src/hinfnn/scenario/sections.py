@@ -1491,6 +1491,54 @@ class SafetyConfig:
 
 
 @section
+class JobConfig:
+    """The phases of a real job (:mod:`hinfnn.controllers.job`, docs/robot.md "Phases of a job"):
+    where the tool starts and what it does before and after the paper's constrained law. ``start
+    = "contact"`` (the default) is the paper's assumption A5: the tool starts on the true surface
+    and the law runs from t = 0, as without this section. ``start = "approach"``: the tool starts
+    ``approach_height`` above the NOMINAL surface (along its normal), moves towards it at
+    ``approach_speed`` until the measured force reaches ``contact_force``, then the law takes over
+    with λd ramped from the force at contact over ``ramp_time``; after ``process_time`` s of the
+    process it unloads and lifts off. Sampled control only (the phases switch at samples)."""
+
+    start: Literal["contact", "approach"] = param("contact", doc="where the job starts: \"contact\" (the paper's A5: "
+                                                   "on the true surface, the law from t = 0) or \"approach\" (above the "
+                                                   "nominal surface: approach, touch, force ramp, process, lift-off)")
+    approach_height: float = param(0.02, doc="start height above the NOMINAL surface along its normal (start = "
+                                   "\"approach\"), m", gt=0.0, le=1.0)
+    approach_speed: float = param(0.01, doc="speed of the guarded move towards the surface, m/s", gt=0.0, le=1.0)
+    approach_margin: float = param(0.02, doc="how far past the nominal surface the guarded move goes before it gives "
+                                   "up (the run stops: no contact found), m", ge=0.0, le=1.0)
+    approach_gain: float = param(20.0, doc="bandwidth of the free-space motion law (computed torque on the nominal "
+                                 "model with integral action, its three poles at -approach_gain), rad/s", gt=0.0,
+                                 le=1e3)
+    contact_force: float = param(2.0, doc="contact is detected when the MEASURED force at the tool reaches this, N "
+                                 "(above the sensor's noise and bias)", gt=0.0, le=1e6)
+    ramp_time: float = param(0.5, doc="lam_d ramps from the force at contact to the reference's over this time, s "
+                             "(the reference's time origin is the contact)", ge=0.0, le=100.0)
+    process_time: float = param(0.0, doc="time in the process phase after the ramp before the unload and lift-off, s; "
+                                "0: the process runs to the end of the run (no lift-off)", ge=0.0, le=1e5)
+    lift_height: float = param(0.02, doc="how far the tool lifts off the surface at the end, m", gt=0.0, le=1.0)
+    lift_time: float = param(1.0, doc="the lift-off takes this long, s", gt=0.0, le=100.0)
+
+    @property
+    def approach(self) -> bool:
+        return self.start == "approach"
+
+    def check_sensor(self, sensor, path: str = "job") -> None:
+        """``contact_force`` must exceed what the declared sensor reads with no contact: its bias
+        plus 5 standard deviations of the noise's norm (ConfigError at ``job.contact_force``)."""
+        if not self.approach:
+            return
+        floor = float(np.linalg.norm(sensor.force_bias)) if sensor.force_bias else 0.0
+        floor += 5.0 * math.sqrt(3.0) * float(sensor.force_noise)
+        if not self.contact_force > floor:
+            raise ConfigError(f"must exceed the force the sensor reads with no contact, |plant.sensor.force_bias| + "
+                              f"5 sqrt(3) plant.sensor.force_noise = {floor:.4g} N, got {self.contact_force:g} N (a "
+                              "threshold in the noise detects contact in free space)", key=f"{path}.contact_force")
+
+
+@section
 class SimulationConfig:
     t_final: float = param(doc="horizon, s", gt=0.0, le=1e5)
     dt: float = param(doc="RK4 step, s", gt=0.0, le=0.1)

@@ -121,6 +121,26 @@ class Setup:
         """The start pose: the TRUE arm's tool at u1(0) on the TRUE surface (NaN when not found)."""
         return self.start_pose(self.plant)
 
+    @functools.cached_property
+    def start_q(self) -> np.ndarray:
+        """Where the truth starts: :attr:`q0` (on the true surface) for ``job.start = "contact"``;
+        for ``"approach"`` the joint angles with the NOMINAL tool ``job.approach_height`` above the
+        NOMINAL surface along its normal, at the motion coordinates of :attr:`q0`
+        (:func:`hinfnn.controllers.job.approach_pose`): where the robot believes the part is."""
+        job = self.scenario.job
+        if not job.approach:
+            return self.q0
+        from ..controllers.job import approach_pose
+
+        q, residual = approach_pose(self.nominal_arm, self.constraint, np.asarray(self.q0, dtype=float),
+                                    float(job.approach_height))
+        q = np.asarray(q)
+        if not (np.all(np.isfinite(q)) and float(residual) < 1e-9):
+            raise ConfigError(f"the approach's start pose, {job.approach_height:g} m above the nominal surface at "
+                              f"initial.u1 = {self.scenario.initial.u1}, is out of the nominal arm's reach (residual "
+                              f"{float(residual):.3g})", key="job.approach_height")
+        return q
+
     def start_pose(self, plant) -> np.ndarray:
         """The start pose of ``initial`` on ``plant`` (the scenario's own plant: :attr:`q0`)."""
         init = self.scenario.initial
@@ -136,8 +156,24 @@ class Setup:
         model (:class:`~hinfnn.errors.DesignError` with the dotted key of what failed)."""
         kind = kind or only(self.scenario.kinds)
         if kind not in self._controllers:
-            self._controllers[kind] = _DESIGNS.get(self._design_key(kind), lambda: self._design(kind))
+            law = _DESIGNS.get(self._design_key(kind), lambda: self._design(kind))
+            self._controllers[kind] = self._job(law)
         return self._controllers[kind]
+
+    def _job(self, law):
+        """``law`` in the phases of ``[job]`` (:class:`~hinfnn.controllers.job.JobController`) when
+        the job starts with an approach; the law itself otherwise (the paper's start in contact)."""
+        sc = self.scenario
+        job = sc.job
+        if not job.approach:
+            return law
+        if self.control_period is None:
+            raise ConfigError("a job with an approach runs under sampled control (its phases switch at samples): set "
+                              "simulation.control = \"sampled\", or job.start = \"contact\"", key="job.start")
+        job.check_sensor(sc.plant.sensor)
+        from ..controllers.job import JobController, job_params
+
+        return JobController(law=law, job=job_params(job), kind=law.kind)
 
     def _design_inputs(self):
         """(u1_path, q_start): the reference's path and the start pose the force-rate rule reads
@@ -202,7 +238,7 @@ class Setup:
         kind = kind or only(self.scenario.kinds)
         info = info or RunInfo(name=name or kind, kind=kind, scenario=self.scenario.single(kind))
         return Run(name=name or kind, plant=self.plant, controller=controller or self.controller(kind),
-                   reference=self.reference, q0=self.q0, info=info, **self.options())
+                   reference=self.reference, q0=self.start_q, info=info, **self.options())
 
     def check_start(self, kind: str | None = None) -> None:
         """What a run of ``kind`` checks before anything is compiled, as :func:`hinfnn.simulate`
