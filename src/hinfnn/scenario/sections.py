@@ -1217,7 +1217,7 @@ class AdaptationConfig:
     robust: Literal["none", "dead_zone", "sigma", "e_mod", "projection"] = param(
         "none", doc="the update laws' modification: \"none\" (eqs. (30)-(31)), \"dead_zone\" (no learning while "
                     "the drive is within zone x its noise RMS), \"sigma\" (leakage -leak Theta), \"e_mod\" (leakage "
-                    "-leak (|drive| / its noise RMS) Theta), \"projection\" (Remark 2, radii radius_p, radius_f)")
+                    "-leak (norm of the drive / its noise RMS) Theta), \"projection\" (Remark 2, radii radius_p, radius_f)")
     leak: float = param(1.0, doc="leakage rate of \"sigma\" (and of \"e_mod\" at the drive's noise level), 1/s",
                         ge=0.0, le=1e6)
     zone: float = param(2.0, doc="dead zone width of \"dead_zone\", in RMS values of the drive's noise", ge=0.0,
@@ -1232,7 +1232,7 @@ class AdaptationConfig:
                                                 "\"design\": the least-norm weights giving 9.81 per output at "
                                                 "zero error", gt=0.0, le=1e12)
     radius_f: Literal["design"] | float = param("design", doc="projection radius of F_f for \"projection\"; "
-                                                "\"design\": the least-norm weights giving the largest |lam_d| at "
+                                                "\"design\": the least-norm weights giving the largest abs(lam_d) at "
                                                 "zero error", gt=0.0, le=1e12)
 
     def options(self) -> dict:
