@@ -65,7 +65,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenario", default="ur5-polish")
     p.add_argument("--sigmas", type=float, nargs="+", default=[1.0, 2.0, 2.5, 5.0])
-    p.add_argument("--options", nargs="+", default=list(OPTIONS), choices=OPTIONS)
+    p.add_argument("--options", nargs="*", default=list(OPTIONS), choices=OPTIONS)
     p.add_argument("--t-final", type=float, default=5.0)
     p.add_argument("--set", action="append", default=[], help="KEY=VALUE, every case")
     p.add_argument("--variant", action="append", default=[],
@@ -91,7 +91,8 @@ def main(argv=None):
             sets = [*base, ("plant.sensor.force_noise", s), ("controller.adaptation.robust", opt), *extra]
             sc = load_scenario(args.scenario, sets)
             name = f"{label}-s{s:g}"
-            cases.append(Case(name=name, scenario=sc.single(sc.kinds[0]), tags={"option": label, "sigma": s}))
+            kind = "hinf_nn" if "hinf_nn" in sc.kinds else sc.kinds[0]
+            cases.append(Case(name=name, scenario=sc.single(kind), tags={"option": label, "sigma": s}))
         t0 = time.perf_counter()
         try:
             outcome = simulate_cases(cases)

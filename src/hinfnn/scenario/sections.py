@@ -1214,8 +1214,9 @@ class AdaptationConfig:
     """Robustness of the networks' update laws (30)–(31) against measurement noise (not in the
     paper; docs/beyond-the-paper.md, section 9). ``robust = "none"``: the paper's law."""
 
-    robust: Literal["none", "dead_zone", "sigma", "e_mod", "projection"] = param(
-        "none", doc="the update laws' modification: \"none\" (eqs. (30)-(31)), \"dead_zone\" (no learning while "
+    robust: Literal["auto", "none", "dead_zone", "sigma", "e_mod", "projection"] = param(
+        "auto", doc="the update laws' modification: \"auto\" (\"e_mod\" when plant.sensor declares noise, else "
+                    "\"none\"), \"none\" (eqs. (30)-(31)), \"dead_zone\" (no learning while "
                     "the drive is within zone x its noise RMS), \"sigma\" (leakage -leak Theta), \"e_mod\" (leakage "
                     "-leak (norm of the drive / its noise RMS) Theta), \"projection\" (Remark 2, radii radius_p, radius_f)")
     leak: float = param(1.0, doc="leakage rate of \"sigma\" (and of \"e_mod\" at the drive's noise level), 1/s",
@@ -1235,10 +1236,21 @@ class AdaptationConfig:
                                                 "\"design\": the least-norm weights giving the largest abs(lam_d) at "
                                                 "zero error", gt=0.0, le=1e12)
 
-    def options(self) -> dict:
+    #: What ``robust = "auto"`` is with a noisy sensor (chosen by measurement, docs/beyond-the-paper.md
+    #: section 9); with an ideal one it is "none", the paper's law.
+    AUTO: ClassVar[str] = "e_mod"
+
+    def resolved(self, noisy: bool) -> str:
+        """The modification run: ``robust``, with "auto" resolved by whether the declared sensor
+        has noise (``noisy``)."""
+        if self.robust == "auto":
+            return self.AUTO if noisy else "none"
+        return self.robust
+
+    def options(self, noisy: bool) -> dict:
         """The keyword arguments of :func:`hinfnn.controllers.kinds.robust_adaptation` but the
         design inputs."""
-        return dict(robust=self.robust, leak=self.leak, zone=self.zone,
+        return dict(robust=self.resolved(noisy), leak=self.leak, zone=self.zone,
                     noise_p=None if self.noise_p == "sensor" else self.noise_p,
                     noise_f=None if self.noise_f == "sensor" else self.noise_f,
                     radius_p=None if self.radius_p == "design" else self.radius_p,
@@ -1297,10 +1309,21 @@ class ControllerConfig:
                           network_p=self.network_p.build("controller.network_p", surface.m),
                           network_f=self.network_f.build("controller.network_f", surface.k),
                           force_rate=force_rate, singularity_stop=self.singularity_stop,
-                          adaptation=None if self.adaptation.robust == "none" else
-                          {**self.adaptation.options(), **(adaptation or {})})
+                          adaptation=self._adaptation(adaptation))
         except DesignError as err:
             raise prefixed(err) from None
+
+
+    def _adaptation(self, inputs: dict | None) -> dict | None:
+        """:func:`~hinfnn.controllers.kinds.robust_adaptation`'s keyword arguments (None: the
+        paper's update laws), from ``controller.adaptation`` and the design ``inputs`` (the
+        declared sensor's noise, the start pose, the largest λd; None: an ideal sensor)."""
+        noisy = inputs is not None and bool(inputs.get("force_noise") or np.any(inputs.get("q_noise", 0))
+                                            or np.any(inputs.get("qd_noise", 0)))
+        robust = self.adaptation.resolved(noisy)
+        if robust == "none":
+            return None
+        return {**self.adaptation.options(noisy), **(inputs or {})}
 
 
 def prefixed(err: DesignError) -> DesignError:

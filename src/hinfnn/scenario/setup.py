@@ -164,11 +164,14 @@ class Setup:
         return kind, models, repr(self.scenario.controller), self.control_period, path, start, adapt
 
     def _adaptation_inputs(self) -> dict | None:
-        """What the robust update laws' design reads (``controller.adaptation``, not "none"): the
-        start pose, the largest |λd| over the run and the DECLARED sensor noise (its data sheet,
-        ``plant.sensor``: the noise the laws are sized for), or None with the paper's laws."""
+        """What the robust update laws' design reads (``controller.adaptation``, not "none", nor
+        "auto" with an ideal sensor): the start pose, the largest |λd| over the run and the
+        DECLARED sensor noise (its data sheet, ``plant.sensor``: the noise the laws are sized
+        for), or None with the paper's laws."""
         sc = self.scenario
-        if sc.controller.adaptation.robust == "none":
+        sensor = sc.plant.sensor
+        noisy = bool(sensor.force_noise or np.any(sensor.q_noise) or np.any(sensor.qd_noise))
+        if sc.controller.adaptation.resolved(noisy) == "none":
             return None
         if "_adapt" not in self.__dict__:
             import jax
@@ -176,7 +179,6 @@ class Setup:
 
             ts = jnp.linspace(0.0, float(sc.simulation.t_final), 2001)
             lam_d = np.asarray(jax.vmap(lambda t: self.reference(t).lam_d)(ts))
-            sensor = sc.plant.sensor
             self._adapt = dict(q=np.asarray(self.q0, float), lam_max=float(np.max(np.abs(lam_d))),
                                force_noise=float(sensor.force_noise), q_noise=np.asarray(sensor.q_noise, float),
                                qd_noise=np.asarray(sensor.qd_noise, float))
