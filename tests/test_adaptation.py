@@ -229,10 +229,14 @@ def test_leakage_bounds_the_weights_under_noise_where_the_papers_law_drifts():
     assert leaky.theta_f_norm[-1] < 0.1 * end
 
 
-def test_auto_is_the_papers_law_with_an_ideal_sensor_and_e_mod_with_a_noisy_one():
+def test_auto_is_the_papers_law_with_an_ideal_sensor_and_projection_with_a_noisy_one():
     sampled = ["simulation.control=sampled", "simulation.control_period=0.001"]
     ideal = H.load_scenario("paper", sampled).build_controller()
     assert all(getattr(t, "adaptation", None) is None for t in ideal.terms)
+    assert not ideal.network_f.project and not ideal.network_p.project
     noisy = H.load_scenario("paper", [*sampled, "plant.sensor.force_noise=1.0"]).build_controller()
-    f = noisy.summary()["networks"]["theta_f"]["adaptation"]
-    assert f["e_gain"] == pytest.approx(1.0 / f["drive_noise_rms"]) and f["leak"] == 0.0 and f["dead_zone"] == 0.0
+    explicit = H.load_scenario("paper", [*sampled, "plant.sensor.force_noise=1.0",
+                                         "controller.adaptation.robust=projection"]).build_controller()
+    assert noisy.network_f.project and noisy.network_p.project
+    assert float(noisy.network_f.radius) == float(explicit.network_f.radius)
+    assert float(noisy.network_p.radius) == float(explicit.network_p.radius)

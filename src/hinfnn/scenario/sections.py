@@ -1215,7 +1215,7 @@ class AdaptationConfig:
     paper; docs/beyond-the-paper.md, section 9). ``robust = "none"``: the paper's law."""
 
     robust: Literal["auto", "none", "dead_zone", "sigma", "e_mod", "projection"] = param(
-        "auto", doc="the update laws' modification: \"auto\" (\"e_mod\" when plant.sensor declares noise, else "
+        "auto", doc="the update laws' modification: \"auto\" (\"projection\" when plant.sensor declares noise, else "
                     "\"none\"), \"none\" (eqs. (30)-(31)), \"dead_zone\" (no learning while "
                     "the drive is within zone x its noise RMS), \"sigma\" (leakage -leak Theta), \"e_mod\" (leakage "
                     "-leak (norm of the drive / its noise RMS) Theta), \"projection\" (Remark 2, radii radius_p, radius_f)")
@@ -1238,7 +1238,7 @@ class AdaptationConfig:
 
     #: What ``robust = "auto"`` is with a noisy sensor (chosen by measurement, docs/beyond-the-paper.md
     #: section 9); with an ideal one it is "none", the paper's law.
-    AUTO: ClassVar[str] = "e_mod"
+    AUTO: ClassVar[str] = "projection"
 
     def resolved(self, noisy: bool) -> str:
         """The modification run: ``robust``, with "auto" resolved by whether the declared sensor
