@@ -326,13 +326,21 @@ class CoordinateNetwork(_Network):
         return _projected(self, raw, xi_blocks, s, theta_blocks, gamma)
 
 
+#: Remark 2's projection acts from ‖Θ‖² ≥ (1 − this) d²: the radial clip leaves Θ on the sphere to
+#: the rounding of ‖Θ‖, and a test at d² exactly would switch the projection on or off by that
+#: rounding (two compiled programs of the same law, a run and a batch member, then part ways). Acting
+#: this little inside the ball only removes an outward part sooner: the storage still only shrinks.
+PROJECTION_BAND = 1e-9
+
+
 def _projected(net, raw, xi_blocks, s, theta_blocks, gamma) -> tuple:
     """Remark 2's projection of the update Θ̇ = ``raw`` (blocks) of either network: on the ball's
-    boundary ‖Θ‖ ≥ d with sᵀΞΘ > 0, the outward part γ (sᵀΞΘ/d²) Θ is removed."""
+    boundary ‖Θ‖ ≥ d (to :data:`PROJECTION_BAND`) with sᵀΞΘ > 0, the outward part γ (sᵀΞΘ/d²) Θ is
+    removed."""
     if not net.project:
         return raw
     growth = la.mm(s, net.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ
-    active = (sq_norm(theta_blocks) >= net.radius**2) & (growth > 0)
+    active = (sq_norm(theta_blocks) >= (1.0 - PROJECTION_BAND) * net.radius**2) & (growth > 0)
     coef = jnp.where(active, gamma * growth / net.radius**2, 0.0)
     return tuple(r - coef * t for r, t in zip(raw, theta_blocks))
 
