@@ -761,6 +761,10 @@ def format_design_report(rep: dict) -> str:
             lines.append(f"  network {key}: {n['units']} units, centres {_fmt_list(n['first_centre'], 'g')} .. "
                          f"{_fmt_list(n['last_centre'], 'g')}, slope {_fmt_list(n['slope'], 'g')}"
                          + (f", radius {n['radius']:g}" if n["radius"] else ""))
+            if n.get("adaptation"):  # the robust update law (docs/beyond-the-paper.md, section 11)
+                a = n["adaptation"]
+                lines.append(f"    update law: dead zone {a['dead_zone']:.4g}, leakage {a['leak']:.4g} 1/s + "
+                             f"{a['e_gain']:.4g} |s|, the drive's noise RMS {a['drive_noise_rms']:.4g}")
         fr = d.get("force_rate")
         if fr:
             lines.append(f"  force rate: kappa {fr['kappa']:.4g} s ({'rule' if fr['rule'] else 'given'}: zeta {fr['zeta']:g}, "

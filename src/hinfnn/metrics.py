@@ -89,7 +89,12 @@ def compute_metrics(traj, last: float = 2.0, *, tolerances: dict | None = None, 
     scenario, None: the scenario's, and none: not); ``fraction_torque_saturated`` the share of
     stored samples with a joint's applied torque at its limit (``plant.actuator``; 0 without one).
     ``dissipation_min_margin`` is min over t > 0 of ρ²∫₀ᵗ(‖f_p‖²+‖f_f‖²) − (J(t) + V(t) − V(0)): the
-    theorems claim the inequality for every T, not only the final one. ``t_end`` is the time the
+    theorems claim the inequality for every T, not only the final one. With a robust update law
+    (``controller.adaptation``) the inequality checked is the modified law's, (39'') of
+    docs/beyond-the-paper.md section 11: the leakage's dissipation counted in J_aug, the dead zone's
+    bound in the supply. The residuals are solved from the measured errors, so a noisy sensor's
+    noise is part of the supply: the check bounds the errors the law measured, not the true force
+    (``rms_normal_force_error``). ``t_end`` is the time the
     metrics cover; for a run that stopped early (``partial``) it is the step that stopped it: its
     metrics cover every step it ran, the one that stopped it included (the step summaries of the
     first sample after the stop, :class:`hinfnn.sim.simulate.Carry`), so ``peak_abs_tau`` holds the

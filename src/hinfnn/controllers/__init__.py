@@ -8,17 +8,18 @@ then used through pure functions on an explicit state pytree. Nothing here impor
 """
 
 from .gains import Gains
-from .kinds import (KINDS, Composition, FeedbackLinearization, HinfController, HinfNNController, design, register,
-                    unregister)
+from .kinds import (KINDS, ROBUST, Composition, FeedbackLinearization, HinfController, HinfNNController, design,
+                    drive_noise, register, robust_adaptation, unregister)
 from .law import ControllerState, LawAux, Output, ReducedOrderController, force_multiplier, measured_force
-from .network import CENTRE_PRESETS_F, CoordinateNetwork, TanhNetwork, centres_from, paper_network_f, paper_network_p
+from .network import CENTRE_PRESETS_F, Adaptation, CoordinateNetwork, TanhNetwork, centres_from, paper_network_f, paper_network_p
 from .riccati import RiccatiSolution, design_riccati, solve_riccati_like
 from .sampled import MeasurementError, SampledController, SampledLoop
 from .summary import design_summary
 from .terms import Context, ForceNetwork, ForceRate, PositionNetwork, RobustForce, RobustPosition, Term
 
 __all__ = [
-    "Gains", "KINDS", "Composition", "design", "register", "unregister",
+    "Gains", "KINDS", "Composition", "design", "register", "unregister", "ROBUST", "robust_adaptation",
+    "drive_noise", "Adaptation",
     "FeedbackLinearization", "HinfController", "HinfNNController",
     "ControllerState", "LawAux", "Output", "ReducedOrderController", "force_multiplier", "measured_force",
     "Term", "Context", "RobustPosition", "RobustForce", "PositionNetwork", "ForceNetwork", "ForceRate",

@@ -18,14 +18,17 @@ from __future__ import annotations
 import dataclasses
 from typing import Callable
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
+from .._programs import jit_by_joints
 from .._pytree import Note
 from ..errors import DesignError
 from . import terms as T
 from .gains import Gains
 from .law import BLOCK, ReducedOrderController
-from .network import TanhNetwork, paper_network_f, paper_network_p
+from .network import Adaptation, TanhNetwork, paper_network_f, paper_network_p
 from .riccati import design_riccati
 
 
@@ -56,6 +59,128 @@ def _networks(opts):
             T.ForceNetwork(network=opts.get("network_f") or paper_network_f(opts.get("centre_preset", "paper-likely"))))
 
 
+#: The robust modifications of the update laws (30)–(31) (``controller.adaptation.robust``).
+ROBUST = ("none", "dead_zone", "sigma", "e_mod", "projection")
+
+#: The position-side uncertainty a "design" projection radius lets F_p cover, per output (m/s²):
+#: the acceleration of gravity, a nominal model wrong by its whole gravity load.
+GRAVITY_BOUND = 9.81
+
+
+@jit_by_joints
+def _observation_jacobians(ctrl, q, qd, force):
+    """∂(u1, u̇1, λ)/∂(q, q̇, f) of the law's observation map (:meth:`ReducedOrderController.observe`)."""
+    from ..protocols import Measurement
+
+    return jax.jacfwd(lambda a, b, c: ctrl.observe(Measurement(q=a, qd=b, force=c)), argnums=(0, 1, 2))(q, qd, force)
+
+
+def drive_noise(ctrl, q, force_noise: float = 0.0, q_noise=0.0, qd_noise=0.0) -> tuple[float, float]:
+    """(RMS of F_p's drive B_pᵀP_p x_p, RMS of F_f's drive e_λ) from a sensor's white noise alone,
+    at the pose ``q``: joint-angle and joint-rate noise of the given standard deviations (a number
+    or one per joint) move u1 = ĥ1(q) and u̇1 = (Ĵq̇)_1 by Ĵ1 δq, Ĵ1 δq̇; force noise of σ on each
+    axis of the sensed tool force moves λ by L δf (L the law's map from the tool force to λ), so
+    RMS(e_λ) = σ ‖L‖_F. The loop's own response to the noise (the motion the noisy torque causes)
+    is not included: it is what the drive would show with the loop open."""
+    q = jnp.asarray(q, dtype=float)
+    n = q.shape[0]
+    arm = ctrl.arm
+    dim = arm.J(q).shape[0] if arm.task_is_point else arm.point_jacobian(q).shape[0]
+    (du_dq, _, _), (_, dv_dqd, _), (_, _, dl_df) = _observation_jacobians(ctrl, q, jnp.zeros(n), jnp.zeros(dim))
+    m = ctrl.m
+    sq = np.broadcast_to(np.asarray(q_noise, float), (n,)) ** 2
+    sqd = np.broadcast_to(np.asarray(qd_noise, float), (n,)) ** 2
+    J1, Jv = np.asarray(du_dq), np.asarray(dv_dqd)
+    cov_x = np.zeros((2 * m, 2 * m))
+    cov_x[:m, :m] = (J1 * sq) @ J1.T
+    cov_x[m:, m:] = (Jv * sqd) @ Jv.T
+    Pl = np.asarray(ctrl.P_p, float)[m:]
+    noise_p = float(np.sqrt(max(np.trace(Pl @ cov_x @ Pl.T), 0.0)))
+    noise_f = float(force_noise) * float(np.linalg.norm(np.asarray(dl_df)))
+    return noise_p, noise_f
+
+
+def _least_norm_radius(network, bound) -> float:
+    """‖Θ‖ of the least-norm weights whose outputs are ``bound`` each at zero input: Σ_o bound²/‖ξ_o(0)‖²
+    (ξ_o the features of output o; Remark 2's ball must contain the ideal weights Θ*, and a Θ* that
+    gives the outputs U needs ‖Θ*‖ ≥ (Σ U_o²/‖ξ_o‖²)^½)."""
+    zeros = jnp.zeros(network.n_out)
+    xi = np.atleast_2d(np.asarray(network.features(zeros, zeros)))
+    norms = np.broadcast_to(np.sqrt(np.sum(xi * xi, axis=1)), (network.n_out,))
+    return float(np.sqrt(np.sum(np.asarray(bound, float) ** 2 / np.maximum(norms, 1e-12) ** 2)))
+
+
+def robust_adaptation(ctrl, *, robust: str, leak: float = 1.0, zone: float = 2.0, noise_p=None, noise_f=None,
+                      radius_p=None, radius_f=None, q=None, lam_max=None, force_noise: float = 0.0, q_noise=0.0,
+                      qd_noise=0.0):
+    """The controller ``ctrl`` with its networks' update laws (30)–(31) made robust to measurement
+    noise (not in the paper; docs/beyond-the-paper.md, section 11), by ``robust``:
+
+    * ``"dead_zone"``: no learning while ‖s‖ ≤ ``zone`` × the drive's noise RMS (``noise_p``,
+      ``noise_f``; None: :func:`drive_noise` of the declared ``force_noise``, ``q_noise``,
+      ``qd_noise`` at the pose ``q``);
+    * ``"sigma"``: σ-modification, leakage −``leak`` Θ̂ (1/s);
+    * ``"e_mod"``: e-modification, leakage −``leak`` (‖s‖ / the drive's noise RMS) Θ̂ (none on a
+      network whose drive has no noise);
+    * ``"projection"``: Remark 2 on both networks, radii ``radius_p``, ``radius_f`` (None: the
+      least-norm weights giving :data:`GRAVITY_BOUND` per output (F_p) and ``lam_max`` (F_f) at
+      zero error, :func:`_least_norm_radius`);
+    * ``"none"``: ``ctrl`` itself (eqs. 30–31).
+
+    Raises DesignError naming the ``adaptation.*`` key."""
+    if robust not in ROBUST:
+        raise DesignError(f"unknown robust adaptation {robust!r}; allowed: {', '.join(map(repr, ROBUST))}",
+                          key="adaptation.robust", value=robust)
+    nets = [t for t in ctrl.terms if isinstance(t, T._NetworkTerm)]
+    if robust == "none" or not nets:
+        return ctrl
+    for key, v in (("leak", leak), ("zone", zone), ("noise_p", noise_p), ("noise_f", noise_f)):
+        if v is not None and not (np.isfinite(v) and v >= 0):
+            raise DesignError(f"must be finite and >= 0, got {v!r}", key=f"adaptation.{key}", value=v, bound=0.0)
+    for key, v in (("radius_p", radius_p), ("radius_f", radius_f)):
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise DesignError(f"must be finite and > 0, got {v!r}", key=f"adaptation.{key}", value=v, bound=0.0)
+    if robust == "projection":
+        if radius_f is None and lam_max is None:
+            raise DesignError("a \"design\" radius of F_f needs the largest |lam_d| of the reference (lam_max)",
+                              key="adaptation.radius_f")
+        terms = []
+        for t in ctrl.terms:
+            if isinstance(t, T._NetworkTerm):
+                pos = isinstance(t, T.PositionNetwork)
+                given = radius_p if pos else radius_f
+                r = given if given is not None else _least_norm_radius(t.network, GRAVITY_BOUND if pos else lam_max)
+                t = dataclasses.replace(t, network=dataclasses.replace(t.network, radius=jnp.asarray(float(r)),
+                                                                       project=True))
+            terms.append(t)
+        return dataclasses.replace(ctrl, terms=tuple(terms))
+    if robust in ("dead_zone", "e_mod") and (noise_p is None or noise_f is None):
+        if q is None:
+            raise DesignError(f"{robust!r} needs the drives' noise: give noise_p and noise_f, or a start pose and "
+                              "the sensor's noise", key="adaptation.noise_f")
+        auto_p, auto_f = drive_noise(ctrl, q, force_noise, q_noise, qd_noise)
+        noise_p = auto_p if noise_p is None else noise_p
+        noise_f = auto_f if noise_f is None else noise_f
+    if robust in ("dead_zone", "e_mod") and not (noise_p or noise_f):
+        raise DesignError(f"{robust!r} is sized from the sensor's noise, and none is declared (plant.sensor.force_noise, "
+                          "q_noise, qd_noise all 0): declare the sensor's noise or give controller.adaptation.noise_f",
+                          key="adaptation.noise_f", value=0.0)
+    terms = []
+    for t in ctrl.terms:
+        if isinstance(t, T._NetworkTerm):
+            noise = float(noise_p if isinstance(t, T.PositionNetwork) else noise_f or 0.0) if robust != "sigma" else 0.0
+            name = "adaptation"
+            if robust == "dead_zone":
+                a = Adaptation.make(zone=zone * noise, noise=noise, name=name)
+            elif robust == "sigma":
+                a = Adaptation.make(leak=leak, name=name)
+            else:
+                a = Adaptation.make(e_gain=leak / noise if noise > 0 else 0.0, noise=noise, name=name)
+            t = dataclasses.replace(t, adaptation=a)
+        terms.append(t)
+    return dataclasses.replace(ctrl, terms=tuple(terms))
+
+
 KINDS: dict[str, Composition] = {
     "fl": Composition("fl", "FL-like", lambda o: (), robust=False,
                       doc="Sec. VI feedback-linearization-like law (the CT part alone)"),
@@ -78,7 +203,7 @@ def unregister(kind: str) -> None:
 
 def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bool = False,
            extra_terms: tuple = (), force_rate: dict | None = None, singularity_stop: float = 0.0,
-           block: int | None = BLOCK, **options) -> ReducedOrderController:
+           block: int | None = BLOCK, adaptation: dict | None = None, **options) -> ReducedOrderController:
     """Design the controller ``kind`` from the NOMINAL arm and surface: check the gains (Theorem
     1's bounds, Remarks 1–3), solve the Riccati-like eq. (35) (or (40) with ``augmented``,
     Remark 1), build and check the terms. ``options``: ``network_p``, ``network_f``,
@@ -90,7 +215,9 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
     ``period``); a κ of 0 leaves the law as the paper's. ``singularity_stop``: the law reports a
     fault (the simulator stops, the sampled controller returns NaN) when σ_min(Ĵ) falls below it.
     ``block``: the largest array the controller keeps in the compiled loop
-    (:data:`~hinfnn.controllers.law.BLOCK`; None: arrays whole).
+    (:data:`~hinfnn.controllers.law.BLOCK`; None: arrays whole). ``adaptation`` (not in the
+    paper): the keyword arguments of :func:`robust_adaptation` (the networks' update laws made
+    robust to measurement noise); None: eqs. (30)–(31).
 
     Raises :class:`~hinfnn.errors.DesignError` naming the condition that failed."""
     if kind not in KINDS:
@@ -124,9 +251,12 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
                                      design=Note(d.as_dict().items())),)
     for term in terms:
         term.check(surface.m, surface.k)
-    return ReducedOrderController(arm=arm, surface=surface, gains=g, P_p=P, terms=terms,
+    ctrl = ReducedOrderController(arm=arm, surface=surface, gains=g, P_p=P, terms=terms,
                                   sigma_stop=jnp.asarray(float(singularity_stop)), kind=kind, augmented=augmented,
                                   block=block)
+    if adaptation:
+        ctrl = robust_adaptation(ctrl, **adaptation)
+    return ctrl
 
 
 class FeedbackLinearization:

@@ -421,10 +421,17 @@ class ReducedOrderController(Controller, Dissipative):
         """The theorems' bookkeeping at one instant, given the true joint acceleration q̈ (from
         the plant, like an accelerometer): the integrand ``j`` of eq. (34) and Remark 1's
         ``j_extra``, the supply rate ρ²(‖f_p‖² + ‖f_f‖²), the storage ``V`` and the residuals
-        ``f_p``, ``f_f``. Along any run, J(t) + V(t) − V(0) ≤ ∫ supply must hold (Theorems 1–2)."""
+        ``f_p``, ``f_f``. Along any run, J(t) + V(t) − V(0) ≤ ∫ supply must hold (Theorems 1–2).
+        A network learning with a dead zone (:class:`~hinfnn.controllers.network.Adaptation`) adds
+        its bounded uncancelled rate to the supply, and leakage its dissipation to ``j_extra``
+        (docs/beyond-the-paper.md, section 11)."""
         j, extra = self.performance(state, out)
         f_p, f_f = self.supply_residuals(out, self.u1_ddot(out, qd, qdd))
         supply = self.gains.rho**2 * (la.mm(f_p, f_p) + la.mm(f_f, f_f))
+        for term in self.terms:  # a term's bounded rate the proof does not cancel (a network's dead zone)
+            s = term.extra_supply(out.aux.ctx, state.parts)
+            if s is not None:
+                supply = supply + s
         return Dissipation(j=j, j_extra=extra, supply=supply, V=self.storage(state, out), f_p=f_p, f_f=f_f)
 
     # --- design-time checks ----------------------------------------------------------------------

@@ -326,12 +326,80 @@ class CoordinateNetwork(_Network):
         return _projected(self, raw, xi_blocks, s, theta_blocks, gamma)
 
 
+#: Remark 2's projection acts from ‖Θ‖² ≥ (1 − this) d²: the radial clip leaves Θ on the sphere to
+#: the rounding of ‖Θ‖, and a test at d² exactly would switch the projection on or off by that
+#: rounding (two compiled programs of the same law, a run and a batch member, then part ways). Acting
+#: this little inside the ball only removes an outward part sooner: the storage still only shrinks.
+PROJECTION_BAND = 1e-9
+
+
 def _projected(net, raw, xi_blocks, s, theta_blocks, gamma) -> tuple:
     """Remark 2's projection of the update Θ̇ = ``raw`` (blocks) of either network: on the ball's
-    boundary ‖Θ‖ ≥ d with sᵀΞΘ > 0, the outward part γ (sᵀΞΘ/d²) Θ is removed."""
+    boundary ‖Θ‖ ≥ d (to :data:`PROJECTION_BAND`) with sᵀΞΘ > 0, the outward part γ (sᵀΞΘ/d²) Θ is
+    removed."""
     if not net.project:
         return raw
     growth = la.mm(s, net.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ
-    active = (sq_norm(theta_blocks) >= net.radius**2) & (growth > 0)
+    active = (sq_norm(theta_blocks) >= (1.0 - PROJECTION_BAND) * net.radius**2) & (growth > 0)
     coef = jnp.where(active, gamma * growth / net.radius**2, 0.0)
     return tuple(r - coef * t for r, t in zip(raw, theta_blocks))
+
+
+@pytree_dataclass
+class Adaptation:
+    """The robust modification of a network's update law (30) or (31) against measurement noise
+    (not in the paper; docs/beyond-the-paper.md, section 11):
+
+        Θ̂̇ = γ g(s) Ξᵀ s − ℓ(s) Θ̂,   g(s) = max(0, 1 − d/‖s‖),   ℓ(s) = σ + ν ‖s‖,
+
+    then Remark 2's projection of the first part when the network has a radius. ``zone`` is the
+    dead zone's width d on ‖s‖ (the update stops while ‖s‖ ≤ d and grows continuously from its
+    edge), ``leak`` is σ-modification's leakage σ (1/s) and ``e_gain`` e-modification's ν (1/s per
+    unit of ‖s‖). ``noise`` is the RMS of the drive s from the sensor's noise alone, the scale the
+    design sized d and ν from (a record). With every parameter 0 this is eq. (30)/(31) itself.
+    Every parameter is data: the options share one compiled program."""
+
+    zone: jax.Array
+    leak: jax.Array
+    e_gain: jax.Array
+    noise: jax.Array
+
+    @classmethod
+    def make(cls, zone: float = 0.0, leak: float = 0.0, e_gain: float = 0.0, noise: float = 0.0,
+             name: str = "controller.adaptation") -> "Adaptation":
+        """Validate (finite, ≥ 0; DesignError naming the key) and build."""
+        values = dict(zone=zone, leak=leak, e_gain=e_gain, noise=noise)
+        for key, v in values.items():
+            v = float(v)
+            if not (np.isfinite(v) and v >= 0):
+                raise DesignError(f"must be finite and >= 0, got {v:g}", key=f"{name}.{key}", value=v, bound=0.0)
+        return cls(**{k: jnp.asarray(float(v)) for k, v in values.items()})
+
+    def gate(self, s):
+        """g(s) = max(0, 1 − d/‖s‖): 0 inside the dead zone ‖s‖ ≤ d, → 1 far outside it; 1 for d = 0."""
+        ns = jnp.sqrt(la.mm(s, s))
+        return jnp.where(ns > self.zone, 1.0 - self.zone / jnp.maximum(ns, 1e-300), 0.0)
+
+    def rate(self, s):
+        """ℓ(s) = σ + ν ‖s‖, the leakage rate (1/s)."""
+        return self.leak + self.e_gain * jnp.sqrt(la.mm(s, s))
+
+    def update_blocks(self, net, xi_blocks, s, theta_blocks, gamma) -> tuple:
+        """Θ̂̇ of eq. (30) or (31) with the dead zone, the leakage and Remark 2's projection, on
+        blocks. Implements eqs. (30)–(31) modified (docs/beyond-the-paper.md, section 11)."""
+        driven = net.update_blocks(xi_blocks, self.gate(s) * s, theta_blocks, gamma)
+        ell = self.rate(s)
+        return tuple(d - ell * t for d, t in zip(driven, theta_blocks))
+
+    def storage_rate(self, net, xi_blocks, s, theta_blocks, gamma, weight):
+        """(D, S): what the modification does to the storage w‖Θ̂‖² (w = ``weight``) of eq. (36).
+        With eq. (30)/(31), d/dt w‖Θ̂‖² = 2wγ sᵀΞΘ̂ cancels the network's cross term in V̇ (37)–(38);
+        with the modification d/dt w‖Θ̂‖² = 2wγ g sᵀΞΘ̂ − 2wℓ‖Θ̂‖² (− the projection's removal), so V̇
+        gains −D, D = 2wℓ‖Θ̂‖² ≥ 0 (dissipation: the stricter inequality), and the uncancelled
+        2wγ(1 − g) sᵀΞΘ̂, bounded by S = 2wγ (1 − g)‖s‖ ‖ΞΘ̂‖ = 2wγ min(‖s‖, d) ‖ΞΘ̂‖ ≥ 0: a supply the
+        dead zone adds (zero outside it and for d = 0)."""
+        ns = jnp.sqrt(la.mm(s, s))
+        out = net.output_blocks(xi_blocks, theta_blocks)
+        D = 2.0 * weight * self.rate(s) * sq_norm(theta_blocks)
+        S = 2.0 * weight * gamma * jnp.minimum(ns, self.zone) * jnp.sqrt(la.mm(out, out))
+        return D, S

@@ -70,6 +70,11 @@ def design_summary(ctrl) -> dict:
                                "step": (c[:, 1] - c[:, 0]).tolist() if c.shape[1] > 1 else None,
                                "slope": _f(t.network.slope), "w_a": _f(t.network.w_a), "w_b": _f(t.network.w_b),
                                "radius": float(t.network.radius) if t.network.project else None}
+    for t in ctrl.terms:
+        if isinstance(t, (T.PositionNetwork, T.ForceNetwork)) and t.adaptation is not None:
+            a = t.adaptation
+            nets[t.key]["adaptation"] = {"dead_zone": float(a.zone), "leak": float(a.leak), "e_gain": float(a.e_gain),
+                                         "drive_noise_rms": float(a.noise)}
     if nets:
         out["networks"] = nets
     for t in ctrl.terms:

@@ -30,7 +30,7 @@ from .. import _linalg as la
 from .._pytree import Note, pytree_dataclass, static_field
 from ..reference import RefSample
 from .gains import Gains
-from .network import TanhNetwork, block_bounds, sq_norm
+from .network import Adaptation, TanhNetwork, block_bounds, sq_norm
 
 
 @pytree_dataclass
@@ -117,6 +117,13 @@ class Term:
         stricter form."""
         return None
 
+    def extra_supply(self, ctx: Context, parts: dict):
+        """A non-negative rate the term adds to the supply side of the dissipation check (a term
+        the theorem's proof does not cancel, bounded: the dead zone of
+        :class:`~hinfnn.controllers.network.Adaptation`), or None. The check then holds in the
+        weaker form the modified law still guarantees."""
+        return None
+
     def start(self, ctx: Context, parts: dict) -> dict:
         """Its state at the first sample, from the first measurement (default: unchanged)."""
         return {}
@@ -164,7 +171,9 @@ class RobustForce(Term):
 
 
 class _NetworkTerm(Term):
-    """−Ξ Θ̂ of a tanh network (eqs. 17–19) whose weights learn by eq. (30) or (31)."""
+    """−Ξ Θ̂ of a tanh network (eqs. 17–19) whose weights learn by eq. (30) or (31), or by the
+    robust modification ``adaptation`` (:class:`~hinfnn.controllers.network.Adaptation`: dead
+    zone, leakage; None: the paper's law)."""
 
     key: ClassVar[str]
     out: ClassVar[str]
@@ -187,6 +196,10 @@ class _NetworkTerm(Term):
     def _io(self, ctx):
         raise NotImplementedError
 
+    def _weight(self, ctx):
+        """w of the storage w‖Θ̂‖² (eq. 36)."""
+        raise NotImplementedError
+
     def prepared(self, block):
         return dataclasses.replace(self, network=self.network.with_centre_blocks(block_bounds(self.network.n_units, block)))
 
@@ -195,8 +208,31 @@ class _NetworkTerm(Term):
         theta = parts[self.key]
         xi = self.network.features_blocks(a, b, self.network.layout(theta))
         nn = self.network.output_blocks(xi, theta)
-        d_theta = self.network.update_blocks(xi, drive, theta, gamma)
-        return -nn, {self.key: d_theta}, {self.out: nn, f"{self.key}_norm": jnp.sqrt(sq_norm(theta))}
+        signals = {self.out: nn, f"{self.key}_norm": jnp.sqrt(sq_norm(theta))}
+        if self.adaptation is None:
+            d_theta = self.network.update_blocks(xi, drive, theta, gamma)
+        else:
+            d_theta = self.adaptation.update_blocks(self.network, xi, drive, theta, gamma)
+            signals[f"{self.key}_gate"] = self.adaptation.gate(drive)
+        return -nn, {self.key: d_theta}, signals
+
+    def _storage_rate(self, ctx, parts):
+        a, b, drive, gamma = self._io(ctx)
+        theta = parts[self.key]
+        xi = self.network.features_blocks(a, b, self.network.layout(theta))
+        return self.adaptation.storage_rate(self.network, xi, drive, theta, gamma, self._weight(ctx))
+
+    def extra_dissipation(self, ctx, parts):
+        """The leakage's 2wℓ‖Θ̂‖² (:meth:`Adaptation.storage_rate`); None for eq. (30)/(31)."""
+        return None if self.adaptation is None else self._storage_rate(ctx, parts)[0]
+
+    def extra_supply(self, ctx, parts):
+        """The dead zone's bound 2wγ min(‖s‖, d)‖ΞΘ̂‖ (:meth:`Adaptation.storage_rate`); None for
+        eq. (30)/(31)."""
+        return None if self.adaptation is None else self._storage_rate(ctx, parts)[1]
+
+    def storage(self, ctx, parts):
+        return self._weight(ctx) * sq_norm(parts[self.key])
 
     def constrain(self, parts):
         return {self.key: self.network.clip_blocks(parts[self.key])}
@@ -209,19 +245,21 @@ class PositionNetwork(_NetworkTerm):
     (eq. 36 with Θ* = 0)."""
 
     network: TanhNetwork
+    adaptation: Adaptation | None = None
     side: ClassVar[str] = "position"
     key: ClassVar[str] = "theta_p"
     out: ClassVar[str] = "nn_p"
     fields: ClassVar[dict] = {
         "nn_p": ("m/s²", "F_p's output Ξ_p Θ̂_p, eq. (19)"),
         "theta_p_norm": ("-", "‖Θ̂_p‖"),
+        "theta_p_gate": ("-", "the dead zone's gate g on eq. (30)'s drive (0: inside the zone, not learning)"),
     }
 
     def _io(self, ctx):
         return ctx.e_u1, ctx.e_u1_dot, ctx.s_p, ctx.gains.gamma_1
 
-    def storage(self, ctx, parts):
-        return sq_norm(parts[self.key]) / ctx.gains.gamma_1
+    def _weight(self, ctx):
+        return 1.0 / ctx.gains.gamma_1
 
 
 @pytree_dataclass
@@ -231,19 +269,21 @@ class ForceNetwork(_NetworkTerm):
     α_λα_z/(2γ2(1+β_λ)) ‖Θ̂f‖² (eq. 36's α_λ/(γ2(1+β_λ)) for α_z = 2, Remark 3 in general)."""
 
     network: TanhNetwork
+    adaptation: Adaptation | None = None
     side: ClassVar[str] = "force"
     key: ClassVar[str] = "theta_f"
     out: ClassVar[str] = "nn_f"
     fields: ClassVar[dict] = {
         "nn_f": ("λ units", "F_f's output Ξ_f Θ̂_f, eq. (19)"),
         "theta_f_norm": ("-", "‖Θ̂_f‖"),
+        "theta_f_gate": ("-", "the dead zone's gate g on eq. (31)'s drive (0: inside the zone, not learning)"),
     }
 
     def _io(self, ctx):
         return ctx.e_lam, ctx.z, ctx.e_lam, ctx.gains.gamma_2
 
-    def storage(self, ctx, parts):
-        return 0.5 * ctx.c * ctx.gains.alpha_z / ctx.gains.gamma_2 * sq_norm(parts[self.key])
+    def _weight(self, ctx):
+        return 0.5 * ctx.c * ctx.gains.alpha_z / ctx.gains.gamma_2
 
 
 @pytree_dataclass

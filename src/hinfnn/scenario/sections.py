@@ -1210,6 +1210,54 @@ class ForceRateConfig:
 
 
 @section
+class AdaptationConfig:
+    """Robustness of the networks' update laws (30)–(31) against measurement noise (not in the
+    paper; docs/beyond-the-paper.md, section 11). ``robust = "none"``: the paper's law."""
+
+    robust: Literal["auto", "none", "dead_zone", "sigma", "e_mod", "projection"] = param(
+        "auto", doc="the update laws' modification: \"auto\" (\"projection\" when plant.sensor declares noise, else "
+                    "\"none\"), \"none\" (eqs. (30)-(31)), \"dead_zone\" (no learning while "
+                    "the drive is within zone x its noise RMS), \"sigma\" (leakage -leak Theta), \"e_mod\" (leakage "
+                    "-leak (norm of the drive / its noise RMS) Theta), \"projection\" (Remark 2, radii radius_p, radius_f)")
+    leak: float = param(1.0, doc="leakage rate of \"sigma\" (and of \"e_mod\" at the drive's noise level), 1/s",
+                        ge=0.0, le=1e6)
+    zone: float = param(2.0, doc="dead zone width of \"dead_zone\", in RMS values of the drive's noise", ge=0.0,
+                        le=1e3)
+    noise_p: Literal["sensor"] | float = param("sensor", doc="RMS of F_p's drive B_p^T P_p x_p from the sensor's noise "
+                                               "alone; \"sensor\": from plant.sensor's q_noise, qd_noise at the "
+                                               "start pose", ge=0.0, le=1e9)
+    noise_f: Literal["sensor"] | float = param("sensor", doc="RMS of F_f's drive e_lam from the sensor's noise alone, "
+                                               "lam units; \"sensor\": from plant.sensor.force_noise at the start "
+                                               "pose", ge=0.0, le=1e9)
+    radius_p: Literal["design"] | float = param("design", doc="projection radius of F_p for \"projection\"; "
+                                                "\"design\": the least-norm weights giving 9.81 per output at "
+                                                "zero error", gt=0.0, le=1e12)
+    radius_f: Literal["design"] | float = param("design", doc="projection radius of F_f for \"projection\"; "
+                                                "\"design\": the least-norm weights giving the largest abs(lam_d) at "
+                                                "zero error", gt=0.0, le=1e12)
+
+    #: What ``robust = "auto"`` is with a noisy sensor (chosen by measurement, docs/beyond-the-paper.md
+    #: section 11); with an ideal one it is "none", the paper's law.
+    AUTO: ClassVar[str] = "projection"
+
+    def resolved(self, noisy: bool) -> str:
+        """The modification run: ``robust``, with "auto" resolved by whether the declared sensor
+        has noise (``noisy``)."""
+        if self.robust == "auto":
+            return self.AUTO if noisy else "none"
+        return self.robust
+
+    def options(self, noisy: bool) -> dict:
+        """The keyword arguments of :func:`hinfnn.controllers.kinds.robust_adaptation` but the
+        design inputs."""
+        return dict(robust=self.resolved(noisy), leak=self.leak, zone=self.zone,
+                    noise_p=None if self.noise_p == "sensor" else self.noise_p,
+                    noise_f=None if self.noise_f == "sensor" else self.noise_f,
+                    radius_p=None if self.radius_p == "design" else self.radius_p,
+                    radius_f=None if self.radius_f == "design" else self.radius_f)
+
+
+@section
 class ControllerConfig:
     kind: str | tuple[str, ...] = param(doc="controller(s) to run: a name of hinfnn.controllers.KINDS or a list",
                                         allowed=_kinds_allowed)
@@ -1218,6 +1266,8 @@ class ControllerConfig:
     network_p: NetworkConfig = param(doc="F_p network")
     network_f: NetworkFConfig = param(doc="F_f network")
     force_rate: ForceRateConfig = param(doc="force-rate term (not in the paper)")
+    adaptation: AdaptationConfig = param(doc="the networks' update laws made robust to measurement noise (not in the "
+                                              "paper)")
     singularity_stop: float = param(0.0, doc="stop (simulator) or return NaN (sampled controller) when the smallest "
                                              "singular value of the nominal Jacobian falls below this; 0: off",
                                     ge=0.0, le=100.0)
@@ -1240,10 +1290,12 @@ class ControllerConfig:
         if len(set(self.kinds)) != len(self.kinds):
             raise ConfigError(f"lists a controller twice: {list(self.kinds)}", key=key)
 
-    def build(self, kind: str, arm, surface, *, u1_path=None, q_start=None, period=None):
+    def build(self, kind: str, arm, surface, *, u1_path=None, q_start=None, period=None, adaptation=None):
         """Design the controller ``kind`` from the NOMINAL arm and surface (``u1_path``,
         ``q_start``: the reference's path in u1 and a start pose, for the force-rate rule;
-        ``period``: the control period under sampled control). Raises :class:`DesignError` with
+        ``period``: the control period under sampled control; ``adaptation``: the design inputs of
+        the robust update laws, :func:`hinfnn.controllers.kinds.robust_adaptation`'s ``q``,
+        ``lam_max``, ``force_noise``, ``q_noise``, ``qd_noise``). Raises :class:`DesignError` with
         the dotted key of the failing gain."""
         from ..controllers import design
 
@@ -1256,9 +1308,22 @@ class ControllerConfig:
             return design(kind, arm, surface, self.gains.build(), augmented=self.augmented,
                           network_p=self.network_p.build("controller.network_p", surface.m),
                           network_f=self.network_f.build("controller.network_f", surface.k),
-                          force_rate=force_rate, singularity_stop=self.singularity_stop)
+                          force_rate=force_rate, singularity_stop=self.singularity_stop,
+                          adaptation=self._adaptation(adaptation))
         except DesignError as err:
             raise prefixed(err) from None
+
+
+    def _adaptation(self, inputs: dict | None) -> dict | None:
+        """:func:`~hinfnn.controllers.kinds.robust_adaptation`'s keyword arguments (None: the
+        paper's update laws), from ``controller.adaptation`` and the design ``inputs`` (the
+        declared sensor's noise, the start pose, the largest λd; None: an ideal sensor)."""
+        noisy = inputs is not None and bool(inputs.get("force_noise") or np.any(inputs.get("q_noise", 0))
+                                            or np.any(inputs.get("qd_noise", 0)))
+        robust = self.adaptation.resolved(noisy)
+        if robust == "none":
+            return None
+        return {**self.adaptation.options(noisy), **(inputs or {})}
 
 
 def prefixed(err: DesignError) -> DesignError:
@@ -1268,7 +1333,7 @@ def prefixed(err: DesignError) -> DesignError:
         return err
     if key in ("rho", "mu_z", "alpha_z", "alpha_lam", "beta_lam", "gamma_1", "gamma_2", "Q_p", "R_p", "K_p", "K_v"):
         full = f"controller.gains.{key}"
-    elif key.startswith(("network_", "force_rate")):
+    elif key.startswith(("network_", "force_rate", "adaptation")):
         full = f"controller.{key}"
     else:
         full = key

@@ -195,12 +195,36 @@ class Setup:
         path = None if u1_path is None else np.asarray(u1_path, float).tobytes()
         start = None if q_start is None else np.asarray(q_start, float).tobytes()
         models = value_key((self.nominal_arm, self.constraint))
-        return kind, models, repr(self.scenario.controller), self.control_period, path, start
+        adapt = self._adaptation_inputs()
+        adapt = None if adapt is None else repr({k: np.asarray(v, float).tobytes() for k, v in adapt.items()})
+        return kind, models, repr(self.scenario.controller), self.control_period, path, start, adapt
+
+    def _adaptation_inputs(self) -> dict | None:
+        """What the robust update laws' design reads (``controller.adaptation``, not "none", nor
+        "auto" with an ideal sensor): the start pose, the largest |λd| over the run and the
+        DECLARED sensor noise (its data sheet, ``plant.sensor``: the noise the laws are sized
+        for), or None with the paper's laws."""
+        sc = self.scenario
+        sensor = sc.plant.sensor
+        noisy = bool(sensor.force_noise or np.any(sensor.q_noise) or np.any(sensor.qd_noise))
+        if sc.controller.adaptation.resolved(noisy) == "none":
+            return None
+        if "_adapt" not in self.__dict__:
+            import jax
+            import jax.numpy as jnp
+
+            ts = jnp.linspace(0.0, float(sc.simulation.t_final), 2001)
+            lam_d = np.asarray(jax.vmap(lambda t: self.reference(t).lam_d)(ts))
+            self._adapt = dict(q=np.asarray(self.q0, float), lam_max=float(np.max(np.abs(lam_d))),
+                               force_noise=float(sensor.force_noise), q_noise=np.asarray(sensor.q_noise, float),
+                               qd_noise=np.asarray(sensor.qd_noise, float))
+        return self._adapt
 
     def _design(self, kind: str):
         u1_path, q_start = self._design_inputs()
         return self.scenario.controller.build(kind, self.nominal_arm, self.constraint, u1_path=u1_path,
-                                              q_start=q_start, period=self.control_period)
+                                              q_start=q_start, period=self.control_period,
+                                              adaptation=self._adaptation_inputs())
 
     # --- the simulation -------------------------------------------------------------------------
     @property
