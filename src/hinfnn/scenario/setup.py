@@ -159,12 +159,24 @@ class Setup:
         path = None if u1_path is None else np.asarray(u1_path, float).tobytes()
         start = None if q_start is None else np.asarray(q_start, float).tobytes()
         models = value_key((self.nominal_arm, self.constraint))
-        return kind, models, repr(self.scenario.controller), self.control_period, path, start
+        return kind, models, repr(self.scenario.controller), self.control_period, path, start, self.declared_sensor
 
     def _design(self, kind: str):
         u1_path, q_start = self._design_inputs()
         return self.scenario.controller.build(kind, self.nominal_arm, self.constraint, u1_path=u1_path,
-                                              q_start=q_start, period=self.control_period)
+                                              q_start=q_start, period=self.control_period,
+                                              declared=self.declared_sensor)
+
+    @property
+    def declared_sensor(self) -> tuple[float, int]:
+        """(force noise σ, N; delay, samples) of the scenario's declared sensor (plant.sensor): what
+        controller.sensor defaults to. Read here, where the scenario is built, and handed to the
+        design as numbers: the scenario is the user's statement, so the controller still never
+        reads the plant."""
+        sens = getattr(self.scenario.plant, "sensor", None)
+        if sens is None:
+            return 0.0, 0
+        return float(sens.force_noise), int(sens.delay)
 
     # --- the simulation -------------------------------------------------------------------------
     @property
