@@ -152,7 +152,7 @@ class ReducedOrderController(Controller, Dissipative):
     block: int | None = static_field(default=BLOCK)
     P_blocks: tuple | None = None  # P_p's m × m blocks, taken outside a compiled loop (prepared)
     Q_blocks: tuple | None = None  # Q_p's, the same
-    # the sampled controller's low-pass on the measured λ (hinfnn.controllers.sensing; None: none, the paper's)
+    # the sampled controller's low-pass on the measured e_λ (hinfnn.controllers.sensing; None: none, the paper's)
     force_filter: object = None
     fault_name: ClassVar[str] = "σ_min(Ĵ), below the singularity guard's stop"
 
@@ -279,14 +279,14 @@ class ReducedOrderController(Controller, Dissipative):
         u1, u1_dot = rm.x[:m], rm.x_dot[:m]
         F = measured_force(rm.J, rm.J_p, meas.force)
         lam = force_multiplier(rm.A_hat, F)
-        dparts = {}
-        if self.force_filter is not None:  # e_λ, and everything the law does with it, read the filtered λ
-            x_f = state.parts["lam_filter"]
-            dparts["lam_filter"] = self.force_filter.rate(lam, x_f)
-            lam = self.force_filter.output(lam, x_f)
         e_u1 = u1 - r.u1_d
         e_u1_dot = u1_dot - r.u1_d_dot
         e_lam = lam - r.lam_d
+        dparts = {}
+        if self.force_filter is not None:  # everything the law does with e_λ reads it low-passed
+            x_f = state.parts["lam_filter"]
+            dparts["lam_filter"] = self.force_filter.rate(e_lam, x_f)
+            e_lam = self.force_filter.output(e_lam, x_f)
         x_p = jnp.concatenate([e_u1, e_u1_dot])
         s_p = _lower_times(self.P_p, self._blocks(self.P_p, self.P_blocks), x_p, m)  # B_pᵀ P_p x_p
         ctx = T.Context(t=jnp.asarray(t, dtype=float), ref=r, u1=u1, u1_dot=u1_dot, lam=lam, e_u1=e_u1,
@@ -360,9 +360,9 @@ class ReducedOrderController(Controller, Dissipative):
         its input, e.g. the force-rate filter at e_λ(0))."""
         if not self.needs_start:
             return state
-        if self.force_filter is not None:  # the force filter at rest at the first measured λ
+        if self.force_filter is not None:  # the force filter at rest at the first measured e_λ
             parts = dict(state.parts)
-            parts["lam_filter"] = self.force_filter.rest(self.observe(meas)[2])
+            parts["lam_filter"] = self.force_filter.rest(self.observe(meas)[2] - ref(t).lam_d)
             state = ControllerState(z=state.z, parts=parts)
         out = self.evaluate(t, state, meas, ref)
         parts = dict(state.parts)
