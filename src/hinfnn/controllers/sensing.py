@@ -284,9 +284,10 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
         raise DesignError(
             f"no force filter and force-rate gain keep the sampled force loop stable with damping ratio >= "
             f"{zeta_min:g} over contacts {stiffness_min:g}..{stiffness_max:g} N/m and normal masses "
-            f"{m_n_min:.4g}..{m_n_max:.4g} kg with {delay} sample(s) of measurement delay at {h:g} s (the adaptive "
-            f"law's force network adds an integral action of gain {g_f:.4g} 1/s): narrow the stiffness range "
-            "(controller.force_rate.stiffness_min, stiffness_max), shorten the control period, or lower gamma_2",
+            f"{m_n_min:.4g}..{m_n_max:.4g} kg with {delay} sample(s) of measurement delay at {h:g} s"
+            + (f" (the adaptive law's force network adds an integral action of gain {g_f:.4g} 1/s)" if g_f else "")
+            + ": narrow the stiffness range (controller.force_rate.stiffness_min, stiffness_max) or shorten the "
+            "control period" + (", or lower gamma_2" if g_f else ""),
             key="sensor.delay", value=delay)
     _, o, fc, kap, e, c, zmin = best
     return SensingDesign(order=o, cutoff_hz=None if fc is None else float(fc), kappa=kap, noise=float(noise),

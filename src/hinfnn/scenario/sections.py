@@ -1289,7 +1289,7 @@ class ControllerConfig:
             if period is None:
                 raise ConfigError("the force filter is discrete, designed at the control period: it needs sampled "
                                   "control (simulation.control = \"sampled\", or a plant that steps itself)",
-                                  key="controller.force_filter.order", value=ff.order)
+                                  key="controller.force_filter.order")
             noise = declared[0] if self.sensor.noise == "declared" else self.sensor.noise
             delay = declared[1] if self.sensor.delay == "declared" else self.sensor.delay
             force_filter = dict(order=ff.order, cutoff_hz=ff.cutoff_hz, noise=float(noise), delay=int(delay),
