@@ -8,9 +8,9 @@ above all, the force-rate term −κṡ, whose ṡ is the backward difference of
 period h (gain κ/h on the noise). This module gives the controller
 
 * :class:`ForceFilter`: a discrete low-pass (Butterworth of order 1 or 2, by the bilinear
-  transform at the control period) on the measured force multiplier λ, in front of everything
-  the law does with it: e_λ of eqs. (27), (31), (32) and of the force-rate term all read the
-  filtered λ. Its state is part of the controller's state (``lam_filter``), written as a rate
+  transform at the control period) on the measured force error e_λ = λ − λd, in front of
+  everything the law does with it: eqs. (27), (31), (32) and the force-rate term all read the
+  filtered e_λ. Its state is part of the controller's state (``lam_filter``), written as a rate
   (x_{k+1} − x_k)/h so that the controller's forward Euler step over h is exactly the discrete
   filter (sampled control only), and it starts at rest at the first measurement;
 * :func:`sensed_force_loop`: the linearised force loop over one period of the zero-order hold
@@ -47,7 +47,7 @@ from ..errors import DesignError
 
 @pytree_dataclass
 class ForceFilter:
-    """A discrete low-pass on each component of λ: x_{k+1} = A x_k + B λ_k, λ_f,k = C x_k + D λ_k
+    """A discrete low-pass on each component of e_λ: x_{k+1} = A x_k + B u_k, y_k = C x_k + D u_k
     (one state block of ``order`` values per constraint), at the control period ``period``.
     Build it with :func:`butterworth`."""
 
@@ -66,7 +66,7 @@ class ForceFilter:
         return x.reshape(k, self.order)
 
     def output(self, lam, x):
-        """λ_f = C x + D λ, per constraint. Implements the filter's output equation."""
+        """y = C x + D u, per constraint (u = e_λ): the filter's output equation."""
         k = lam.shape[0]
         return self._blocks(x, k) @ self.C + self.D * lam
 
@@ -78,7 +78,7 @@ class ForceFilter:
         return ((nxt - X) / self.period).reshape(-1)
 
     def rest(self, lam):
-        """The state at rest with input λ (the output then equals λ: unit gain at DC)."""
+        """The state at rest with input u (the output then equals u: unit gain at DC)."""
         x1 = jnp.linalg.solve(jnp.eye(self.order) - self.A, self.B)
         return (lam[:, None] * x1[None, :]).reshape(-1)
 

@@ -1212,10 +1212,10 @@ class ForceRateConfig:
 @section
 class ForceFilterConfig:
     """The sampled controller's low-pass on the measured force (not in the paper;
-    docs/beyond-the-paper.md, section 9): a discrete Butterworth filter on lambda, in front of
-    everything the law does with it (e_lam of z, v_lam, F_f and the force-rate term)."""
+    docs/beyond-the-paper.md, section 9): a discrete Butterworth filter on e_lam, in front of
+    everything the law does with it (z, v_lam, F_f and the force-rate term)."""
 
-    order: Literal["design"] | int = param(0, doc="order of the Butterworth low-pass on the measured lambda: 0 (none: "
+    order: Literal["design"] | int = param(0, doc="order of the Butterworth low-pass on the measured e_lam: 0 (none: "
                                                   "the paper's law), 1, 2, or \"design\" (chosen with kappa for the "
                                                   "sensor of controller.sensor)", ge=0, le=2)
     cutoff_hz: Literal["design"] | float = param("design", doc="its cutoff frequency, Hz (below half the control "
