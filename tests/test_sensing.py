@@ -199,3 +199,17 @@ def test_a_noisy_late_sensor_on_the_ur5_drum_holds_within_the_torque_limits_only
     assert trajs["designed"].ok and np.all(tau < limits)
     assert m["paper"]["fraction_torque_saturated"] > 0.25
     assert m["designed"]["rms_normal_force_error_last2s"] < 0.6 * m["paper"]["rms_normal_force_error_last2s"]
+
+
+def test_design_command_prints_the_sensor_design_and_the_noise_gains(capsys):
+    """`hinfnn design` with a declared sensor and the filter by design: the choice, the predicted
+    noise gains per N and the largest noise within the torque limits."""
+    from hinfnn import cli
+
+    assert cli.main(["design", "paper-stable", "--set", "controller.kind=hinf", "--set", "simulation.control=sampled",
+                     "--set", "controller.force_rate.stiffness_max=1e5", "--set", "plant.sensor.force_noise=0.1",
+                     "--set", "plant.actuator.torque_limit=500", "--set", "controller.force_filter.order=design"]) == 0
+    out = capsys.readouterr().out
+    assert "designed for the sensor (noise 0.1 N, delay 0 sample(s))" in out
+    assert "noise gains with 0 sample(s) of delay at 100000 N/m: RMS torque per N of sensor noise" in out
+    assert "3 sigma of torque within the limits up to sensor noise" in out and "declared noise 0.1 N" in out

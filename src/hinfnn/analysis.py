@@ -887,7 +887,8 @@ def format_design_report(rep: dict) -> str:
                 filt = (f"Butterworth order {sd['order']} at {sd['cutoff_hz']:.4g} Hz" if sd["order"] else "none")
                 lines.append(f"  force filter and kappa designed for the sensor (noise {sd['noise']:g} N, delay "
                              f"{sd['delay']} sample(s)): filter {filt}, kappa {sd['kappa']:.4g} s; least damping "
-                             f"{sd['zeta']:.3g} over the range; worst RMS force error {sd['force_error_per_n']:.3g} per N "
+                             f"{sd['zeta']:.3g} over the range; worst RMS force error "
+                             f"{sd['force_error_per_n']:.3g} per N "
                              f"of noise, RMS force command {sd['command_per_n']:.3g} per N ({sd['candidates']} "
                              "candidates held)")
         if d["singularity_stop"] > 0:
@@ -905,15 +906,17 @@ def format_design_report(rep: dict) -> str:
                     lines.append(f"    {label}, {key} N/m: {m['error']}")
                 elif key == "noise":
                     if not m["stable"]:
-                        lines.append(f"    {label}, sensor noise with {m['delay']} sample(s) of delay: the sampled loop "
-                                     f"is UNSTABLE (spectral radius {m['radius']:.5g})")
+                        lines.append(f"    {label}, sensor noise with {m['delay']} sample(s) of delay: the "
+                                     f"sampled loop is UNSTABLE (spectral radius {m['radius']:.5g})")
                         continue
                     lim = ("" if not np.all(np.isfinite(m["torque_limit"])) else
                            f"; 3 sigma of torque within the limits up to sensor noise {m['largest_sigma']:.3g} N")
-                    lines.append(f"    {label}, noise gains with {m['delay']} sample(s) of delay at {m['stiffness']:g} N/m: "
+                    lines.append(f"    {label}, noise gains with {m['delay']} sample(s) of delay at "
+                                 f"{m['stiffness']:g} N/m: "
                                  f"RMS torque per N of sensor noise {_fmt_list(m['tau_per_n'], '.3g')} N m, RMS true "
                                  f"force error {m['lam_per_n']:.3g} per N{lim}"
-                                 + (f" (declared noise {m['sigma']:g} N: force error {m['sigma'] * m['lam_per_n']:.3g}, "
+                                 + (f" (declared noise {m['sigma']:g} N: force error "
+                                    f"{m['sigma'] * m['lam_per_n']:.3g}, "
                                     f"torque {_fmt_list([m['sigma'] * v for v in m['tau_per_n']], '.3g')} N m RMS)"
                                     if m["sigma"] > 0 else ""))
                 elif key == "sampled":

@@ -130,7 +130,8 @@ def sensor_document(result: dict) -> dict:
 
 def sensor_table(doc: dict) -> list[str]:
     """The markdown table of one arm's comparison."""
-    head = ["law", "design", "σ (N)", "status", "true force RMS error, last 2 s (N)", f"out of contact after {AFTER:g} s",
+    head = ["law", "design", "σ (N)", "status", "true force RMS error, last 2 s (N)",
+            f"out of contact after {AFTER:g} s",
             f"peak abs τ after {AFTER:g} s (N·m)", "time at a torque limit", "κ (s)", "filter"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
 
