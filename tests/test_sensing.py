@@ -95,7 +95,10 @@ def test_design_refuses_naming_the_key_when_nothing_holds():
     with pytest.raises(DesignError) as err:
         S.design_sensing(h=1e-3, g_P=2.0, mu_z=100.0, alpha_z=2.0, g_f=232.0, noise=1.0, delay=1,
                          stiffness_min=1e4, stiffness_max=1e5, m_n_min=3.08, m_n_max=4.95)
-    assert err.value.key == "sensor.delay" and "stiffness_min" in str(err.value)
+    e = err.value
+    assert e.key == "sensor.delay" and "stiffness_min >=" in str(e) and 1e4 < e.bound < 1e5
+    S.design_sensing(h=1e-3, g_P=2.0, mu_z=100.0, alpha_z=2.0, g_f=232.0, noise=1.0, delay=1,  # holds there
+                     stiffness_min=e.bound, stiffness_max=1e5, m_n_min=3.08, m_n_max=4.95)
 
 
 def _paper(over=None):

@@ -255,11 +255,13 @@ def evaluate_design(order, cutoff_hz, kappa, *, h, g_P, mu_z, alpha_z, g_f, dela
 
 def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: float, noise: float, delay: int,
                    stiffness_min: float, stiffness_max: float, m_n_min: float, m_n_max: float, order="design",
-                   cutoff_hz="design", kappa="rule", zeta_min: float | None = None) -> SensingDesign:
+                   cutoff_hz="design", kappa="rule", zeta_min: float | None = None,
+                   _search_ok: bool = True) -> SensingDesign:
     """The force filter (``order`` 0, 1 or 2, or "design": each tried; ``cutoff_hz`` a number or
     "design": a grid from 5 Hz to 0.4 of the sampling rate) and κ ("rule": a grid from h/20 to
     100h; or a number) chosen together for a sensor of ``noise`` N and ``delay`` samples (module
-    docstring). Raises DesignError naming ``sensor.delay`` when no candidate holds."""
+    docstring). Raises DesignError naming ``sensor.delay`` when no candidate holds; its bound is the
+    softest contact the design holds with the same stiffest one (None: not even that one)."""
     from .force_rate import SAMPLED_ZETA_MIN
 
     zeta_min = SAMPLED_ZETA_MIN if zeta_min is None else float(zeta_min)
@@ -281,14 +283,36 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
                 if best is None or key < best[0]:
                     best = (key, o, fc, float(kap), e, c, zmin)
     if best is None:
+        softest = None
+        if _search_ok:  # the softest contact this delay and period hold with the stated stiffest one
+            def ok(k_min):
+                try:
+                    design_sensing(h=h, g_P=g_P, mu_z=mu_z, alpha_z=alpha_z, g_f=g_f, noise=noise, delay=delay,
+                                   stiffness_min=k_min, stiffness_max=stiffness_max, m_n_min=m_n_min,
+                                   m_n_max=m_n_max, order=order, cutoff_hz=cutoff_hz, kappa=kappa,
+                                   zeta_min=zeta_min, _search_ok=False)
+                    return True
+                except DesignError:
+                    return False
+
+            if ok(stiffness_max):
+                lo, hi = float(stiffness_min), float(stiffness_max)
+                for _ in range(10):  # on a log scale: a 1.1 % bracket over a decade
+                    mid = math.sqrt(lo * hi)
+                    lo, hi = (lo, mid) if ok(mid) else (mid, hi)
+                softest = hi
+        where = (f": with this delay the design holds contacts from {softest:.3g} N/m up to {stiffness_max:g} N/m "
+                 f"(set controller.force_rate.stiffness_min >= {softest:.3g}), or shorten the control period"
+                 if softest is not None else
+                 ": it does not hold even the stiffest contact alone; shorten the control period or lower "
+                 "controller.force_rate.stiffness_max")
         raise DesignError(
             f"no force filter and force-rate gain keep the sampled force loop stable with damping ratio >= "
             f"{zeta_min:g} over contacts {stiffness_min:g}..{stiffness_max:g} N/m and normal masses "
             f"{m_n_min:.4g}..{m_n_max:.4g} kg with {delay} sample(s) of measurement delay at {h:g} s"
-            + (f" (the adaptive law's force network adds an integral action of gain {g_f:.4g} 1/s)" if g_f else "")
-            + ": narrow the stiffness range (controller.force_rate.stiffness_min, stiffness_max) or shorten the "
-            "control period" + (", or lower gamma_2" if g_f else ""),
-            key="sensor.delay", value=delay)
+            + (f" (the adaptive law's force network adds an integral action of gain {g_f:.4g} 1/s: lowering gamma_2 "
+               "slows it)" if g_f else "") + where,
+            key="sensor.delay", value=delay, bound=softest)
     _, o, fc, kap, e, c, zmin = best
     return SensingDesign(order=o, cutoff_hz=None if fc is None else float(fc), kappa=kap, noise=float(noise),
                          delay=int(delay), force_error_per_n=e, command_per_n=c, zeta=zmin, candidates=count)
