@@ -27,6 +27,7 @@ EXAMPLES_GALLERY = """examples:
   hinfnn gallery --only ur5-table --out /tmp/table
   hinfnn gallery --set simulation.t_final=2   # a quick look (the checks are judged on what ran)
   hinfnn gallery --beyond --only ur5-table    # + the paper law and the stabilised one on a bare stiff table
+  hinfnn gallery --sensor --only ur5-polish   # instead: a noisy, late force sensor, paper law vs designed for it
 """
 EXAMPLES_CACHE = """examples:
   hinfnn cache                     where the compilation cache is, its number of files and size
