@@ -6,6 +6,7 @@ linearised sampled loop with a delayed, noisy sensor against simulations."""
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
 
 import jax.numpy as jnp
@@ -65,6 +66,7 @@ def test_sensed_loop_without_a_sensor_is_the_ideal_loop_and_a_delay_destabilises
     d = S.design_sensing(h=1e-3, g_P=2.0, mu_z=100.0, alpha_z=2.0, g_f=0.0, noise=1.0, delay=1,
                          stiffness_min=1e4, stiffness_max=1e5, m_n_min=3.08, m_n_max=4.95)
     assert d.zeta >= fr.SAMPLED_ZETA_MIN and d.kappa < 0.0469
+    assert inspect.signature(S.design_sensing).parameters["zeta_min"].default == fr.SAMPLED_ZETA_MIN
     for k in (1e4, 1e5):
         for m in (3.08, 4.95):
             loop = S.sensed_force_loop(math.sqrt(k / m) * 1e-3, 2.0, d.kappa, 1e-3, 100.0, 2.0, delay=1,

@@ -345,7 +345,7 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
                             delay=int(sensing.get("delay", 0)), stiffness_min=stiffness_min,
                             stiffness_max=stiffness_max, m_n_min=mn_min, m_n_max=mn_max,
                             order=sensing.get("order", "design"), cutoff_hz=sensing.get("cutoff_hz", "design"),
-                            kappa="rule" if rule else float(kappa))
+                            kappa="rule" if rule else float(kappa), zeta_min=SAMPLED_ZETA_MIN)
         k_value = sd.kappa
         zeta_soft = 0.5 * k_value * math.sqrt(stiffness_min / (mn_max * K_prime))
         return ForceRateDesign(kappa=k_value, tau_f=tf, rule=rule, zeta=zeta, stiffness_min=stiffness_min,

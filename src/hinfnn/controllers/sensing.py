@@ -255,16 +255,16 @@ def evaluate_design(order, cutoff_hz, kappa, *, h, g_P, mu_z, alpha_z, g_f, dela
 
 def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: float, noise: float, delay: int,
                    stiffness_min: float, stiffness_max: float, m_n_min: float, m_n_max: float, order="design",
-                   cutoff_hz="design", kappa="rule", zeta_min: float | None = None,
+                   cutoff_hz="design", kappa="rule", zeta_min: float = 0.05,
                    _search_ok: bool = True) -> SensingDesign:
     """The force filter (``order`` 0, 1 or 2, or "design": each tried; ``cutoff_hz`` a number or
     "design": a grid from 5 Hz to 0.4 of the sampling rate) and κ ("rule": a grid from h/20 to
     100h; or a number) chosen together for a sensor of ``noise`` N and ``delay`` samples (module
-    docstring). Raises DesignError naming ``sensor.delay`` when no candidate holds; its bound is the
+    docstring); ``zeta_min``: the least damping ratio accepted at every corner (the force-rate
+    design passes :data:`hinfnn.controllers.force_rate.SAMPLED_ZETA_MIN`, the same 0.05). Raises
+    DesignError naming ``sensor.delay`` when no candidate holds; its bound is the
     softest contact the design holds with the same stiffest one (None: not even that one)."""
-    from .force_rate import SAMPLED_ZETA_MIN
-
-    zeta_min = SAMPLED_ZETA_MIN if zeta_min is None else float(zeta_min)
+    zeta_min = float(zeta_min)
     pts = corners(stiffness_min, stiffness_max, m_n_min, m_n_max)
     orders = (0, 1, 2) if order == "design" else (int(order),)
     kappas = np.geomspace(h / 20.0, 100.0 * h, 49) if kappa == "rule" else np.array([float(kappa)])
