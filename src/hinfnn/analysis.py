@@ -538,6 +538,16 @@ def sampled_map_jacobian(plant, ctrl, ref, q_eq, period: float, dt: float):
     dt·Σ_{j≤3}(dtP)^j/(j+1)!·B, so Φ = [[R^N + W K_y, W K_x], [h D_y, I + h D_x]], W the input
     matrix over the N steps. At an equilibrium the RK4 stages all start at y*, so this is the
     linearisation of the simulator's sampled map itself (tested against ``jacfwd`` of it)."""
+    Rn, W, Kmat, A, n = _sampled_parts(plant, ctrl, ref, q_eq, period, dt)
+    m = A.shape[0] - 2 * n
+    top = np.concatenate([Rn, np.zeros((2 * n, m))], axis=1) + W @ Kmat
+    bottom = np.concatenate([period * A[2 * n:, :2 * n], np.eye(m) + period * A[2 * n:, 2 * n:]], axis=1)
+    return np.concatenate([top, bottom], axis=0)
+
+
+def _sampled_parts(plant, ctrl, ref, q_eq, period: float, dt: float):
+    """(R^N, W, K, A, n) of :func:`sampled_map_jacobian`: the held plant's map over the period, its
+    input matrix, the law's torque gains on (y_p, x_c) and the continuous loop's Jacobian."""
     n = plant.n
     A, y0, _ = closed_loop_jacobian(plant, ctrl, ref, q_eq)
     y_p = jnp.asarray(y0[:2 * n])
@@ -560,10 +570,101 @@ def sampled_map_jacobian(plant, ctrl, ref, q_eq, period: float, dt: float):
         sumR += Rn
         Rn = Rn @ R
     W = sumR @ (dt * S @ Bfull)
+    return Rn, W, Kmat, A, n
+
+
+@jit_by_joints
+def _force_jacobians(plant, ctrl, ref, y0):
+    """(∂τ/∂F, ∂ẋ_c/∂F, ∂λ/∂y_p) at the flat rest state y0: the law's torque and state rate per
+    unit of the measured tool force F (base frame), and the controller's reading of the TRUE force
+    (its λ from the plant's noiseless sensor, before any filter) per unit of the plant state."""
+    ps, xc = _unflatten(plant, ctrl, y0)
+    meas, _ = plant.sense(0.0, ps)
+    n = plant.n
+
+    def law(F):
+        out = ctrl.evaluate(0.0, xc, dataclasses.replace(meas, force=F), ref)
+        return out.tau, jnp.concatenate([jnp.ravel(leaf) for leaf in jax.tree.leaves(out.dstate)])
+
+    dtau, dx = jax.jacfwd(law)(meas.force)
+
+    def true_lam(yp):
+        m2, _ = plant.sense(0.0, plant.initial_state(yp[:n], yp[n:]))
+        return ctrl.observe(m2)[2]
+
+    return dtau, dx, jax.jacfwd(true_lam)(y0[:2 * n])
+
+
+def sensed_sampled_loop(plant, ctrl, ref, q_eq, period: float, dt: float, delay: int = 0) -> dict:
+    """The sampled loop of :func:`sampled_map_jacobian` with a real sensor: the controller reads
+    the plant's state of ``delay`` samples before (q, q̇ and force alike: the plant's state of the
+    last ``delay`` samples joins the state, oldest last) plus white noise on each axis of the
+    measured tool force. Returns the one-period map ``Phi`` over (y_p, x_c, y_p,k−1 … y_p,k−d),
+    the noise's input ``Gamma`` (one column per force axis), the held torque's rows ``C_tau`` and
+    noise gains ``D_tau``, the true λ's row ``C_lam`` and the network directions to drop
+    (``neutral``: the candidates' mask)."""
+    Rn, W, K, A, n = _sampled_parts(plant, ctrl, ref, q_eq, period, dt)
+    y0 = jnp.asarray(rest_state(ctrl, q_eq))
+    dtau, dx, dlam = (np.asarray(a) for a in _force_jacobians(plant, ctrl, ref, y0))
     m = A.shape[0] - 2 * n
-    top = np.concatenate([Rn, np.zeros((2 * n, m))], axis=1) + W @ Kmat
-    bottom = np.concatenate([period * A[2 * n:, :2 * n], np.eye(m) + period * A[2 * n:, 2 * n:]], axis=1)
-    return np.concatenate([top, bottom], axis=0)
+    p, d = 2 * n, int(delay)
+    N = p + m + d * p
+    read = slice(0, p) if d == 0 else slice(p + m + (d - 1) * p, p + m + d * p)  # the y_p the controller reads
+    Ky, Kx = K[:, :p], K[:, p:]
+    Dy, Dx = A[p:, :p], A[p:, p:]
+    Phi = np.zeros((N, N))
+    Phi[:p, :p] = Rn
+    Phi[:p, read] += W @ Ky
+    Phi[:p, p:p + m] += W @ Kx
+    Phi[p:p + m, read] += period * Dy
+    Phi[p:p + m, p:p + m] += np.eye(m) + period * Dx
+    if d:
+        Phi[p + m:p + m + p, :p] = np.eye(p)
+        for j in range(1, d):
+            Phi[p + m + j * p:p + m + (j + 1) * p, p + m + (j - 1) * p:p + m + j * p] = np.eye(p)
+    Gamma = np.zeros((N, dtau.shape[1]))
+    Gamma[:p] = W @ dtau
+    Gamma[p:p + m] = period * dx
+    C_tau = np.zeros((n, N))
+    C_tau[:, read] += Ky
+    C_tau[:, p:p + m] += Kx
+    C_lam = np.zeros((dlam.shape[0], N))
+    C_lam[:, :p] = dlam
+    names = state_names(ctrl)[p:]
+    neutral = np.zeros(N, bool)
+    neutral[p:p + m] = [nm in ("theta_p", "theta_f") for nm in names]
+    return dict(Phi=Phi, Gamma=Gamma, C_tau=C_tau, D_tau=dtau, C_lam=C_lam, neutral=neutral, delay=d)
+
+
+def noise_response(loop: dict) -> dict:
+    """The stationary response of :func:`sensed_sampled_loop` to white force-sensor noise of 1 N
+    per axis (the discrete Lyapunov equation Σ = ΦΣΦᵀ + ΓΓᵀ, the neutral network directions
+    dropped): RMS commanded torque per joint (N·m per N of noise), RMS true λ error (λ units per
+    N), the spectral radius; the gains are inf when the loop is not stable."""
+    from scipy.linalg import solve_discrete_lyapunov
+
+    Phi, G = loop["Phi"], loop["Gamma"]
+    Wb, dropped = _drop_neutral(Phi, loop["neutral"], shift=1.0)
+    Pr, Gr = Wb.T @ Phi @ Wb, Wb.T @ G
+    radius = float(np.max(np.abs(np.linalg.eigvals(Pr))))
+    if radius >= 1.0:
+        n = loop["C_tau"].shape[0]
+        return dict(radius=radius, stable=False, tau_per_n=[math.inf] * n, lam_per_n=math.inf, neutral=dropped)
+    S = solve_discrete_lyapunov(Pr, Gr @ Gr.T)
+    Ct, Cl = loop["C_tau"] @ Wb, loop["C_lam"] @ Wb
+    tau = np.sqrt(np.maximum(np.diag(Ct @ S @ Ct.T) + np.sum(loop["D_tau"] ** 2, axis=1), 0.0))
+    lam = np.sqrt(np.maximum(np.diag(Cl @ S @ Cl.T), 0.0))
+    return dict(radius=radius, stable=True, tau_per_n=tau.tolist(), lam_per_n=float(lam.max()), neutral=dropped)
+
+
+def largest_noise(tau_per_n, limits, sigmas: float = 3.0) -> float:
+    """The largest sensor noise σ (N) with ``sigmas`` × the RMS commanded torque within each
+    joint's limit (inf without limits)."""
+    t = np.asarray(tau_per_n, dtype=float)
+    lim = np.broadcast_to(np.asarray(limits, dtype=float), t.shape)
+    with np.errstate(divide="ignore"):
+        ratio = np.where(t > 0, lim / (sigmas * t), np.inf)
+    return float(np.min(ratio))
 
 
 def sampled_modes(plant, ctrl, ref, q_eq, period: float, dt: float) -> dict:
@@ -653,6 +754,7 @@ def design_report(scenario) -> dict:
 
     k_plant = float(scenario.plant.contact.stiffness)
     fr_cfg = scenario.controller.force_rate
+    sigma, delay, limits = _sensor_facts(scenario)
     period = scenario.control_period
     q0 = scenario.initial_q()
     out = dict(scenario=scenario.name, arm=scenario.nominal.arm.model, surface=scenario.nominal.surface.kind,
@@ -700,11 +802,28 @@ def design_report(scenario) -> dict:
                 s = sampled_modes(plant, c, ref, q_eq, period, scenario.simulation.dt)
                 entries["sampled"] = dict(stiffness=k_plant, period=period, radius=s["radius"], stable=s["stable"],
                                           **s["least_damped"].as_dict())
+                nr = noise_response(sensed_sampled_loop(plant, c, ref, q_eq, period, scenario.simulation.dt, delay))
+                entries["noise"] = dict(stiffness=k_plant, sigma=sigma, delay=delay, torque_limit=limits,
+                                        largest_sigma=largest_noise(nr["tau_per_n"], limits), **nr)
             modes["variants"][label] = entries
         d["contact_modes"] = modes
         out["kinds"][kind] = d
     out["path"] = path
     return out
+
+
+def _sensor_facts(scenario):
+    """(σ, delay, torque limits per joint) the noise gains are reported for: the sensor the
+    controller's design assumes (controller.sensor, by default the scenario's declared
+    plant.sensor) and the true motors' limits (inf: none)."""
+    declared = scenario.build().declared_sensor
+    cs = scenario.controller.sensor
+    sigma = declared[0] if cs.noise == "declared" else float(cs.noise)
+    delay = declared[1] if cs.delay == "declared" else int(cs.delay)
+    act = getattr(scenario.build().plant, "actuator", None)
+    n = scenario.build().plant.n
+    limits = [math.inf] * n if act is None else np.broadcast_to(np.asarray(act.torque_limit, float), (n,)).tolist()
+    return float(sigma), int(delay), limits
 
 
 def _fmt_list(v, spec=".4g"):
@@ -773,6 +892,15 @@ def format_design_report(rep: dict) -> str:
                          f"N/m), tau_f {fr['tau_f']:g} s, zeta at the softest contact {fr.get('zeta_softest', math.nan):.3g}"
                          + (f", sampled window {fr['window'][0]:.3g}..{fr['window'][1]:.3g} s (at {fr['period']:g} s the "
                             f"loop holds up to {fr['stiffness_limit']:.3g} N/m)" if fr.get("window") else ""))
+            sd = fr.get("sensing")
+            if sd:
+                filt = (f"Butterworth order {sd['order']} at {sd['cutoff_hz']:.4g} Hz" if sd["order"] else "none")
+                lines.append(f"  force filter and kappa designed for the sensor (noise {sd['noise']:g} N, delay "
+                             f"{sd['delay']} sample(s)): filter {filt}, kappa {sd['kappa']:.4g} s; least damping "
+                             f"{sd['zeta']:.3g} over the range; worst RMS force error "
+                             f"{sd['force_error_per_n']:.3g} per N "
+                             f"of noise, RMS force command {sd['command_per_n']:.3g} per N ({sd['candidates']} "
+                             "candidates held)")
         if d["singularity_stop"] > 0:
             lines.append(f"  singularity guard: stop when sigma_min(J) < {d['singularity_stop']:g}")
         cm = d["contact_modes"]
@@ -786,6 +914,21 @@ def format_design_report(rep: dict) -> str:
             for key, m in entries.items():
                 if "error" in m:
                     lines.append(f"    {label}, {key} N/m: {m['error']}")
+                elif key == "noise":
+                    if not m["stable"]:
+                        lines.append(f"    {label}, sensor noise with {m['delay']} sample(s) of delay: the "
+                                     f"sampled loop is UNSTABLE (spectral radius {m['radius']:.5g})")
+                        continue
+                    lim = ("" if not np.all(np.isfinite(m["torque_limit"])) else
+                           f"; 3 sigma of torque within the limits up to sensor noise {m['largest_sigma']:.3g} N")
+                    lines.append(f"    {label}, noise gains with {m['delay']} sample(s) of delay at "
+                                 f"{m['stiffness']:g} N/m: "
+                                 f"RMS torque per N of sensor noise {_fmt_list(m['tau_per_n'], '.3g')} N m, RMS true "
+                                 f"force error {m['lam_per_n']:.3g} per N{lim}"
+                                 + (f" (declared noise {m['sigma']:g} N: force error "
+                                    f"{m['sigma'] * m['lam_per_n']:.3g}, "
+                                    f"torque {_fmt_list([m['sigma'] * v for v in m['tau_per_n']], '.3g')} N m RMS)"
+                                    if m["sigma"] > 0 else ""))
                 elif key == "sampled":
                     lines.append(f"    {label}, sampled at {m['period']:g} s, {m['stiffness']:g} N/m: spectral radius "
                                  f"{m['radius']:.5g} ({'stable' if m['stable'] else 'UNSTABLE'}), least damped {m['mode']}")

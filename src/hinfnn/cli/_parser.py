@@ -27,6 +27,7 @@ EXAMPLES_GALLERY = """examples:
   hinfnn gallery --only ur5-table --out /tmp/table
   hinfnn gallery --set simulation.t_final=2   # a quick look (the checks are judged on what ran)
   hinfnn gallery --beyond --only ur5-table    # + the paper law and the stabilised one on a bare stiff table
+  hinfnn gallery --sensor --only ur5-polish   # instead: a noisy, late force sensor, paper law vs designed for it
 """
 EXAMPLES_CACHE = """examples:
   hinfnn cache                     where the compilation cache is, its number of files and size
@@ -232,6 +233,11 @@ def _parser() -> argparse.ArgumentParser:
                     help="also each arm's stiff-contact comparison: the paper's law and the stabilised one on a bare "
                          "undamped contact, k = 1e4, 1e5, 1e6 N/m, continuous and 1 kHz, with the contact modes "
                          "(24 runs of 10 s per arm: tens of minutes)")
+    ga.add_argument("--sensor", action="store_true",
+                    help="instead: each robot arm (ur5-polish, ur5-table-stable, ur5-sphere-stable, panda-table) with "
+                         "a noisy, one-sample-late force sensor (sigma = 0, 0.5, 1, 2.5, 5 N) and the URDF torque "
+                         "limits at 1 kHz, the paper's law against the one designed for the sensor (3-s runs; "
+                         "--set simulation.t_final=10 for the issue's)")
     common(ga)
 
     k = sub.add_parser("keys", formatter_class=fmt, help="list every scenario key with its meaning and range",

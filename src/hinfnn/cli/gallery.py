@@ -12,6 +12,20 @@ def main(args) -> int:
     from ..report.markdown import metrics_table
     from ..workflows.gallery import gallery_scenarios, run_gallery
 
+    if getattr(args, "sensor", False):
+        from ..workflows.sensor import run_sensor_gallery
+
+        progress = Progress(args.quiet, "gallery")
+        t0 = time.perf_counter()
+        target = run_sensor_gallery(args.out, overrides=args.overrides, only=args.only, force=args.force,
+                                    progress=progress, log=(lambda m: None) if args.quiet else log_stderr,
+                                    command=command_line(args))
+        progress.done()
+        if not args.quiet:
+            print((target / "report.md").read_text())
+            print(f"report: {target}/report.md  ({time.perf_counter() - t0:.0f} s)")
+        return 0
+
     gallery_scenarios(args.overrides, args.only)  # every check before anything runs (run_gallery: the
     # stiff-contact designs too, before its folder is reserved)
     progress = Progress(args.quiet, "gallery")

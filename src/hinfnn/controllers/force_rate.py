@@ -73,6 +73,7 @@ class ForceRateDesign:
     stiffness_limit: float | None = None  # sampled: the stiffest contact the window holds at this period, N/m
     period_limit: float | None = None  # sampled: the longest control period that holds stiffness_max, s
     zeta_sampled: float | None = None  # sampled: the least damping of the sampled force loop at stiffness_max
+    sensing: dict | None = None  # the force filter and κ designed for the declared sensor (controllers.sensing)
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -279,7 +280,8 @@ def _largest(ok, lo, hi, steps=60):
 
 def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_start, kappa="rule", tau_f="auto",
                       zeta: float = 0.7, stiffness_min: float = 1e4, stiffness_max: float = 1e6,
-                      period: float | None = None, margin: float = 0.8, u1_range=None) -> ForceRateDesign:
+                      period: float | None = None, margin: float = 0.8, u1_range=None,
+                      sensing: dict | None = None) -> ForceRateDesign:
     """κ and τ_f for the force-rate term from the NOMINAL model (the controller's knowledge) and
     the stated range of contact stiffness, for any arm and constraint (docs/beyond-the-paper.md,
     sections 3 and 7).
@@ -296,7 +298,13 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
     Raises DesignError when a pose of the path is not found or is singular, when no κ stabilises
     the sampled loop at ``stiffness_max`` (the message gives the stiffest contact this period
     holds and the longest period that holds ``stiffness_max``), or when a given κ lies outside
-    the sampled loop's stable window."""
+    the sampled loop's stable window.
+
+    ``sensing`` (sampled control; :func:`hinfnn.controllers.sensing.design_sensing`): the force
+    filter's ``order`` and ``cutoff_hz`` (numbers or "design"), the sensor's ``noise`` (N) and
+    ``delay`` (samples) and the network's integral gain ``g_f``: κ ("rule") and the filter are then
+    chosen together on the loop with the filter, the delay and the network (the ideal sensor's
+    Jury window does not apply), and the choice is kept in ``sensing``."""
     from .._config import require_x64
 
     require_x64()
@@ -326,6 +334,25 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
     k_value = kappa_cont if rule else float(kappa)
     tf = (period if period is not None else 1e-3) if tau_f == "auto" else float(tau_f)
     window = stiffness_limit = period_limit = zeta_sampled = None
+    if sensing is not None:
+        from .sensing import design_sensing
+
+        if period is None:
+            raise DesignError("the force filter and the sensor's delay are designed for sampled control",
+                              key="force_filter.order", value=sensing.get("order"))
+        sd = design_sensing(h=float(period), g_P=K_prime - 1.0, mu_z=float(gains.mu_z), alpha_z=float(gains.alpha_z),
+                            g_f=float(sensing.get("g_f", 0.0)), noise=float(sensing.get("noise", 0.0)),
+                            delay=int(sensing.get("delay", 0)), stiffness_min=stiffness_min,
+                            stiffness_max=stiffness_max, m_n_min=mn_min, m_n_max=mn_max,
+                            order=sensing.get("order", "design"), cutoff_hz=sensing.get("cutoff_hz", "design"),
+                            kappa="rule" if rule else float(kappa), zeta_min=SAMPLED_ZETA_MIN)
+        k_value = sd.kappa
+        zeta_soft = 0.5 * k_value * math.sqrt(stiffness_min / (mn_max * K_prime))
+        return ForceRateDesign(kappa=k_value, tau_f=tf, rule=rule, zeta=zeta, stiffness_min=stiffness_min,
+                               stiffness_max=stiffness_max, m_n_max=mn_max, m_n_min=mn_min, K_prime=K_prime,
+                               kappa_continuous=kappa_cont, period=period, constraints=int(surface.k),
+                               path_points=len(poses), u1_m_n_max=u1_heavy, zeta_softest=zeta_soft,
+                               zeta_sampled=sd.zeta, sensing=sd.as_dict())
     if period is not None:
         g_P = K_prime - 1.0
         mu_z, alpha_z = float(gains.mu_z), float(gains.alpha_z)

@@ -203,7 +203,8 @@ def unregister(kind: str) -> None:
 
 def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bool = False,
            extra_terms: tuple = (), force_rate: dict | None = None, singularity_stop: float = 0.0,
-           block: int | None = BLOCK, adaptation: dict | None = None, **options) -> ReducedOrderController:
+           block: int | None = BLOCK, adaptation: dict | None = None, force_filter: dict | None = None,
+           **options) -> ReducedOrderController:
     """Design the controller ``kind`` from the NOMINAL arm and surface: check the gains (Theorem
     1's bounds, Remarks 1–3), solve the Riccati-like eq. (35) (or (40) with ``augmented``,
     Remark 1), build and check the terms. ``options``: ``network_p``, ``network_f``,
@@ -218,6 +219,12 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
     (:data:`~hinfnn.controllers.law.BLOCK`; None: arrays whole). ``adaptation`` (not in the
     paper): the keyword arguments of :func:`robust_adaptation` (the networks' update laws made
     robust to measurement noise); None: eqs. (30)–(31).
+
+    ``force_filter`` (not in the paper; :mod:`hinfnn.controllers.sensing`): ``order`` (0: none, 1,
+    2 or "design"), ``cutoff_hz`` (Hz or "design"), the sensor the design assumes (``noise``, N;
+    ``delay``, samples) and ``period`` (the control period: the filter is discrete). With a
+    force-rate term whose κ is "rule", κ is chosen with the filter for that sensor
+    (:func:`~hinfnn.controllers.sensing.design_sensing`); order 0 leaves today's law unchanged.
 
     Raises :class:`~hinfnn.errors.DesignError` naming the condition that failed."""
     if kind not in KINDS:
@@ -240,23 +247,56 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
             raise
         P = jnp.full((2 * surface.m, 2 * surface.m), jnp.nan)
     terms = tuple(comp.terms(options)) + tuple(extra_terms)
+    ff = force_filter or {}
+    filtering = ff.get("order", 0) not in (0, None)
+    if filtering and ff.get("period") is None:
+        raise DesignError("the force filter is discrete: it needs sampled control (simulation.control = "
+                          "\"sampled\" or a plant that steps itself)", key="force_filter.order", value=ff["order"])
     if force_rate and force_rate.get("kappa", 0.0) not in (0, 0.0, None):
         if augmented:
             raise DesignError("the force-rate term's storage argument does not cover Remark 1's augmented "
                               "index; use one or the other", key="force_rate.kappa", value=force_rate["kappa"])
         from .force_rate import design_force_rate
 
-        d = design_force_rate(arm, surface, g, robust=comp.robust, **force_rate)
+        sensing = None
+        if filtering:
+            sensing = dict(order=ff["order"], cutoff_hz=ff["cutoff_hz"], noise=float(ff.get("noise", 0.0)),
+                           delay=int(ff.get("delay", 0)), g_f=_network_gain(terms, g))
+        d = design_force_rate(arm, surface, g, robust=comp.robust, sensing=sensing, **force_rate)
         terms = terms + (T.ForceRate(kappa=jnp.asarray(d.kappa), tau_f=jnp.asarray(d.tau_f),
                                      design=Note(d.as_dict().items())),)
+        if d.sensing is not None and d.sensing["order"]:
+            ff = dict(ff, order=d.sensing["order"], cutoff_hz=d.sensing["cutoff_hz"])
+    elif filtering and "design" in (ff["order"], ff["cutoff_hz"]):
+        raise DesignError("the force filter is designed with the force-rate term's gain: set "
+                          "controller.force_rate.kappa (\"rule\") or give the filter's order and cutoff",
+                          key="force_filter.cutoff_hz", value=ff["cutoff_hz"])
+    force_filter_obj = None
+    if filtering and ff["order"] not in (0, "design"):
+        from .sensing import butterworth
+
+        force_filter_obj = butterworth(int(ff["order"]), float(ff["cutoff_hz"]), float(ff["period"]))
     for term in terms:
         term.check(surface.m, surface.k)
     ctrl = ReducedOrderController(arm=arm, surface=surface, gains=g, P_p=P, terms=terms,
                                   sigma_stop=jnp.asarray(float(singularity_stop)), kind=kind, augmented=augmented,
-                                  block=block)
+                                  block=block, force_filter=force_filter_obj)
     if adaptation:
         ctrl = robust_adaptation(ctrl, **adaptation)
     return ctrl
+
+
+def _network_gain(terms, gains) -> float:
+    """g_f = γ2‖ξ_f(0, 0)‖²: the adaptive law's force network at Θ̂_f = 0 is an integral action of
+    this gain on e_λ (its largest over the outputs); 0 without the network."""
+    import numpy as np
+
+    net = next((t.network for t in terms if isinstance(t, T.ForceNetwork)), None)
+    if net is None:
+        return 0.0
+    k = net.n_out
+    xi = np.atleast_2d(np.asarray(net.features(jnp.zeros(k), jnp.zeros(k)), dtype=float))
+    return float(np.asarray(gains.gamma_2, dtype=float).max()) * float(np.max(np.sum(xi * xi, axis=1)))
 
 
 class FeedbackLinearization:

@@ -152,6 +152,8 @@ class ReducedOrderController(Controller, Dissipative):
     block: int | None = static_field(default=BLOCK)
     P_blocks: tuple | None = None  # P_p's m × m blocks, taken outside a compiled loop (prepared)
     Q_blocks: tuple | None = None  # Q_p's, the same
+    # the sampled controller's low-pass on the measured e_λ (hinfnn.controllers.sensing; None: none, the paper's)
+    force_filter: object = None
     fault_name: ClassVar[str] = "σ_min(Ĵ), below the singularity guard's stop"
 
     # --- sizes -----------------------------------------------------------------------------------
@@ -208,6 +210,8 @@ class ReducedOrderController(Controller, Dissipative):
         parts = {}
         for term in self.terms:
             parts.update(term.init(self.m, self.k))
+        if self.force_filter is not None:
+            parts["lam_filter"] = jnp.zeros(self.force_filter.state_size(self.k))
         unknown = set(given) - set(parts) - {"z"}
         if unknown:
             raise TypeError(f"unknown state arrays {sorted(unknown)}; this controller has z"
@@ -278,6 +282,11 @@ class ReducedOrderController(Controller, Dissipative):
         e_u1 = u1 - r.u1_d
         e_u1_dot = u1_dot - r.u1_d_dot
         e_lam = lam - r.lam_d
+        dparts = {}
+        if self.force_filter is not None:  # everything the law does with e_λ reads it low-passed
+            x_f = state.parts["lam_filter"]
+            dparts["lam_filter"] = self.force_filter.rate(e_lam, x_f)
+            e_lam = self.force_filter.output(e_lam, x_f)
         x_p = jnp.concatenate([e_u1, e_u1_dot])
         s_p = _lower_times(self.P_p, self._blocks(self.P_p, self.P_blocks), x_p, m)  # B_pᵀ P_p x_p
         ctx = T.Context(t=jnp.asarray(t, dtype=float), ref=r, u1=u1, u1_dot=u1_dot, lam=lam, e_u1=e_u1,
@@ -287,7 +296,7 @@ class ReducedOrderController(Controller, Dissipative):
         mm = la.mm
         a = r.u1_d_ddot - mm(g.K_v, e_u1_dot) - mm(g.K_p, e_u1)
         b = r.lam_d + state.z
-        dparts, signals, values = {}, {}, []
+        signals, values = {}, []
         for term in self.terms:
             value, d, sig = term.evaluate(ctx, state.parts)
             if term.side == "position":
@@ -344,13 +353,17 @@ class ReducedOrderController(Controller, Dissipative):
     @property
     def needs_start(self) -> bool:
         """Whether some term sets its state from the first measurement (:meth:`start`)."""
-        return any(type(term).start is not T.Term.start for term in self.terms)
+        return self.force_filter is not None or any(type(term).start is not T.Term.start for term in self.terms)
 
     def start(self, t, state: ControllerState, meas, ref) -> ControllerState:
         """The state at the first sample, from the first measurement (a term's filter starts at
         its input, e.g. the force-rate filter at e_λ(0))."""
         if not self.needs_start:
             return state
+        if self.force_filter is not None:  # the force filter at rest at the first measured e_λ
+            parts = dict(state.parts)
+            parts["lam_filter"] = self.force_filter.rest(self.observe(meas)[2] - ref(t).lam_d)
+            state = ControllerState(z=state.z, parts=parts)
         out = self.evaluate(t, state, meas, ref)
         parts = dict(state.parts)
         for term in self.terms:

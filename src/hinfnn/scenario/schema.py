@@ -167,6 +167,8 @@ def allowed(tp, meta) -> str:
                 parts.append(" or ".join(f'"{c}"' for c in _args(a)))
             elif a is float:
                 parts.append("a number" + tail)
+            elif a is int:
+                parts.append("an integer" + tail)
             elif a is str:
                 parts.append("a name")
             elif typing.get_origin(a) is tuple:

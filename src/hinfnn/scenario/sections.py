@@ -1258,6 +1258,32 @@ class AdaptationConfig:
 
 
 @section
+class ForceFilterConfig:
+    """The sampled controller's low-pass on the measured force (not in the paper;
+    docs/beyond-the-paper.md, section 12): a discrete Butterworth filter on e_lam, in front of
+    everything the law does with it (z, v_lam, F_f and the force-rate term)."""
+
+    order: Literal["design"] | int = param(0, doc="order of the Butterworth low-pass on the measured e_lam: 0 (none: "
+                                                  "the paper's law), 1, 2, or \"design\" (chosen with kappa for the "
+                                                  "sensor of controller.sensor)", ge=0, le=2)
+    cutoff_hz: Literal["design"] | float = param("design", doc="its cutoff frequency, Hz (below half the control "
+                                                               "rate), or \"design\"", gt=0.0, le=1e6)
+
+
+@section
+class SensorAssumptionConfig:
+    """The sensor the controller's design assumes (the controller never reads the plant: by
+    default the scenario's declared plant.sensor, copied when the scenario is built)."""
+
+    noise: Literal["declared"] | float = param("declared", doc="standard deviation of the force sensor's noise per "
+                                                               "axis the design assumes, N; \"declared\": "
+                                                               "plant.sensor.force_noise", ge=0.0, le=1e6)
+    delay: Literal["declared"] | int = param("declared", doc="transport delay of the measurements the design assumes, "
+                                                             "whole control samples; \"declared\": "
+                                                             "plant.sensor.delay", ge=0, le=1000)
+
+
+@section
 class ControllerConfig:
     kind: str | tuple[str, ...] = param(doc="controller(s) to run: a name of hinfnn.controllers.KINDS or a list",
                                         allowed=_kinds_allowed)
@@ -1268,6 +1294,9 @@ class ControllerConfig:
     force_rate: ForceRateConfig = param(doc="force-rate term (not in the paper)")
     adaptation: AdaptationConfig = param(doc="the networks' update laws made robust to measurement noise (not in the "
                                               "paper)")
+    force_filter: ForceFilterConfig = param(ForceFilterConfig(), doc="low-pass on the measured force (not in the "
+                                            "paper)")
+    sensor: SensorAssumptionConfig = param(SensorAssumptionConfig(), doc="the sensor the design assumes")
     singularity_stop: float = param(0.0, doc="stop (simulator) or return NaN (sampled controller) when the smallest "
                                              "singular value of the nominal Jacobian falls below this; 0: off",
                                     ge=0.0, le=100.0)
@@ -1290,13 +1319,16 @@ class ControllerConfig:
         if len(set(self.kinds)) != len(self.kinds):
             raise ConfigError(f"lists a controller twice: {list(self.kinds)}", key=key)
 
-    def build(self, kind: str, arm, surface, *, u1_path=None, q_start=None, period=None, adaptation=None):
+    def build(self, kind: str, arm, surface, *, u1_path=None, q_start=None, period=None, adaptation=None,
+              declared=(0.0, 0)):
         """Design the controller ``kind`` from the NOMINAL arm and surface (``u1_path``,
         ``q_start``: the reference's path in u1 and a start pose, for the force-rate rule;
         ``period``: the control period under sampled control; ``adaptation``: the design inputs of
         the robust update laws, :func:`hinfnn.controllers.kinds.robust_adaptation`'s ``q``,
-        ``lam_max``, ``force_noise``, ``q_noise``, ``qd_noise``). Raises :class:`DesignError` with
-        the dotted key of the failing gain."""
+        ``lam_max``, ``force_noise``, ``q_noise``, ``qd_noise``; ``declared``: the scenario's declared
+        sensor (force noise, delay), what ``controller.sensor`` defaults to). Raises
+        :class:`DesignError` with the dotted key of the failing gain, :class:`ConfigError` for a
+        force filter under continuous control."""
         from ..controllers import design
 
         fr = self.force_rate
@@ -1304,15 +1336,26 @@ class ControllerConfig:
         if fr.kappa != 0.0:
             force_rate = dict(kappa=fr.kappa, tau_f=fr.tau_f, zeta=fr.zeta, stiffness_min=fr.stiffness_min,
                               stiffness_max=fr.stiffness_max, u1_path=u1_path, q_start=q_start, period=period)
+        ff = self.force_filter
+        force_filter = None
+        if ff.order != 0:
+            if period is None:
+                raise ConfigError("the force filter is discrete, designed at the control period: it needs sampled "
+                                  "control (simulation.control = \"sampled\", or a plant that steps itself)",
+                                  key="controller.force_filter.order")
+            noise = declared[0] if self.sensor.noise == "declared" else self.sensor.noise
+            delay = declared[1] if self.sensor.delay == "declared" else self.sensor.delay
+            force_filter = dict(order=ff.order, cutoff_hz=ff.cutoff_hz, noise=float(noise), delay=int(delay),
+                                period=period)
         try:
             return design(kind, arm, surface, self.gains.build(), augmented=self.augmented,
                           network_p=self.network_p.build("controller.network_p", surface.m),
                           network_f=self.network_f.build("controller.network_f", surface.k),
                           force_rate=force_rate, singularity_stop=self.singularity_stop,
-                          adaptation=self._adaptation(adaptation))
+                          adaptation=self._adaptation(adaptation),
+                          **({"force_filter": force_filter} if force_filter else {}))
         except DesignError as err:
             raise prefixed(err) from None
-
 
     def _adaptation(self, inputs: dict | None) -> dict | None:
         """:func:`~hinfnn.controllers.kinds.robust_adaptation`'s keyword arguments (None: the
@@ -1333,7 +1376,7 @@ def prefixed(err: DesignError) -> DesignError:
         return err
     if key in ("rho", "mu_z", "alpha_z", "alpha_lam", "beta_lam", "gamma_1", "gamma_2", "Q_p", "R_p", "K_p", "K_v"):
         full = f"controller.gains.{key}"
-    elif key.startswith(("network_", "force_rate", "adaptation")):
+    elif key.startswith(("network_", "force_rate", "adaptation", "force_filter", "sensor.")):
         full = f"controller.{key}"
     else:
         full = key

@@ -197,16 +197,18 @@ class Setup:
         models = value_key((self.nominal_arm, self.constraint))
         adapt = self._adaptation_inputs()
         adapt = None if adapt is None else repr({k: np.asarray(v, float).tobytes() for k, v in adapt.items()})
-        return kind, models, repr(self.scenario.controller), self.control_period, path, start, adapt
+        return kind, models, repr(self.scenario.controller), self.control_period, path, start, adapt, \
+            self.declared_sensor
 
     def _adaptation_inputs(self) -> dict | None:
         """What the robust update laws' design reads (``controller.adaptation``, not "none", nor
         "auto" with an ideal sensor): the start pose, the largest |λd| over the run and the
-        DECLARED sensor noise (its data sheet, ``plant.sensor``: the noise the laws are sized
-        for), or None with the paper's laws."""
+        sensor noise the design assumes (``controller.sensor.noise``; by default the DECLARED
+        ``plant.sensor``'s, its data sheet), or None with the paper's laws."""
         sc = self.scenario
         sensor = sc.plant.sensor
-        noisy = bool(sensor.force_noise or np.any(sensor.q_noise) or np.any(sensor.qd_noise))
+        force_noise = self.declared_sensor[0] if sc.controller.sensor.noise == "declared" else sc.controller.sensor.noise
+        noisy = bool(force_noise or np.any(sensor.q_noise) or np.any(sensor.qd_noise))
         if sc.controller.adaptation.resolved(noisy) == "none":
             return None
         if "_adapt" not in self.__dict__:
@@ -216,7 +218,7 @@ class Setup:
             ts = jnp.linspace(0.0, float(sc.simulation.t_final), 2001)
             lam_d = np.asarray(jax.vmap(lambda t: self.reference(t).lam_d)(ts))
             self._adapt = dict(q=np.asarray(self.q0, float), lam_max=float(np.max(np.abs(lam_d))),
-                               force_noise=float(sensor.force_noise), q_noise=np.asarray(sensor.q_noise, float),
+                               force_noise=float(force_noise), q_noise=np.asarray(sensor.q_noise, float),
                                qd_noise=np.asarray(sensor.qd_noise, float))
         return self._adapt
 
@@ -224,7 +226,19 @@ class Setup:
         u1_path, q_start = self._design_inputs()
         return self.scenario.controller.build(kind, self.nominal_arm, self.constraint, u1_path=u1_path,
                                               q_start=q_start, period=self.control_period,
-                                              adaptation=self._adaptation_inputs())
+                                              adaptation=self._adaptation_inputs(),
+                                              declared=self.declared_sensor)
+
+    @property
+    def declared_sensor(self) -> tuple[float, int]:
+        """(force noise σ, N; delay, samples) of the scenario's declared sensor (plant.sensor): what
+        controller.sensor defaults to. Read here, where the scenario is built, and handed to the
+        design as numbers: the scenario is the user's statement, so the controller still never
+        reads the plant."""
+        sens = getattr(self.scenario.plant, "sensor", None)
+        if sens is None:
+            return 0.0, 0
+        return float(sens.force_noise), int(sens.delay)
 
     # --- the simulation -------------------------------------------------------------------------
     @property

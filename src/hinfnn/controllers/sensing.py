@@ -1,0 +1,322 @@
+"""The force measurement path of a sampled controller, designed for the sensor it has (not in the
+paper; docs/beyond-the-paper.md, section 12).
+
+A robot's force/torque sensor gives the contact force late (``delay`` whole samples of
+transport delay) and noisy (white noise of standard deviation σ per axis at each sample). Two
+things of the controller meet that noise: the proportional force feedback (v_λ of eq. (32)) and,
+above all, the force-rate term −κṡ, whose ṡ is the backward difference of e_λ at the control
+period h (gain κ/h on the noise). This module gives the controller
+
+* :class:`ForceFilter`: a discrete low-pass (Butterworth of order 1 or 2, by the bilinear
+  transform at the control period) on the measured force error e_λ = λ − λd, in front of
+  everything the law does with it: eqs. (27), (31), (32) and the force-rate term all read the
+  filtered e_λ. Its state is part of the controller's state (``lam_filter``), written as a rate
+  (x_{k+1} − x_k)/h so that the controller's forward Euler step over h is exactly the discrete
+  filter (sampled control only), and it starts at rest at the first measurement;
+* :func:`sensed_force_loop`: the linearised force loop over one period of the zero-order hold
+  (:func:`hinfnn.controllers.force_rate.sampled_force_loop`'s contact mode) with the filter's
+  states, ``delay`` samples of transport delay on the measurement, the z-filter (27) and the
+  adaptive law's force network at Θ̂_f = 0 (an integral action of gain g_f = γ2‖ξ_f(0)‖² on e_λ),
+  driven by white sensor noise;
+* :func:`noise_gains`: from it, by the discrete Lyapunov equation Σ = ΦΣΦᵀ + ΓΓᵀ, the RMS true
+  force error and the RMS held force command per N of sensor noise;
+* :func:`design_sensing`: the filter's order and cutoff and κ chosen together for the declared
+  sensor: every candidate must keep the loop stable with damping ratio at least
+  :data:`~hinfnn.controllers.force_rate.SAMPLED_ZETA_MIN` at each corner of the design's range
+  (softest and stiffest contact, lightest and heaviest pose of the path), and among those the one
+  with the least worst-corner RMS force error per N of noise is taken (ties: the least force
+  command). None holding is a DesignError naming ``controller.sensor.delay``.
+
+Nothing here imports :mod:`hinfnn.plant`: the sensor the design assumes is the controller's own
+statement (``controller.sensor``), copied from the scenario's declared sensor by default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._pytree import pytree_dataclass, static_field
+from ..errors import DesignError
+
+
+@pytree_dataclass
+class ForceFilter:
+    """A discrete low-pass on each component of e_λ: x_{k+1} = A x_k + B u_k, y_k = C x_k + D u_k
+    (one state block of ``order`` values per constraint), at the control period ``period``.
+    Build it with :func:`butterworth`."""
+
+    A: jax.Array
+    B: jax.Array
+    C: jax.Array
+    D: jax.Array
+    period: jax.Array
+    order: int = static_field(default=1)
+    cutoff_hz: float = static_field(default=0.0)
+
+    def state_size(self, k: int) -> int:
+        return self.order * k
+
+    def _blocks(self, x, k):
+        return x.reshape(k, self.order)
+
+    def output(self, lam, x):
+        """y = C x + D u, per constraint (u = e_λ): the filter's output equation."""
+        k = lam.shape[0]
+        return self._blocks(x, k) @ self.C + self.D * lam
+
+    def rate(self, lam, x):
+        """(x_{k+1} − x_k)/h: the controller's forward Euler step over h gives the next state."""
+        k = lam.shape[0]
+        X = self._blocks(x, k)
+        nxt = X @ self.A.T + lam[:, None] * self.B[None, :]
+        return ((nxt - X) / self.period).reshape(-1)
+
+    def rest(self, lam):
+        """The state at rest with input u (the output then equals u: unit gain at DC)."""
+        x1 = jnp.linalg.solve(jnp.eye(self.order) - self.A, self.B)
+        return (lam[:, None] * x1[None, :]).reshape(-1)
+
+    def matrices(self):
+        """(A, B, C, D) as NumPy arrays (B, C as vectors, D a number)."""
+        return (np.asarray(self.A, float), np.asarray(self.B, float), np.asarray(self.C, float),
+                float(np.asarray(self.D)))
+
+
+@functools.lru_cache(maxsize=256)
+def butterworth_matrices(order: int, cutoff_hz: float, period: float):
+    """(A, B, C, D) of the Butterworth low-pass of ``order`` (1 or 2) and ``cutoff_hz`` at the
+    sampling ``period``: SciPy's bilinear design in its controllable canonical state space (B, C
+    vectors, D a number). Raises DesignError (``force_filter.order``, ``force_filter.cutoff_hz``)
+    for another order, or a cutoff not below the Nyquist frequency."""
+    from scipy import signal
+
+    order = int(order)
+    if order not in (1, 2):
+        raise DesignError(f"must be 0 (no filter), 1 or 2, got {order}", key="force_filter.order", value=order)
+    nyquist = 0.5 / float(period)
+    if not 0.0 < float(cutoff_hz) < nyquist:
+        raise DesignError(f"must be between 0 and the Nyquist frequency {nyquist:g} Hz of the control period "
+                          f"{period:g} s, got {cutoff_hz:g}", key="force_filter.cutoff_hz", value=cutoff_hz,
+                          bound=nyquist)
+    b, a = signal.butter(order, float(cutoff_hz), fs=1.0 / float(period))
+    A, B, C, D = signal.tf2ss(b, a)
+    return np.asarray(A, float), np.asarray(B[:, 0], float), np.asarray(C[0], float), float(D[0, 0])
+
+
+def butterworth(order: int, cutoff_hz: float, period: float) -> ForceFilter:
+    """The :class:`ForceFilter` of :func:`butterworth_matrices`."""
+    A, B, C, D = butterworth_matrices(int(order), float(cutoff_hz), float(period))
+    return ForceFilter(A=np.asarray(A), B=np.asarray(B), C=np.asarray(C), D=np.asarray(D),
+                       period=np.asarray(float(period)), order=int(order), cutoff_hz=float(cutoff_hz))
+
+
+def _none():
+    return np.zeros((0, 0)), np.zeros(0), np.zeros(0), 1.0
+
+
+def sensed_force_loop(omega0_h: float, g_P: float, kappa: float, h: float, mu_z: float = 0.0, alpha_z: float = 0.0,
+                      g_f: float = 0.0, delay: int = 0, filt=None):
+    """(Φ, Γ, w, w_n): the force loop over one period of the zero-order hold, linearised on the
+    contact mode ω0 = √(k/m_n), with the measurement path of a real sensor (module docstring).
+
+    State: (e, ė/ω0) the true force error and its rate at the sample; the ``delay`` last
+    acquisitions y_j = e_j + n_j (newest first); the filter's state (``filt`` = (A, B, C, D),
+    None: no filter); s (the force-rate filter, τ_f = h); z of eq. (27); and with g_f > 0 the
+    network's output ν = ξ_fᵀΘ̂_f. The controller reads y_{k−d} (y_k itself without delay), filters
+    it into e_c and holds the force command w = z − ν − g_P e_c − κ(e_c − s)/h; between samples e
+    is the undamped contact mode driven by w. Γ: the noise n_k's column; w, w_n: the held command's
+    row and its noise coefficient. With no delay, filter or network it is
+    :func:`hinfnn.controllers.force_rate.sampled_force_loop` (the same matrix)."""
+    Af, Bf, Cf, Df = _none() if filt is None else filt
+    nf = Af.shape[0]
+    d = int(delay)
+    i_f = 2 + d
+    i_s = i_f + nf
+    i_z = i_s + 1
+    i_nu = i_z + 1
+    N = i_nu + (1 if g_f else 0)
+    # the measurement the controller reads: a row over the state and its noise coefficient
+    ym, ymn = np.zeros(N), 0.0
+    if d == 0:
+        ym[0], ymn = 1.0, 1.0
+    else:
+        ym[2 + d - 1] = 1.0
+    ec, ecn = Df * ym, Df * ymn
+    ec[i_f:i_f + nf] += Cf
+    w, wn = -(g_P + kappa / h) * ec, -(g_P + kappa / h) * ecn
+    w[i_s] += kappa / h
+    w[i_z] += 1.0
+    if g_f:
+        w[i_nu] -= 1.0
+    c, sn = math.cos(omega0_h), math.sin(omega0_h)
+    Phi, G = np.zeros((N, N)), np.zeros(N)
+    Phi[0] = (1.0 - c) * w
+    Phi[0, 0] += c
+    Phi[0, 1] += sn
+    G[0] = (1.0 - c) * wn
+    Phi[1] = sn * w
+    Phi[1, 0] -= sn
+    Phi[1, 1] += c
+    G[1] = sn * wn
+    if d:
+        Phi[2, 0], G[2] = 1.0, 1.0
+        for j in range(1, d):
+            Phi[2 + j, 2 + j - 1] = 1.0
+    if nf:
+        Phi[i_f:i_f + nf] = np.outer(Bf, ym)
+        Phi[i_f:i_f + nf, i_f:i_f + nf] += Af
+        G[i_f:i_f + nf] = Bf * ymn
+    Phi[i_s], G[i_s] = ec, ecn
+    Phi[i_z] = -h * alpha_z * ec
+    Phi[i_z, i_z] += 1.0 - h * mu_z
+    G[i_z] = -h * alpha_z * ecn
+    if g_f:
+        Phi[i_nu] = h * g_f * ec
+        Phi[i_nu, i_nu] += 1.0
+        G[i_nu] = h * g_f * ecn
+    return Phi, G, w, wn
+
+
+def loop_damping(Phi, h: float):
+    """(spectral radius, least damping ratio) of a one-period map, each eigenvalue z read as
+    s = ln(z)/h, ζ = −Re s/|s| (eigenvalues at 0, the delay line's, have none and are skipped)."""
+    z = np.linalg.eigvals(Phi)
+    radius = float(np.max(np.abs(z))) if z.size else 0.0
+    live = z[np.abs(z) > 1e-12]
+    s = np.log(live.astype(complex)) / h
+    zeta = min((-x.real / abs(x) for x in s if abs(x) > 0), default=1.0)
+    return radius, float(zeta)
+
+
+def noise_gains(Phi, G, w, wn):
+    """(RMS true force error, RMS held force command) per unit of white measurement noise, from
+    the stationary covariance Σ = ΦΣΦᵀ + GGᵀ (the discrete Lyapunov equation); inf when Φ is not
+    stable."""
+    from scipy.linalg import solve_discrete_lyapunov
+
+    if np.max(np.abs(np.linalg.eigvals(Phi))) >= 1.0:
+        return math.inf, math.inf
+    S = solve_discrete_lyapunov(Phi, np.outer(G, G))
+    return math.sqrt(max(S[0, 0], 0.0)), math.sqrt(max(float(w @ S @ w) + wn * wn, 0.0))
+
+
+@dataclasses.dataclass(frozen=True)
+class SensingDesign:
+    """What :func:`design_sensing` chose, and its predictions (per N of sensor noise)."""
+
+    order: int
+    cutoff_hz: float | None
+    kappa: float
+    noise: float
+    delay: int
+    force_error_per_n: float  # RMS true force error per N of noise, worst corner of the range
+    command_per_n: float  # RMS held force command per N of noise, same corner
+    zeta: float  # least damping ratio over the corners
+    candidates: int  # designs that held
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def corners(stiffness_min, stiffness_max, m_n_min, m_n_max):
+    """The (k, m_n) corners of the design's range."""
+    return [(k, m) for k in sorted({float(stiffness_min), float(stiffness_max)})
+            for m in sorted({float(m_n_min), float(m_n_max)})]
+
+
+def evaluate_design(order, cutoff_hz, kappa, *, h, g_P, mu_z, alpha_z, g_f, delay, pts, zeta_min=-math.inf):
+    """(least ζ, worst force error per N, its command per N) of one candidate over the corners
+    ``pts``; ζ = −inf when a corner is unstable (the noise gains are inf then, and when the least ζ
+    is below ``zeta_min``: not computed)."""
+    filt = None if not order else butterworth_matrices(int(order), float(cutoff_hz), float(h))
+    loops, zmin = [], math.inf
+    for k, m in pts:
+        loop = sensed_force_loop(math.sqrt(k / m) * h, g_P, kappa, h, mu_z, alpha_z, g_f, delay, filt)
+        radius, zeta = loop_damping(loop[0], h)
+        if radius >= 1.0:
+            return -math.inf, math.inf, math.inf
+        zmin = min(zmin, zeta)
+        loops.append(loop)
+    if zmin < zeta_min:
+        return zmin, math.inf, math.inf
+    e_w, w_w = 0.0, 0.0
+    for loop in loops:
+        e, c = noise_gains(*loop)
+        if e > e_w:
+            e_w, w_w = e, c
+    return zmin, e_w, w_w
+
+
+def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: float, noise: float, delay: int,
+                   stiffness_min: float, stiffness_max: float, m_n_min: float, m_n_max: float, order="design",
+                   cutoff_hz="design", kappa="rule", zeta_min: float = 0.05,
+                   _search_ok: bool = True) -> SensingDesign:
+    """The force filter (``order`` 0, 1 or 2, or "design": each tried; ``cutoff_hz`` a number or
+    "design": a grid from 5 Hz to 0.4 of the sampling rate) and κ ("rule": a grid from h/20 to
+    100h; or a number) chosen together for a sensor of ``noise`` N and ``delay`` samples (module
+    docstring); ``zeta_min``: the least damping ratio accepted at every corner (the force-rate
+    design passes :data:`hinfnn.controllers.force_rate.SAMPLED_ZETA_MIN`, the same 0.05). Raises
+    DesignError naming ``sensor.delay`` when no candidate holds; its bound is the
+    softest contact the design holds with the same stiffest one (None: not even that one)."""
+    zeta_min = float(zeta_min)
+    pts = corners(stiffness_min, stiffness_max, m_n_min, m_n_max)
+    orders = (0, 1, 2) if order == "design" else (int(order),)
+    kappas = np.geomspace(h / 20.0, 100.0 * h, 49) if kappa == "rule" else np.array([float(kappa)])
+    best, count = None, 0
+    for o in orders:
+        cutoffs = [None] if o == 0 else (np.geomspace(5.0, 0.4 / h, 14) if cutoff_hz == "design"
+                                           else [float(cutoff_hz)])
+        for fc in cutoffs:
+            for kap in kappas:
+                zmin, e, c = evaluate_design(o, fc, float(kap), h=h, g_P=g_P, mu_z=mu_z, alpha_z=alpha_z, g_f=g_f,
+                                             delay=delay, pts=pts, zeta_min=zeta_min)
+                if not zmin >= zeta_min:
+                    continue
+                count += 1
+                key = (round(e, 9), c)
+                if best is None or key < best[0]:
+                    best = (key, o, fc, float(kap), e, c, zmin)
+    if best is None:
+        softest = None
+        if _search_ok:  # the softest contact this delay and period hold with the stated stiffest one
+            def ok(k_min):
+                try:
+                    design_sensing(h=h, g_P=g_P, mu_z=mu_z, alpha_z=alpha_z, g_f=g_f, noise=noise, delay=delay,
+                                   stiffness_min=k_min, stiffness_max=stiffness_max, m_n_min=m_n_min,
+                                   m_n_max=m_n_max, order=order, cutoff_hz=cutoff_hz, kappa=kappa,
+                                   zeta_min=zeta_min, _search_ok=False)
+                    return True
+                except DesignError:
+                    return False
+
+            if ok(stiffness_max):
+                lo, hi = float(stiffness_min), float(stiffness_max)
+                for _ in range(10):  # on a log scale: a 1.1 % bracket over a decade
+                    mid = math.sqrt(lo * hi)
+                    lo, hi = (lo, mid) if ok(mid) else (mid, hi)
+                softest = hi
+        where = (f": with this delay the design holds contacts from {softest:.3g} N/m up to {stiffness_max:g} N/m "
+                 f"(set controller.force_rate.stiffness_min >= {softest:.3g}), or shorten the control period"
+                 if softest is not None else
+                 ": it does not hold even the stiffest contact alone; shorten the control period or lower "
+                 "controller.force_rate.stiffness_max")
+        raise DesignError(
+            f"no force filter and force-rate gain keep the sampled force loop stable with damping ratio >= "
+            f"{zeta_min:g} over contacts {stiffness_min:g}..{stiffness_max:g} N/m and normal masses "
+            f"{m_n_min:.4g}..{m_n_max:.4g} kg with {delay} sample(s) of measurement delay at {h:g} s"
+            + (f" (the adaptive law's force network adds an integral action of gain {g_f:.4g} 1/s: lowering gamma_2 "
+               "slows it)" if g_f else "") + where,
+            key="sensor.delay", value=delay, bound=softest)
+    _, o, fc, kap, e, c, zmin = best
+    return SensingDesign(order=o, cutoff_hz=None if fc is None else float(fc), kappa=kap, noise=float(noise),
+                         delay=int(delay), force_error_per_n=e, command_per_n=c, zeta=zmin, candidates=count)
+
+
+__all__ = ["ForceFilter", "butterworth", "sensed_force_loop", "noise_gains", "loop_damping", "design_sensing",
+           "SensingDesign"]
