@@ -164,6 +164,8 @@ def _alternative(key, tp, meta, value):
     if float in args:  # beta_lam: a number or "min"; tau_f: a number <= 1 or "auto"
         hi = meta.get("lt") if meta.get("lt") is not None else meta.get("le")
         return 5.0 if hi is None or 5.0 < hi else hi / 2
+    if int in args:  # controller.force_filter.order: an integer or "design"; controller.sensor.delay: or "declared"
+        return 1 if value != 1 else 2
     if str in args:  # controller.kind: a name or a list
         return ["fl", "hinf"]
     raise AssertionError((key, tp))
