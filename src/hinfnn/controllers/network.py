@@ -78,6 +78,10 @@ class _Network:
     Remark 2's clip (subclasses hold ``centres`` with the units on the last axis, ``n_out``,
     ``project`` and ``radius``)."""
 
+    #: How a network's products are written (:class:`hinfnn._linalg.Kernels`; the networks here hold
+    #: it as a static field, set by the program that traces them)
+    kernels = la.DEFAULT
+
     @property
     def n_units(self) -> int:
         """Hidden units (per output), j."""
@@ -137,6 +141,7 @@ class TanhNetwork(_Network):
     project: bool = static_field(default=False)
     centre_blocks: tuple | None = None  # the centres by blocks, for a compiled loop (with_centre_blocks)
     centre_bounds: tuple = static_field(default=())
+    kernels: la.Kernels = la.kernels_field()  # how its products are written (hinfnn._linalg.Kernels)
 
     @classmethod
     def build(cls, centres, *, n_out: int = 1, slope: float = 1.0, w_a=1.0, w_b=1.0,
@@ -190,7 +195,7 @@ class TanhNetwork(_Network):
 
     def features_blocks(self, a, b, bounds) -> tuple:
         """ξ of eq. (17), one array per centre block ``bounds`` (:meth:`layout`)."""
-        phi = la.mm(jnp.broadcast_to(self.w_a, a.shape), a) + la.mm(jnp.broadcast_to(self.w_b, b.shape), b)
+        phi = self.kernels.mm(jnp.broadcast_to(self.w_a, a.shape), a) + self.kernels.mm(jnp.broadcast_to(self.w_b, b.shape), b)
         return tuple(jnp.tanh(self.slope * (phi - self._centres(0, lo, hi))) for lo, hi in bounds)
 
     def output_blocks(self, xi_blocks, theta_blocks):
@@ -254,6 +259,7 @@ class CoordinateNetwork(_Network):
     project: bool = static_field(default=False)
     centre_blocks: tuple | None = None  # the centres by blocks, for a compiled loop (with_centre_blocks)
     centre_bounds: tuple = static_field(default=())
+    kernels: la.Kernels = la.kernels_field()  # how its products are written (hinfnn._linalg.Kernels)
 
     @classmethod
     def build(cls, centres, *, slope=1.0, w_a=1.0, w_b=1.0, radius: float | None = None,
@@ -331,7 +337,7 @@ def _projected(net, raw, xi_blocks, s, theta_blocks, gamma) -> tuple:
     boundary ‖Θ‖ ≥ d with sᵀΞΘ > 0, the outward part γ (sᵀΞΘ/d²) Θ is removed."""
     if not net.project:
         return raw
-    growth = la.mm(s, net.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ
+    growth = net.kernels.mm(s, net.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ
     active = (sq_norm(theta_blocks) >= net.radius**2) & (growth > 0)
     coef = jnp.where(active, gamma * growth / net.radius**2, 0.0)
     return tuple(r - coef * t for r, t in zip(raw, theta_blocks))

@@ -47,8 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _linalg as la
-from .. import _loop
-from .._loop import LoopOptions
+from .._loop import SEQUENTIAL_VALUES, LoopOptions
 from .._programs import ExportedProgram, KeptFunction
 from .._pytree import all_finite, pytree_dataclass, structure_key
 from ..errors import ConfigError, SimulationError
@@ -179,13 +178,15 @@ EVERY_STEP = ("tau", "penetration", "e_u1", "e_lam", "_cfault", "_cfault_value",
               "_pfault_index")
 
 
-def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rolled=None, book: bool = True):
+def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rolled=None, book: bool = True,
+             loop: LoopOptions = LoopOptions()):
     """(sample, step): the sampled-mode controller update at step k, and one step k -> k + 1
     with failure detection (a no-op for k ≥ n_steps) that also returns the record at step k.
-    ``rolled``: RK4's stages as a loop (default: the active loop options' choice); ``book``: the
-    theorems' bookkeeping integrated (:func:`rhs`)."""
+    ``rolled``: RK4's stages as a loop (default: the loop options' choice); ``book``: the
+    theorems' bookkeeping integrated (:func:`rhs`); ``loop``: the loop options the step is written
+    with (:meth:`~hinfnn._loop.LoopOptions.for_joints` of the plant)."""
     discrete = plant.discrete
-    rolled = _loop.current().rolled(plant.n) if rolled is None else rolled
+    rolled = loop.rolled(plant.n) if rolled is None else rolled
 
     def sample(c: Carry, k, skip=False):
         """At a sample instant: τ held from now on, computed from the state of the previous
@@ -230,9 +231,9 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             rates, kept = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc, enabled=book)
             acc = jax.tree.map(lambda a, r: a + dt * r, y.acc, rates)
             return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **kept}
-        opts = dict(rolled=rolled, rolled_stages=_loop.current().rolled_stages,
-                    record_once=_loop.current().record_once, take=take, every=EVERY_STEP)
-        if sampled and _loop.current().frozen_law:
+        opts = dict(rolled=rolled, rolled_stages=loop.rolled_stages,
+                    record_once=loop.record_once, take=take, every=EVERY_STEP)
+        if sampled and loop.frozen_law:
             # the law's state is frozen between samples (its rate is zero): RK4 integrates the
             # plant and the accumulators, the law's state passes through unchanged (as it would
             # with its zero rate: y + dt/6 · 0, exactly)
@@ -329,7 +330,7 @@ def _derived(ctrl, rec, fields):
 
 
 def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every, n_take, *, n_records, sampled,
-           fields, book=True):
+           fields, book=True, loop: LoopOptions = LoopOptions(), kernels: la.Kernels = la.DEFAULT):
     """Records ``r = 0 … n_records − 1`` of a chunk starting at step ``k0``: record r is taken at
     step k = k0 + r · save_every, as the first of the ``save_every`` steps after it. Only the
     first ``n_take`` (traced) are taken; the other slots run no step and hold zeros.
@@ -345,9 +346,13 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
     share that trace through ``jax.jit``'s trace cache (``inline=True`` puts the same operations
     in the program as a plain call would). Its arguments must then have the same types in both
     places (hence the strongly typed ``first``); if they did not, the step would be traced twice,
-    with the same result (a test counts the traces), in about twice the time."""
+    with the same result (a test counts the traces), in about twice the time.
+
+    ``loop``: the loop options made for the plant (and the batch); ``kernels``: the kernels the
+    plant, the controller and the reference hold (:meth:`hinfnn._linalg.Kernels.hold`), which lay
+    out the chunk's outputs."""
     ctrl = ctrl.prepared()  # its constants by the blocks the loop reads, cut once here
-    sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, book=book)
+    sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, book=book, loop=loop)
     step = jax.jit(step, inline=True)
 
     def one_record(c, r):
@@ -366,20 +371,20 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
         c, rec = jax.lax.fori_loop(0, n_inner, body, (c, rec0))
         return c, _derived(ctrl, rec, fields)
 
-    return la.default_layout(_record_scan(one_record, carry, n_records))
+    return kernels.default_layout(_record_scan(one_record, carry, n_records, loop.record_blocks))
 
 
-def _record_scan(one_record, carry, n_records):
-    """``lax.scan(one_record, carry, arange(n_records))``, by blocks when the loop options ask for it
-    (``record_blocks``): a scan over blocks of an inner scan over b samples, b the largest divisor
+def _record_scan(one_record, carry, n_records, blocks: bool = True):
+    """``lax.scan(one_record, carry, arange(n_records))``, by blocks when ``blocks`` (the loop
+    option ``record_blocks``): a scan over blocks of an inner scan over b samples, b the largest divisor
     of ``n_records`` whose b samples of the largest recorded array (one member's, under ``vmap``)
     hold at most :data:`hinfnn._loop.SEQUENTIAL_VALUES` values. The inner loop's body then touches
     no larger buffer, and XLA runs its kernels inline; only the block loop writes the chunk's
     stacked records. The same samples, in the same order."""
     shapes = jax.eval_shape(one_record, carry, jnp.zeros((), jnp.int64))[1]
     per = max([math.prod(x.shape) for x in jax.tree.leaves(shapes)] + [1])
-    fits = [b for b in range(2, n_records + 1) if n_records % b == 0 and b * per <= _loop.SEQUENTIAL_VALUES]
-    if not (_loop.current().record_blocks and fits):
+    fits = [b for b in range(2, n_records + 1) if n_records % b == 0 and b * per <= SEQUENTIAL_VALUES]
+    if not (blocks and fits):
         return jax.lax.scan(one_record, carry, jnp.arange(n_records))
     b = max(fits)
 
@@ -390,7 +395,7 @@ def _record_scan(one_record, carry, n_records):
     return carry, jax.tree.map(lambda x: x.reshape(n_records, *x.shape[2:]), recs)
 
 
-def _final(plant, ctrl, ref, carry):
+def _final(plant, ctrl, ref, carry, kernels: la.Kernels = la.DEFAULT):
     """The full final state (the controller's arrays by name) and why the run stopped, from the
     carry after the last chunk. A controller fault's measure is the controller's
     (:meth:`~hinfnn.protocols.Controller.fault_measure`), at the frozen state: the state at the
@@ -409,7 +414,7 @@ def _final(plant, ctrl, ref, carry):
         fault_value = jnp.where(carry.status == int(RunStatus.CONTROLLER_FAULT), measure, fault_value)
     details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts,
                    fault_value=fault_value, fault_index=carry.bad_fault_index)
-    return la.default_layout((carry.status, carry.t_fail, details, final))
+    return kernels.default_layout((carry.status, carry.t_fail, details, final))
 
 
 def _init_carry(ctrl, y0, n, plant=None, sampled: bool = False):
@@ -436,20 +441,21 @@ def _init_carry(ctrl, y0, n, plant=None, sampled: bool = False):
                  maxes={k: jnp.zeros((), f64) for k in STEP_MAXES}, sensor=sensor, applied=applied)
 
 
-def _with_options(fn, loop: LoopOptions, members=None, n_joints: int = 2):
-    """``fn`` traced with ``loop`` active (:func:`hinfnn._loop.active`), under ``fn``'s name (the
-    compiled program's name, e.g. ``jit__chunk``). ``members``: a batch's size from ``fn``'s
-    arguments, for the options a batch decides (:meth:`~hinfnn._loop.LoopOptions.for_joints`)."""
+def _with_options(make, loop: LoopOptions, members=None, n_joints: int = 2, name: str = "program"):
+    """The program ``make(options, kernels)(*args)`` under the name ``name`` (the compiled
+    program's name, e.g. ``jit__chunk``): the loop options ``loop`` (made for the plant,
+    :meth:`~hinfnn._loop.LoopOptions.for_joints`), their kernels
+    (:meth:`hinfnn._linalg.Kernels.of`) held by every object of the arguments
+    (:meth:`~hinfnn._linalg.Kernels.hold`), both chosen once, here, as the program is traced.
+    ``members``: a batch's size from the arguments, for the options a batch decides
+    (``member_minor``)."""
 
     def traced(*args):
         opts = loop if members is None else loop.for_joints(n_joints, members(*args))
-        with _loop.active(opts):
-            return fn(*args)
+        kernels = la.Kernels.of(opts)
+        return make(opts, kernels)(*kernels.hold(args))
 
-    base = fn
-    while not hasattr(base, "__name__") and hasattr(base, "func"):  # functools.partial
-        base = base.func
-    traced.__name__ = traced.__qualname__ = getattr(base, "__name__", "program")
+    traced.__name__ = traced.__qualname__ = name
     return traced
 
 
@@ -468,23 +474,34 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
     between processes (:class:`~hinfnn._programs.ExportedProgram`)."""
     options = loop.compiler_options(n_joints)
     loop = loop.for_joints(n_joints)
-    chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields, book=book)
-    final, init = _final, functools.partial(_init_carry, sampled=sampled)
+
+    def chunk(opts, kernels):
+        fn = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields, book=book, loop=opts,
+                               kernels=kernels)
+        if in_axes is None:
+            return fn
+        p, c, r, lim = in_axes
+        return jax.vmap(fn, in_axes=(p, c, r, lim, 0, None, None, None, None, None, None))
+
+    def final(opts, kernels):
+        fn = functools.partial(_final, kernels=kernels)
+        return fn if in_axes is None else jax.vmap(fn, in_axes=(in_axes[0], in_axes[1], in_axes[2], 0))
+
+    def init(opts, kernels):
+        fn = functools.partial(_init_carry, sampled=sampled)
+        return fn if in_axes is None else jax.vmap(fn, in_axes=(in_axes[1], 0, None, in_axes[0]))
+
     members = {"chunk": None, "final": None}
     if in_axes is not None:
-        p, c, r, lim = in_axes
-        chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None, None, None))
-        final = jax.vmap(final, in_axes=(p, c, r, 0))
-        init = jax.vmap(init, in_axes=(c, 0, None, p))
         # the batch's own options (member_minor) by its size: the leading axis of the carry
         members = {"chunk": lambda *a: jax.tree.leaves(a[4])[0].shape[0],
                    "final": lambda *a: jax.tree.leaves(a[3])[0].shape[0]}
-    chunk = ExportedProgram(_with_options(chunk, loop, members["chunk"], n_joints), "chunk",
+    chunk = ExportedProgram(_with_options(chunk, loop, members["chunk"], n_joints, "_chunk"), "chunk",
                             (in_axes, n_records, sampled, fields, loop, book), carry_arg=4,
                             compiler_options=options)  # kept lowered on disk (hinfnn._programs)
-    final = KeptFunction(_with_options(final, loop, members["final"], n_joints), "final", (in_axes, loop),
+    final = KeptFunction(_with_options(final, loop, members["final"], n_joints, "_final"), "final", (in_axes, loop),
                          compiler_options=options)
-    return chunk, final, jax.jit(_with_options(init, loop), static_argnums=2)
+    return chunk, final, jax.jit(_with_options(init, loop, name="_init_carry"), static_argnums=2)
 
 
 def release_programs() -> None:
@@ -890,17 +907,20 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
     if key in _RECORD_SHAPES:
         return dict(_RECORD_SHAPES[key])
 
-    def one(plant, ctrl, ref, lim, y0):
-        carry = _init_carry(ctrl, y0, plant.n, plant, sampled)
-        _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True, book=book)
-        return _derived(ctrl, step(carry, jnp.zeros((), jnp.int64), True)[1], fields)
+    def one(opts, kernels):
+        def run(plant, ctrl, ref, lim, y0):
+            carry = _init_carry(ctrl, y0, plant.n, plant, sampled)
+            _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True, book=book, loop=opts)
+            return _derived(ctrl, step(carry, jnp.zeros((), jnp.int64), True)[1], fields)
+
+        return run
 
     if single:  # the single-run program as _drive calls it
         chunk, chunk_args = _single_chunk(*args, dt, sampled, loop, book)
         records = chunk.eval_shape(*chunk_args)[1]
         out = {k: jax.ShapeDtypeStruct(v.shape[1:], v.dtype) for k, v in pick(records, fields).items()}
     else:
-        out = jax.eval_shape(_with_options(one, loop.for_joints(plant.n)), *args)
+        out = jax.eval_shape(_with_options(one, loop.for_joints(plant.n), name="one"), *args)
     shapes = {k: (tuple(v.shape), np.dtype(v.dtype)) for k, v in out.items()}
     if len(_RECORD_SHAPES) < 256:
         _RECORD_SHAPES[key] = shapes
