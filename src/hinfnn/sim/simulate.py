@@ -519,61 +519,129 @@ def release_programs() -> None:
     gc.collect()
 
 
+@dataclasses.dataclass(frozen=True)
+class RunProgram:
+    """The compiled programs of one run structure, built once and used by every caller: a single
+    run (:func:`simulate`), a batch (:func:`simulate_batch`), the compile-ahead
+    (:func:`lower_ahead`, :func:`lower_ahead_batch`) and the memory plan (:func:`record_shapes`,
+    :meth:`shapes`).
+
+    The structure: ``in_axes`` (None for a single run; else, for the plant, the controller, the
+    reference and the limits, 0 when stacked along a batch axis and None when shared), the
+    chunk's record ``slots`` (:meth:`hinfnn.sim.plan.StepPlan.chunk`), sampled or continuous
+    control, the stored ``fields`` (None: a single run's program stores every field), the loop
+    options, the plant's joints and the theorems' bookkeeping. Its programs (chunk, final state,
+    first carry) are :func:`_compiled` for that key, traced once per process (and kept lowered on
+    disk between processes). Horizon, dt and output interval are the chunk's traced scalars
+    (:meth:`scalars`), not part of the structure."""
+
+    in_axes: tuple | None
+    slots: int
+    sampled: bool
+    fields: tuple | None
+    loop: LoopOptions
+    n_joints: int
+    book: bool = True
+
+    @classmethod
+    def of(cls, plan: StepPlan, in_axes, fields, loop: LoopOptions, n_joints: int, book: bool = True) -> "RunProgram":
+        """The program of a run of ``plan`` (a single run when ``in_axes`` is None, whose program
+        stores every field, the driver keeping those asked for: one program; its record slots are
+        independent of the horizon)."""
+        slots, _ = plan.chunk(batched=in_axes is not None)
+        return cls(in_axes, slots, plan.sampled, fields if in_axes is not None else None, loop, n_joints, book)
+
+    @classmethod
+    def single(cls, n_joints: int, sampled: bool, loop: LoopOptions, book: bool = True) -> "RunProgram":
+        """The program of every single run of a plant of ``n_joints`` joints (any horizon, dt,
+        output interval and stored fields)."""
+        return cls(None, SINGLE_RECORDS, sampled, None, loop, n_joints, book)
+
+    @property
+    def programs(self) -> tuple:
+        """(chunk, final, init): the compiled programs (:func:`_compiled`, one per structure)."""
+        return _compiled(self.in_axes, self.slots, self.sampled, self.fields, self.loop, self.n_joints, self.book)
+
+    def scalars(self, plan: StepPlan) -> tuple:
+        """(samples per chunk, the chunk's traced scalars) of a run of ``plan``."""
+        _, per_chunk = plan.chunk(batched=self.in_axes is not None)
+        return per_chunk, _chunk_scalars(plan.n_steps, plan.dt, plan.n_hold, plan.save_every, per_chunk)
+
+    def _args(self, plant, ctrl, ref, limits, y0, plan: StepPlan | None, dt: float):
+        """(chunk, the arguments a chunk call gets, the carry as its type): their values do not
+        matter to :meth:`lower` and :meth:`shapes` (a plan of one step of ``dt`` without ``plan``)."""
+        chunk, _, init = self.programs
+        carry = init.eval_shape(ctrl, y0, self.n_joints, plant)
+        scalars = _chunk_scalars(1, dt, 1, 1, 1) if plan is None else self.scalars(plan)[1]
+        return chunk, (plant, ctrl, ref, limits, carry, jnp.zeros((), jnp.int64), *scalars)
+
+    def lower(self, plant, ctrl, ref, limits, y0, *, plan: StepPlan | None = None, dt: float = 1e-4):
+        """The chunk program lowered for these arguments' types, or None when it is not kept
+        between processes (:meth:`hinfnn._programs.KeptFunction.lower_ahead`); nothing is compiled
+        or run."""
+        chunk, args = self._args(plant, ctrl, ref, limits, y0, plan, dt)
+        return chunk.lower_ahead(*args)
+
+    def shapes(self, plant, ctrl, ref, limits, y0, *, dt: float = 1e-4) -> dict:
+        """``{field: ShapeDtypeStruct}`` of one stored sample of every field the chunk records,
+        from the chunk program itself (``eval_shape``: traced once, and ``jax.jit`` keeps that
+        trace for the run's first chunk)."""
+        chunk, args = self._args(plant, ctrl, ref, limits, y0, None, dt)
+        records = chunk.eval_shape(*args)[1]
+        axis = 1 if self.in_axes is not None else 0
+        return {k: jax.ShapeDtypeStruct(v.shape[:axis] + v.shape[axis + 1:], v.dtype) for k, v in records.items()}
+
+    def run(self, plant, ctrl, ref, limits, y0, plan: StepPlan, *, fields, progress=None, what: str = ""):
+        """Run the chunks of ``plan`` from Python; returns (records, status, t_fail, details, final).
+
+        The n_records + 1 records (t = 0, …, t_final) are copied chunk by chunk into arrays
+        allocated once, so memory is what is stored, never proportional to the steps. ``fields``:
+        those kept (a single run's program records them all)."""
+        n_total, n_steps, save_every = plan.samples, plan.n_steps, plan.save_every
+        chunk, final, init = self.programs
+        per_chunk, scalars = self.scalars(plan)
+        carry = init(ctrl, y0, self.n_joints, plant)
+        axis = 0 if self.in_axes is None else 1  # the time axis of the records
+        out: dict[str, np.ndarray] = {}
+        n_chunks = -(-n_total // per_chunk)
+
+        def store(c, rec):
+            start = c * per_chunk
+            stop = min(start + per_chunk, n_total)
+            for k, v in pick(rec, fields).items():  # the fields asked for (a single run's program has all)
+                v = np.asarray(v)
+                if k not in out:
+                    shape = v.shape[:axis] + (n_total,) + v.shape[axis + 1:]
+                    out[k] = np.empty(shape, v.dtype)
+                if axis == 0:
+                    out[k][start:stop] = v[:stop - start]
+                else:
+                    out[k][:, start:stop] = v[:, :stop - start]
+            if progress is not None:
+                progress(min(stop * save_every, n_steps), n_steps, what)
+
+        pending = None  # the previous chunk's records, copied while the next chunk runs
+        for c in range(n_chunks):
+            k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)  # typed as _chunk_scalars
+            carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, *scalars)
+            if pending is not None:
+                store(*pending)
+            pending = (c, rec)
+        store(*pending)  # n_chunks >= 1
+        del pending
+        return (out, *final(plant, ctrl, ref, carry))
+
+
 def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, fields, loop: LoopOptions,
            book: bool = True, progress=None, what: str = ""):
-    """Run the chunks from Python; returns (records, status, t_fail, details, final).
-
-    The n_records + 1 records (t = 0, …, t_final) are copied chunk by chunk into arrays allocated
-    once, so memory is what is stored, never proportional to the steps."""
-    n_total, n_steps, save_every = plan.samples, plan.n_steps, plan.save_every
-    chunk, final, init, per_chunk, scalars = _chunk_program(plan, in_axes, fields, loop, n_joints, book)
-    carry = init(ctrl, y0, n_joints, plant)
-    axis = 0 if in_axes is None else 1  # the time axis of the records
-    out: dict[str, np.ndarray] = {}
-    n_chunks = -(-n_total // per_chunk)
-
-    def store(c, rec):
-        start = c * per_chunk
-        stop = min(start + per_chunk, n_total)
-        for k, v in pick(rec, fields).items():  # the fields asked for (a single run's program has all)
-            v = np.asarray(v)
-            if k not in out:
-                shape = v.shape[:axis] + (n_total,) + v.shape[axis + 1:]
-                out[k] = np.empty(shape, v.dtype)
-            if axis == 0:
-                out[k][start:stop] = v[:stop - start]
-            else:
-                out[k][:, start:stop] = v[:, :stop - start]
-        if progress is not None:
-            progress(min(stop * save_every, n_steps), n_steps, what)
-
-    pending = None  # the previous chunk's records, copied while the next chunk runs
-    for c in range(n_chunks):
-        k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)  # typed as _chunk_scalars
-        carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, *scalars)
-        if pending is not None:
-            store(*pending)
-        pending = (c, rec)
-    store(*pending)  # n_chunks >= 1
-    del pending
-    return (out, *final(plant, ctrl, ref, carry))
-
-
-def _chunk_program(plan: StepPlan, in_axes, fields, loop: LoopOptions, n_joints: int, book: bool):
-    """(chunk, final, init, samples per chunk, the chunk's traced scalars) of a run of ``plan``:
-    the program :func:`_drive` calls chunk by chunk and :func:`lower_ahead_batch` lowers ahead. A
-    single run's program stores every field, the driver keeping those asked for (one program); its
-    record slots are independent of the horizon."""
-    slots, per_chunk = plan.chunk(batched=in_axes is not None)
-    chunk, final, init = _compiled(in_axes, slots, plan.sampled, fields if in_axes is not None else None, loop,
-                                   n_joints, book)
-    return chunk, final, init, per_chunk, _chunk_scalars(plan.n_steps, plan.dt, plan.n_hold, plan.save_every,
-                                                         per_chunk)
+    """:meth:`RunProgram.run` of the program of this structure."""
+    program = RunProgram.of(plan, in_axes, fields, loop, n_joints, book)
+    return program.run(plant, ctrl, ref, limits, y0, plan, fields=fields, progress=progress, what=what)
 
 
 def _chunk_scalars(n_steps, dt, n_hold, save_every, per_chunk):
     """The chunk program's traced scalars as :func:`_drive` passes them (their types are part of
-    the program's signature: :func:`record_shapes` traces the same one)."""
+    the program's signature: :meth:`RunProgram.shapes` traces the same one)."""
     i64 = functools.partial(jnp.asarray, dtype=jnp.int64)
     return (i64(n_steps), jnp.asarray(dt, dtype=jnp.float64), i64(max(n_hold, 1)), i64(save_every),
             i64(per_chunk))
@@ -843,17 +911,8 @@ def lower_ahead(plant, controller, reference, *, q0, dt: float = 1e-4, control_p
     groups' programs so, at once."""
     sampled = control_period is not None or plant.discrete
     y0 = initial_state(plant, controller, q0=q0)
-    chunk, args = _single_chunk(plant, controller, reference, limits or Limits(), y0, dt, sampled,
-                                loop or LoopOptions(), _flag(bookkeeping, "bookkeeping"))
-    return chunk.lower_ahead(*args)
-
-
-def _single_chunk(plant, controller, reference, limits, y0, dt, sampled, loop, book):
-    """(the chunk program of a single run, the arguments :func:`_drive` gives it, the carry as its
-    type): their values do not matter to :func:`lower_ahead` and :func:`record_shapes`."""
-    chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None, loop, plant.n, book)
-    carry = init.eval_shape(controller, y0, plant.n, plant)
-    return chunk, (plant, controller, reference, limits, carry, jnp.zeros((), jnp.int64), *_chunk_scalars(1, dt, 1, 1, 1))
+    program = RunProgram.single(plant.n, sampled, loop or LoopOptions(), _flag(bookkeeping, "bookkeeping"))
+    return program.lower(plant, controller, reference, limits or Limits(), y0, dt=dt)
 
 
 def lower_ahead_batch(plants: list, controllers: list, references: list, *, q0: list, limits: list, t_final: float,
@@ -872,14 +931,12 @@ def lower_ahead_batch(plants: list, controllers: list, references: list, *, q0: 
                            limits=limits[0], loop=loop, bookkeeping=bookkeeping)
     plan = StepPlan.make(t_final, dt, control_period=control_period, save_interval=save_interval,
                          save_every=save_every, discrete=plant0.discrete)
-    chunk, _, init, _, scalars = _chunk_program(plan, (0, 0, 0, 0), select(fields), loop, plant0.n,
-                                                _flag(bookkeeping, "bookkeeping"))
+    program = RunProgram.of(plan, (0, 0, 0, 0), select(fields), loop, plant0.n, _flag(bookkeeping, "bookkeeping"))
     idx = loop.groups(B, plant0.n)[0]
     take = functools.partial(_take, idx=idx) if idx.size != B else (lambda x: x)
     args = [take(stack(list(x))) for x in (plants, controllers, references, limits)]
     y0 = take(stack([initial_state(p, c, q0=q) for p, c, q in zip(plants, controllers, q0)]))
-    carry = init.eval_shape(args[1], y0, plant0.n, args[0])
-    return chunk.lower_ahead(*args, carry, jnp.zeros((), jnp.int64), *scalars)
+    return program.lower(*args, y0, plan=plan)
 
 
 def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
@@ -915,10 +972,8 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
 
         return run
 
-    if single:  # the single-run program as _drive calls it
-        chunk, chunk_args = _single_chunk(*args, dt, sampled, loop, book)
-        records = chunk.eval_shape(*chunk_args)[1]
-        out = {k: jax.ShapeDtypeStruct(v.shape[1:], v.dtype) for k, v in pick(records, fields).items()}
+    if single:  # the single-run program as a run calls it
+        out = pick(RunProgram.single(plant.n, sampled, loop, book).shapes(*args, dt=dt), fields)
     else:
         out = jax.eval_shape(_with_options(one, loop.for_joints(plant.n), name="one"), *args)
     shapes = {k: (tuple(v.shape), np.dtype(v.dtype)) for k, v in out.items()}
