@@ -363,8 +363,9 @@ def kernels_field():
 def hold(tree, kernels):
     """``tree`` with the ``kernels`` field of every dataclass in it set to ``kernels`` (a
     :class:`Kernels`, or a function of an object's present kernels that returns its new ones),
-    through dataclass fields, tuples, lists and dicts. Objects are rebuilt without running their
-    ``__init__`` (their arrays may be tracers), and only where something changed."""
+    through dataclass fields, tuples, lists, dicts and the children of other pytree nodes. Dataclasses
+    are rebuilt without running their ``__init__`` (their arrays may be tracers), other nodes by
+    their unflatten, and only where something changed."""
     if dataclasses.is_dataclass(tree) and not isinstance(tree, type):
         if isinstance(tree, Kernels):
             return tree
@@ -395,4 +396,13 @@ def hold(tree, kernels):
         if all(items[k] is tree[k] for k in tree):
             return tree
         return type(tree)(items) if type(tree) is dict else {**items}
-    return tree
+    if tree is None or isinstance(tree, (jax.Array, np.ndarray, np.generic, int, float, complex, str, bytes)):
+        return tree
+    # another pytree node (a plant registered with its own flatten, e.g. MuJoCo's): its children
+    children, treedef = jax.tree_util.tree_flatten(tree, is_leaf=lambda x: x is not tree)
+    if len(children) == 1 and children[0] is tree:  # a leaf
+        return tree
+    new = [hold(c, kernels) for c in children]
+    if all(a is b for a, b in zip(new, children)):
+        return tree
+    return jax.tree_util.tree_unflatten(treedef, new)
