@@ -82,7 +82,8 @@ the controller and the reference hold while the program is traced
     amortise them.
 ``member_minor``
     In a batch (``jax.vmap``) of at least :data:`MEMBER_MINOR_FROM` members of an arm of at least
-    :data:`ROLL_FROM_JOINTS` joints (``None``, the default): every stored value (:meth:`hinfnn._linalg.Kernels.store`, :meth:`~hinfnn._linalg.Kernels.stored`,
+    :data:`ROLL_FROM_JOINTS` joints (``None``, the default): every stored value
+    (:meth:`hinfnn._linalg.Kernels.store`, :meth:`~hinfnn._linalg.Kernels.stored`,
     :func:`hinfnn.model.rbd.keep`) laid out in memory with the member axis minor
     (:meth:`hinfnn._linalg.Kernels.member_minor`), the programs' outputs in the default layout
     (:meth:`hinfnn._linalg.Kernels.default_layout`). ``vmap`` puts the member axis first: a member's

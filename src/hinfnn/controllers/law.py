@@ -383,8 +383,10 @@ class ReducedOrderController(Controller, Dissipative):
         Implements eq. (34)."""
         g = self.gains
         c = out.aux.ctx
-        mm = self.kernels.mm
-        j = (mm(c.x_p, _times(g.Q_p, self._blocks(g.Q_p, self.Q_blocks), c.x_p, self.m, self.kernels)) + 0.5 * g.alpha_lam * g.alpha_z * mm(c.e_lam, c.e_lam)
+        k = self.kernels
+        mm = k.mm
+        j = (mm(c.x_p, _times(g.Q_p, self._blocks(g.Q_p, self.Q_blocks), c.x_p, self.m, k))
+             + 0.5 * g.alpha_lam * g.alpha_z * mm(c.e_lam, c.e_lam)
              + g.alpha_lam * g.mu_z / (1.0 + g.beta_lam) * mm(state.z, state.z))
         extra = jnp.zeros_like(j)
         for term, value in zip(self.terms, out.aux.values):
@@ -400,8 +402,9 @@ class ReducedOrderController(Controller, Dissipative):
         """Storage function V of eqs. (36)/(55) with Θ* = 0 (so Θ̃ = Θ̂ and ε = f), plus the
         terms' contributions: V = x_pᵀ P_p x_p + α_λ/(2(1+β_λ)) ‖z‖² + Σ V_term."""
         c = out.aux.ctx
-        mm = self.kernels.mm
-        V = mm(c.x_p, _times(self.P_p, self._blocks(self.P_p, self.P_blocks), c.x_p, self.m, self.kernels)) + 0.5 * c.c * mm(state.z, state.z)
+        k = self.kernels
+        V = (k.mm(c.x_p, _times(self.P_p, self._blocks(self.P_p, self.P_blocks), c.x_p, self.m, k))
+             + 0.5 * c.c * k.mm(state.z, state.z))
         for term in self.terms:
             v = term.storage(c, state.parts)
             if v is not None:

@@ -195,7 +195,8 @@ class TanhNetwork(_Network):
 
     def features_blocks(self, a, b, bounds) -> tuple:
         """ξ of eq. (17), one array per centre block ``bounds`` (:meth:`layout`)."""
-        phi = self.kernels.mm(jnp.broadcast_to(self.w_a, a.shape), a) + self.kernels.mm(jnp.broadcast_to(self.w_b, b.shape), b)
+        mm = self.kernels.mm
+        phi = mm(jnp.broadcast_to(self.w_a, a.shape), a) + mm(jnp.broadcast_to(self.w_b, b.shape), b)
         return tuple(jnp.tanh(self.slope * (phi - self._centres(0, lo, hi))) for lo, hi in bounds)
 
     def output_blocks(self, xi_blocks, theta_blocks):
