@@ -323,3 +323,42 @@ def test_the_graph_is_read_correctly():
         any(d.startswith("hinfnn.controllers") for d in graph["hinfnn.scenario.sections"])
     assert "hinfnn.plant" in _reach(graph, "hinfnn.scenario.sections") or \
         any(d.startswith("hinfnn.plant") for d in _reach(graph, "hinfnn.scenario.sections"))
+
+
+def test_the_loop_formulation_is_a_value_the_objects_hold():
+    """The kernels (hinfnn._linalg.Kernels) are a value: ``hold`` sets them on every object of a
+    tree (dataclass fields, tuples, lists, dicts and the children of other pytree nodes), rebuilds
+    only what changed, and the formulation follows the object, not a context: a URDF chain holding
+    ``products`` gives the products' kinematics, the same M to rounding. No module of hinfnn keeps a
+    context variable (which code read at trace time)."""
+    from hinfnn._linalg import DEFAULT, Kernels
+    from hinfnn.model import rbd
+    from hinfnn.model.taskmap import PlanarTaskMap
+    from hinfnn.model.urdf import UrdfArm, planar_chain
+
+    arm = UrdfArm(planar_chain([1.0, 1.0, 0.5], [1.0, 0.8, 0.5]), PlanarTaskMap(plane="xy", with_angle=True))
+    assert arm.kernels == DEFAULT and arm.chain.kernels == DEFAULT
+
+    class Node:  # a pytree node of its own (as the MuJoCo plant), holding an arm
+        def __init__(self, inner, tag):
+            self.inner, self.tag = inner, tag
+
+    jax.tree_util.register_pytree_node(Node, lambda n: ((n.inner,), n.tag), lambda tag, ch: Node(ch[0], tag))
+    loop = Kernels.loop(3, members=16)
+    assert loop.arm and loop.minor and not loop.products and Kernels.design(3).products
+    assert not Kernels.loop(2).arm and not Kernels.design(2).products
+    tree = {"a": (arm, 1.0), "b": [Node(arm, "x")], "c": np.zeros(3)}
+    held = loop.hold(tree)
+    assert held["a"][0].kernels == loop and held["a"][0].chain.kernels == loop
+    assert held["b"][0].inner.chain.kernels == loop and held["b"][0].tag == "x"
+    assert held["c"] is tree["c"] and tree["a"][0].kernels == DEFAULT  # the originals untouched
+    assert loop.hold(held) is held  # nothing changed: nothing rebuilt
+    q = jnp.array([0.3, -0.4, 0.2])
+    by_products = Kernels(products=True).hold(arm.chain)
+    assert isinstance(by_products._kinematics(q).m, jax.Array)
+    np.testing.assert_allclose(by_products._crba(by_products._kinematics(q)), arm.chain._crba(arm.chain._kinematics(q)),
+                               rtol=1e-12, atol=1e-12)
+    assert rbd.frames(by_products, q).kernels.products and not rbd.frames(arm.chain, q).kernels.products
+    src = Path(H.__file__).parent
+    readers = [str(p.relative_to(src)) for p in src.rglob("*.py") if "ContextVar(" in p.read_text(encoding="utf-8")]
+    assert readers == [], readers

@@ -165,8 +165,8 @@ def test_an_arm_batch_laid_out_member_minor_is_its_single_runs():
     import jax
     import jax.numpy as jnp
 
-    from hinfnn import _linalg as la
-    from hinfnn._loop import LoopOptions, active
+    from hinfnn._linalg import Kernels
+    from hinfnn._loop import LoopOptions
 
     # by default on for batches of 16 or more members of an arm of 3 or more joints
     assert LoopOptions().for_joints(3, members=16).member_minor
@@ -194,9 +194,10 @@ def test_an_arm_batch_laid_out_member_minor_is_its_single_runs():
     minor = re.compile(r"f64\[5,[2-9][0-9,]*\]\{0,")
     count = {}
     for on in (True, False):
-        f = jax.vmap(lambda q, qd: la.chol(la.stored(la.mm(ctrl.arm.M(q), ctrl.arm.M(qd)))))  # a new trace
-        with active(LoopOptions(member_minor=on).for_joints(3, members=5)):
-            program = jax.jit(f).lower(Q, 0.1 * Q).compile()
+        k = Kernels.loop(3, members=5, options=LoopOptions(member_minor=on))
+        arm = k.hold(ctrl.arm)
+        f = jax.vmap(lambda q, qd: k.chol(k.stored(k.mm(arm.M(q), arm.M(qd)))))  # a new trace
+        program = jax.jit(f).lower(Q, 0.1 * Q).compile()
         count[on] = len(minor.findall(program.as_text()))
         np.testing.assert_allclose(program(Q, 0.1 * Q), f(Q, 0.1 * Q), rtol=1e-12)
     assert count[True] > 3 * count[False] + 20, count

@@ -15,7 +15,7 @@ import pinocchio as pin  # the oracle (a test dependency)
 import pytest
 
 import hinfnn as H
-from hinfnn._loop import by_products
+from hinfnn._linalg import Kernels
 from hinfnn.model.arm import Arm, PlanarPointMassArm
 from hinfnn.model.taskmap import PlanarTaskMap, PoseTaskMap, PositionTaskMap, so3_exp, so3_log
 from hinfnn.model.urdf import (UrdfArm, UrdfError, UrdfWarning, _tool_frame, asset_path, load_urdf, load_urdf_string,
@@ -110,18 +110,19 @@ def chain_terms(chain, q, qd):
     programs that run once) and by the compiled loop's algorithms on its kinematics
     (``_kinematics``, component by component), each against Pinocchio's (:data:`LOOP_KEYS`). The
     loop's algorithms once more on the kinematics the design's programs give them
-    (:func:`hinfnn._loop.by_products`): M, C(q, q̇)q̇, G and J̇ (:data:`PRODUCTS_KEYS`)."""
+    (the chain holding kernels with :attr:`hinfnn._linalg.Kernels.products`): M, C(q, q̇)q̇, G and J̇
+    (:data:`PRODUCTS_KEYS`)."""
     p, R = chain.fk(q)
     Jd = chain.frame_jacobian_dot(q, qd)
     G = chain.G(q)
     k = chain._kinematics(q)
     p_loop, R_loop = _tool_frame(k)
-    with by_products():
-        kp = chain._kinematics(q)
-        G_products = chain.G(q)
-        products = {"M_products": chain._crba(kp), "G_products": G_products,
-                    "Cqd_products": chain.bias(q, qd) - G_products, "Jd_products": chain.frame_jacobian_dot(q, qd),
-                    "p_products": kp.p_tool, "R_products": kp.R_tool}
+    by_products = Kernels(products=True).hold(chain)
+    kp = by_products._kinematics(q)
+    G_products = by_products.G(q)
+    products = {"M_products": by_products._crba(kp), "G_products": G_products,
+                "Cqd_products": by_products.bias(q, qd) - G_products,
+                "Jd_products": by_products.frame_jacobian_dot(q, qd), "p_products": kp.p_tool, "R_products": kp.R_tool}
     return {"M": chain.M(q), "Cqd": chain.bias(q, qd) - G, "G": G, "p": p, "R": R,
             "J": chain.frame_jacobian(q), "Jd": Jd, "Jdqd": Jd @ qd,
             "p_loop": p_loop, "R_loop": R_loop, "J_loop": chain._jacobian(k), "M_loop": chain._crba(k),

@@ -6,10 +6,14 @@ line that shows what each one buys; ``python benchmarks/run.py --cases device_ru
 (the paper's arm) or ``--cases arm_run --disable NAME`` (the UR5) turns one off, in a fresh process.
 
 :class:`LoopOptions` is passed to :func:`hinfnn.simulate` (``loop=``) and is part of the key of
-the compiled program: a program traced with some options is never reused with others. While a
-program is traced, the options are the *active* ones (:func:`active`), which the small helpers
-of :mod:`hinfnn._linalg` read (:func:`~hinfnn._linalg.mm`, :func:`~hinfnn._linalg.sincos`).
-Outside a trace the defaults apply.
+the compiled program: a program traced with some options is never reused with others. The
+simulator makes them for its plant once per program (:meth:`LoopOptions.for_joints`) and hands
+them on as values: the options of the step and the record (``rolled_rk4``, ``rolled_stages``,
+``record_once``, ``record_blocks``, ``frozen_law``) to the functions that write the loop, and
+those of the small linear algebra (``sincos``, ``small_mm``, ``arm_kernels``, ``member_minor``) as
+a :class:`hinfnn._linalg.Kernels` value (:meth:`~hinfnn._linalg.Kernels.loop`) that the plant,
+the controller and the reference hold while the program is traced
+(:meth:`~hinfnn._linalg.Kernels.hold`). Nothing reads them from a context.
 
 ``sincos``
     Sines and cosines of a vector of angles computed once and shared: XLA counts them as cheap and
@@ -30,8 +34,8 @@ Outside a trace the defaults apply.
     :data:`hinfnn._linalg.SMALL_MM` terms written as a sum of products term by term (no reduction:
     a reduction is a kernel of its own in XLA's CPU compiler, the elementwise sum fuses with its
     neighbours), the written-out Cholesky factorisation and solves of :mod:`hinfnn._linalg`
-    with their columns computed once and kept (:func:`hinfnn._linalg.store`), and the products that
-    several kernels read computed once (:func:`hinfnn._linalg.stored`: the nominal reduced-order
+    with their columns computed once and kept (:meth:`hinfnn._linalg.Kernels.store`), and the products that
+    several kernels read computed once (:meth:`hinfnn._linalg.Kernels.stored`: the nominal reduced-order
     model's Ĵ⁻¹, B̄, M̂Ĵ⁻¹, Ĵ⁻¹S, the task map's relative rotation), so fewer kernels run per step.
     The paper's 2-joint arm keeps its reductions (its numbers bit for bit).
 ``rolled_stages``
@@ -78,10 +82,11 @@ Outside a trace the defaults apply.
     amortise them.
 ``member_minor``
     In a batch (``jax.vmap``) of at least :data:`MEMBER_MINOR_FROM` members of an arm of at least
-    :data:`ROLL_FROM_JOINTS` joints (``None``, the default): every stored value (:func:`hinfnn._linalg.store`, :func:`~hinfnn._linalg.stored`,
+    :data:`ROLL_FROM_JOINTS` joints (``None``, the default): every stored value
+    (:meth:`hinfnn._linalg.Kernels.store`, :meth:`~hinfnn._linalg.Kernels.stored`,
     :func:`hinfnn.model.rbd.keep`) laid out in memory with the member axis minor
-    (:func:`hinfnn._linalg.member_minor`), the programs' outputs in the default layout
-    (:func:`hinfnn._linalg.default_layout`). ``vmap`` puts the member axis first: a member's
+    (:meth:`hinfnn._linalg.Kernels.member_minor`), the programs' outputs in the default layout
+    (:meth:`hinfnn._linalg.Kernels.default_layout`). ``vmap`` puts the member axis first: a member's
     6 × 6 matrix is then 36 adjacent values and a kernel that reads it vectorises over a row of 6;
     member-minor, each entry is a vector over the members. It costs compile time (XLA converts
     layouts in many fused copies), which a batch of a few runs (an experiment's pair of laws)
@@ -101,8 +106,6 @@ XLA runs the loop's kernels inline) is the controller's business
 
 from __future__ import annotations
 
-import contextlib
-import contextvars
 import dataclasses
 
 #: Arms with at least this many joints integrate with RK4's stages rolled (``rolled_rk4=None``).
@@ -185,43 +188,5 @@ class LoopOptions:
         return groups
 
 
-_ACTIVE: contextvars.ContextVar = contextvars.ContextVar("hinfnn_loop_options", default=LoopOptions())
-_BY_PRODUCTS: contextvars.ContextVar = contextvars.ContextVar("hinfnn_by_products", default=False)
-
-
-@contextlib.contextmanager
-def by_products():
-    """Within: a URDF chain's kinematics traced by array products
-    (:func:`hinfnn.model.rbd.frames_by_products`) rather than in the compiled loop's layout. The
-    design's programs (:func:`hinfnn._programs.jit_by_joints`) and the setup programs
-    (:func:`hinfnn._programs.kept`) trace under it: they run a few times and are paid by their
-    compile time, which that layout triples."""
-    token = _BY_PRODUCTS.set(True)
-    try:
-        yield
-    finally:
-        _BY_PRODUCTS.reset(token)
-
-
-def tracing_by_products() -> bool:
-    """Whether :func:`by_products` is on (read at trace time)."""
-    return _BY_PRODUCTS.get()
-
-
-def current() -> LoopOptions:
-    """The options the code being traced is written with."""
-    return _ACTIVE.get()
-
-
-@contextlib.contextmanager
-def active(options: LoopOptions):
-    """Trace with ``options`` (the simulator wraps each compiled program's trace in it)."""
-    token = _ACTIVE.set(options)
-    try:
-        yield options
-    finally:
-        _ACTIVE.reset(token)
-
-
-__all__ = ["BATCH_GROUP_ARM", "BATCH_GROUP_PLANAR", "LoopOptions", "MEMBER_MINOR_FROM", "ROLL_FROM_JOINTS", "SEQUENTIAL_VALUES", "current",
-           "active"]
+__all__ = ["BATCH_GROUP_ARM", "BATCH_GROUP_PLANAR", "LoopOptions", "MEMBER_MINOR_FROM", "ROLL_FROM_JOINTS",
+           "SEQUENTIAL_VALUES"]

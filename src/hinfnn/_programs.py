@@ -179,15 +179,20 @@ ANALYSIS_OPTIONS = {"xla_backend_optimization_level": 0}
 
 
 def _by_products(fn):
-    """``fn`` traced with a URDF chain's kinematics by array products (:func:`hinfnn._loop.by_products`)."""
-    from ._loop import by_products
+    """``fn`` traced with a URDF chain's kinematics by array products: every object of its
+    arguments holds its kernels with ``products`` (:meth:`hinfnn._linalg.Kernels.hold`)."""
+    from ._linalg import hold
 
     @functools.wraps(fn)
     def traced(*args, **kwargs):
-        with by_products():
-            return fn(*args, **kwargs)
+        return fn(*hold(args, _with_products), **kwargs)
 
     return traced
+
+
+def _with_products(kernels):
+    """``kernels`` with a URDF chain's kinematics by products (:attr:`hinfnn._linalg.Kernels.products`)."""
+    return kernels.replace(products=True)
 
 
 def jit_by_joints(fn=None, *, static_argnames=None):
@@ -197,7 +202,7 @@ def jit_by_joints(fn=None, *, static_argnames=None):
     or more joints XLA's older loop emitters (its default emitters compile the rigid-body
     algorithms written out for fusion several times slower; the same matrix to 3e-16) and no LLVM
     optimisation, and traced with a URDF chain's kinematics by array products
-    (:func:`hinfnn._loop.by_products`: the layout written for the compiled loop is a third of the
+    (:attr:`hinfnn._linalg.Kernels.products`: the layout written for the compiled loop is a third of the
     loop Jacobian's program); XLA's defaults for the two-link arm. Called inside another trace, it is ``jax.jit(fn)``."""
     if fn is None:
         return functools.partial(jit_by_joints, static_argnames=static_argnames)
@@ -212,7 +217,7 @@ def jit_by_joints(fn=None, *, static_argnames=None):
 def kept(name: str):
     """Decorator: :class:`KeptFunction` of the function, under ``name`` (unique in hinfnn), chosen
     by the joints of its first argument (a plant or an arm, ``.n``): for an arm of 3 or more joints
-    traced by array products (:func:`hinfnn._loop.by_products`) and compiled with XLA's older
+    traced by array products (:attr:`hinfnn._linalg.Kernels.products`) and compiled with XLA's older
     loop emitters, as the simulator's programs (they compile faster so; the same start poses, or
     one ulp off). Not at LLVM -O0 as the design's programs: a sweep checks every draw with them,
     and -O0 would make each check slower to run. XLA's defaults for the two-link arm."""
@@ -226,14 +231,15 @@ def kept(name: str):
 
 
 def _by_joints(fn, plain, arm):
-    """``fn``'s two compiled forms as one function: ``arm`` when its first argument (a plant or an
-    arm, ``.n``) has 3 or more joints (:data:`hinfnn._loop.ROLL_FROM_JOINTS`), else ``plain``
-    (both kept as the attributes ``.plain`` and ``.arm``)."""
-    from ._loop import ROLL_FROM_JOINTS
+    """``fn``'s two compiled forms as one function: ``arm`` when the design kernels of its first
+    argument's joints (a plant or an arm, ``.n``; :meth:`hinfnn._linalg.Kernels.design`) trace a
+    chain by products (3 or more joints), else ``plain`` (both kept as the attributes ``.plain``
+    and ``.arm``)."""
+    from ._linalg import Kernels
 
     @functools.wraps(fn)
     def call(first, *args, **kwargs):
-        return (arm if getattr(first, "n", 0) >= ROLL_FROM_JOINTS else plain)(first, *args, **kwargs)
+        return (arm if Kernels.design(getattr(first, "n", 0)).products else plain)(first, *args, **kwargs)
 
     call.plain, call.arm = plain, arm
     return call

@@ -100,6 +100,7 @@ class CosineReference:
     lam_phase: jax.Array
     u1_ramp: jax.Array = 0.0
     lam_ramp: jax.Array = 0.0
+    kernels: la.Kernels = la.kernels_field()  # how its sines are shared (hinfnn._linalg.Kernels)
 
     @classmethod
     def paper(cls) -> "CosineReference":
@@ -127,8 +128,8 @@ class CosineReference:
                                    u1_omega=cat(self.u1_omega, 1.0), u1_phase=cat(self.u1_phase, 0.0))
 
     def __call__(self, t) -> RefSample:
-        s, c = la.sincos(self.u1_omega * t + self.u1_phase)  # computed once and shared (hinfnn._linalg.sincos)
-        _, c_lam = la.sincos(self.lam_omega * t + self.lam_phase)
+        s, c = self.kernels.sincos(self.u1_omega * t + self.u1_phase)  # computed once and shared (Kernels.sincos)
+        _, c_lam = self.kernels.sincos(self.lam_omega * t + self.lam_phase)
         b, w = self.u1_amplitude, self.u1_omega
         wave, dwave, ddwave = b * c, -b * w * s, -b * w**2 * c
         r, dr, ddr = smoothstep(t, self.u1_ramp)

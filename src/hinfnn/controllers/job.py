@@ -137,28 +137,29 @@ class JobReference:
         return RefSample(u1_d=r.u1_d, u1_d_dot=r.u1_d_dot, u1_d_ddot=r.u1_d_ddot, lam_d=lam)
 
 
-def free_space_torque(arm, q, qd, x_d, xd_d, xdd_d, xi, gain):
+def free_space_torque(arm, q, qd, x_d, xd_d, xdd_d, xi, gain, kernels=la.DEFAULT):
     """Computed torque on the NOMINAL model in task coordinates with integral action, its three
     poles at −ω (ω = ``gain``, rad/s): τ = M̂ Ĵ⁻¹ (a − J̇̂ q̇) + Ĉ(q, q̇) q̇ + Ĝ with
     a = ẍ_d − 3ω (ẋ − ẋ_d) − 3ω² (x − x_d) − ω³ ξ, ξ = ∫ (x − x_d) dt (``xi``): the integral
     takes up what the nominal model gets wrong at rest (gravity of a light model, a payload it
-    does not know), which would otherwise sag the tool by that error over ω². Returns (τ, x, ẋ)."""
+    does not know), which would otherwise sag the tool by that error over ω². ``kernels``: how the
+    products are written (:class:`hinfnn._linalg.Kernels`). Returns (τ, x, ẋ)."""
     at = arm.law_terms(q, qd)
     x, J = at.x, at.J
-    xd = la.mm(J, qd)
+    xd = kernels.mm(J, qd)
     w = gain
     a = xdd_d - 3.0 * w * (xd - xd_d) - 3.0 * w * w * (x - x_d) - w * w * w * xi
     Jd_qd = arm.J_dot_times(at, q, qd, qd[:, None])[:, 0]
-    qdd = la.solve(J, a - Jd_qd)
-    tau = la.mm(at.M, qdd) + arm.C_product(at, q, qd, qd) + at.G
+    qdd = kernels.solve(J, a - Jd_qd)
+    tau = kernels.mm(at.M, qdd) + arm.C_product(at, q, qd, qd) + at.G
     return tau, x, xd
 
 
-def _normal(surface, x):
+def _normal(surface, x, kernels=la.DEFAULT):
     """The nominal constraint's unit normal n̂ = Âᵀ/‖Â‖ at x (into the material: θ̂ grows along it;
     its first constraint's when k > 1)."""
     A = surface.A_hat(x)[0]
-    return A / jnp.sqrt(la.mm(A, A))
+    return A / jnp.sqrt(kernels.mm(A, A))
 
 
 @pytree_dataclass
@@ -171,6 +172,7 @@ class JobController(Controller):
     law: object
     job: JobParams
     kind: str = static_field(default="")
+    kernels: la.Kernels = la.kernels_field()  # how its products are written (hinfnn._linalg.Kernels)
     fault_name: ClassVar[str] = ("the job's guard: with no contact found, the distance the guarded move travelled (m); "
                                  "else σ_min(Ĵ), below the singularity guard's stop")
 
@@ -246,7 +248,7 @@ class JobController(Controller):
         """The free-space law's target (x_d, ẋ_d, ẍ_d) in the approach, the lift and after a
         failed approach, and the guarded move's travel so far."""
         j = self.job
-        nrm = _normal(self.law.surface, state.x0)
+        nrm = _normal(self.law.surface, state.x0, self.kernels)
         travel = j.speed * (t - state.clock[0])
         moving = travel < j.travel
         dist_a = jnp.minimum(travel, j.travel)
@@ -265,7 +267,8 @@ class JobController(Controller):
         ph = state.phase[0]
         law = self.law.evaluate(t, state.law, meas, self._reference(state, ref))
         x_d, xd_d, xdd_d, travel = self._motion(t, state)
-        tau_f, x, xd = free_space_torque(self.law.arm, meas.q, meas.qd, x_d, xd_d, xdd_d, state.xi, self.job.gain)
+        tau_f, x, xd = free_space_torque(self.law.arm, meas.q, meas.qd, x_d, xd_d, xdd_d, state.xi, self.job.gain,
+                                             self.kernels)
         contact = (ph == RAMP) | (ph == PROCESS) | (ph == UNLOAD)
         # the torque step of the last hand-over, faded out over the ramp (into contact) or the lift
         fade_c = 1.0 - smoothstep(t - state.clock[1], self.job.ramp_time)[0]
@@ -303,7 +306,7 @@ class JobController(Controller):
         t = jnp.asarray(t, dtype=float)
         ph = state.phase[0]
         f = jnp.asarray(meas.force, dtype=float)
-        touched = (ph == APPROACH) & (jnp.sqrt(la.mm(f, f)) >= j.contact_force)
+        touched = (ph == APPROACH) & (jnp.sqrt(self.kernels.mm(f, f)) >= j.contact_force)
         missed = (ph == APPROACH) & ~touched & (j.speed * (t - state.clock[0]) >= j.travel)
         t_c = state.clock[1]
         ramped = (ph == RAMP) & (t - t_c >= j.ramp_time)
@@ -326,7 +329,8 @@ class JobController(Controller):
         def at_lift():  # the free-space law from where the tool is; the torque's step kept
             x = out.aux["x"]
             zero = jnp.zeros_like(x)
-            tau_f = free_space_torque(self.law.arm, meas.q, meas.qd, x, zero, zero, moved.xi, j.gain)[0]
+            tau_f = free_space_torque(self.law.arm, meas.q, meas.qd, x, zero, zero, moved.xi, j.gain,
+                                      self.kernels)[0]
             return moved.law, tau - tau_f
 
         law, tau0 = jax.lax.cond(touched, at_touch, lambda: jax.lax.cond(unloaded, at_lift,
@@ -343,7 +347,7 @@ def approach_pose(arm, constraint, q_contact, height):
     x = arm.h(q_contact)
     for _ in range(5):
         A = constraint.A_hat(x)
-        x = x - la.mm(A.T, jnp.linalg.solve(la.mm(A, A.T), constraint.theta(x)))
+        x = x - la.DEFAULT.mm(A.T, jnp.linalg.solve(la.DEFAULT.mm(A, A.T), constraint.theta(x)))
     target = x - height * _normal(constraint, x)
     q = arm.inverse_kinematics(target, q_contact)
     return q, jnp.max(jnp.abs(arm.h(q) - target))

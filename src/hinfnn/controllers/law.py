@@ -52,29 +52,31 @@ def split_blocks(A, m: int, limit: int | None = BLOCK):
     return (A[:m, :m], A[:m, m:], A[m:, :m], A[m:, m:])
 
 
-def _times(A, blocks, x, m):
+def _times(A, blocks, x, m, kernels: la.Kernels = la.DEFAULT):
     """A x for x = (a, b), by blocks when given."""
+    mm = kernels.mm
     if blocks is None:
-        return la.mm(A, x)
+        return mm(A, x)
     a, b = x[:m], x[m:]
     A11, A12, A21, A22 = blocks
-    return jnp.concatenate([la.mm(A11, a) + la.mm(A12, b), la.mm(A21, a) + la.mm(A22, b)])
+    return jnp.concatenate([mm(A11, a) + mm(A12, b), mm(A21, a) + mm(A22, b)])
 
 
-def _lower_times(A, blocks, x, m):
+def _lower_times(A, blocks, x, m, kernels: la.Kernels = la.DEFAULT):
     """(A x)[m:] (= B_pᵀ A x for B_p = [0; I]), by blocks when given."""
+    mm = kernels.mm
     if blocks is None:
-        return la.mm(A[m:], x)
-    return la.mm(blocks[2], x[:m]) + la.mm(blocks[3], x[m:])
+        return mm(A[m:], x)
+    return mm(blocks[2], x[:m]) + mm(blocks[3], x[m:])
 
 
-def force_multiplier(A_hat, F):
+def force_multiplier(A_hat, F, kernels: la.Kernels = la.DEFAULT):
     """λ = (Â Âᵀ)⁻¹ Â F: the force sensor's reading on the NOMINAL constraint gradient
     (docs/paper-conventions.md, Measurements)."""
-    return la.solve(la.mm(A_hat, A_hat.T), la.mm(A_hat, F))
+    return kernels.solve(kernels.mm(A_hat, A_hat.T), kernels.mm(A_hat, F))
 
 
-def measured_force(J, J_p, force):
+def measured_force(J, J_p, force, kernels: la.Kernels = la.DEFAULT):
     """The task-space force F the controller works with, from the contact force at the tool point
     (:class:`~hinfnn.protocols.Measurement`), by its NOMINAL kinematics: F with Ĵᵀ F = Ĵ_pᵀ f (the
     same joint torque), F = (Ĵ Ĵᵀ)⁻¹ Ĵ Ĵ_pᵀ f, Ĵ_p the tool point's Jacobian. When the task
@@ -82,7 +84,8 @@ def measured_force(J, J_p, force):
     are its tip position), F = f."""
     if J_p is None:
         return force
-    return la.spd_solve(la.mm(J, J.T), la.mm(J, la.mm(J_p.T, force)))
+    mm = kernels.mm
+    return kernels.spd_solve(mm(J, J.T), mm(J, mm(J_p.T, force)))
 
 
 @pytree_dataclass
@@ -154,6 +157,7 @@ class ReducedOrderController(Controller, Dissipative):
     Q_blocks: tuple | None = None  # Q_p's, the same
     # the sampled controller's low-pass on the measured e_λ (hinfnn.controllers.sensing; None: none, the paper's)
     force_filter: object = None
+    kernels: la.Kernels = la.kernels_field()  # how the law's linear algebra is written (hinfnn._linalg)
     fault_name: ClassVar[str] = "σ_min(Ĵ), below the singularity guard's stop"
 
     # --- sizes -----------------------------------------------------------------------------------
@@ -262,10 +266,10 @@ class ReducedOrderController(Controller, Dissipative):
         tool force in task coordinates, :func:`measured_force`): what :meth:`evaluate` reads, from
         the arm's ĥ, Ĵ and Ĵ_p alone (the reduced-order model's M̄, C̄, Ḡ are not needed; a URDF
         arm's by 3 × 3 products, :meth:`hinfnn.model.urdf.UrdfChain.fk`: design programs call this)."""
-        arm = self.arm
+        arm, k = self.arm, self.kernels
         x, J = arm.h(meas.q), arm.J(meas.q)
-        F = measured_force(J, None if arm.task_is_point else arm.point_jacobian(meas.q), meas.force)
-        return x[: self.m], la.mm(J, meas.qd)[: self.m], force_multiplier(self.surface.A_hat(x), F)
+        F = measured_force(J, None if arm.task_is_point else arm.point_jacobian(meas.q), meas.force, k)
+        return x[: self.m], k.mm(J, meas.qd)[: self.m], force_multiplier(self.surface.A_hat(x), F, k)
 
     # --- the control law -----------------------------------------------------------------------
     def evaluate(self, t, state: ControllerState, meas, ref) -> ControllerOutput:
@@ -277,8 +281,9 @@ class ReducedOrderController(Controller, Dissipative):
         r = ref(t)
         rm = reduced_model(self.arm, self.surface, meas.q, meas.qd)
         u1, u1_dot = rm.x[:m], rm.x_dot[:m]
-        F = measured_force(rm.J, rm.J_p, meas.force)
-        lam = force_multiplier(rm.A_hat, F)
+        kern = self.kernels
+        F = measured_force(rm.J, rm.J_p, meas.force, kern)
+        lam = force_multiplier(rm.A_hat, F, kern)
         e_u1 = u1 - r.u1_d
         e_u1_dot = u1_dot - r.u1_d_dot
         e_lam = lam - r.lam_d
@@ -288,12 +293,12 @@ class ReducedOrderController(Controller, Dissipative):
             dparts["lam_filter"] = self.force_filter.rate(e_lam, x_f)
             e_lam = self.force_filter.output(e_lam, x_f)
         x_p = jnp.concatenate([e_u1, e_u1_dot])
-        s_p = _lower_times(self.P_p, self._blocks(self.P_p, self.P_blocks), x_p, m)  # B_pᵀ P_p x_p
+        s_p = _lower_times(self.P_p, self._blocks(self.P_p, self.P_blocks), x_p, m, kern)  # B_pᵀ P_p x_p
         ctx = T.Context(t=jnp.asarray(t, dtype=float), ref=r, u1=u1, u1_dot=u1_dot, lam=lam, e_u1=e_u1,
                         e_u1_dot=e_u1_dot, e_lam=e_lam, z=state.z, x_p=x_p, s_p=s_p, gains=g, P_p=self.P_p,
-                        augmented=self.augmented)
+                        augmented=self.augmented, kernels=kern)
 
-        mm = la.mm
+        mm = kern.mm
         a = r.u1_d_ddot - mm(g.K_v, e_u1_dot) - mm(g.K_p, e_u1)
         b = r.lam_d + state.z
         signals, values = {}, []
@@ -310,10 +315,10 @@ class ReducedOrderController(Controller, Dissipative):
             lam_p = mm(rm.M11, a) + mm(rm.C11, u1_dot) + rm.G1  # eq. (25)
             C_f, G_f = rm.force_terms()
             lam_f = mm(rm.Pi.T, b) + mm(C_f, u1_dot) + G_f  # eq. (26)
-            tau = la.solve(rm.decoupling_matrix(), jnp.concatenate([lam_p, lam_f]))  # eq. (24)
+            tau = kern.solve(rm.decoupling_matrix(), jnp.concatenate([lam_p, lam_f]))  # eq. (24)
         else:  # only C̄ (u̇1, 0) formed (reduced_model's "product" path): the same law
             c = rm.C_u1dot
-            L = la.spd_solve(rm.M11, rm.M21.T).T  # M̄21 M̄11⁻¹ (M̄11 symmetric positive definite)
+            L = kern.spd_solve(rm.M11, rm.M21.T).T  # M̄21 M̄11⁻¹ (M̄11 symmetric positive definite)
             lam_p = mm(rm.M11, a) + c[:m] + rm.G1  # eq. (25)
             lam_f = mm(rm.Pi.T, b) + (c[m:] - mm(L, c[:m])) + (rm.G2 - mm(L, rm.G1))  # eq. (26)
             # eq. (24) without inverting: [B̄1; B̄2 − L B̄1] = P Sᵀ Ĵ⁻ᵀ with P = [[I, 0], [−L, I]],
@@ -330,7 +335,7 @@ class ReducedOrderController(Controller, Dissipative):
             fault, fault_value, deferred = sigma < self.sigma_stop, sigma, None
         else:  # no singular values in the loop: the guard by a Cholesky test (singular), σ_min(Ĵ)
             # recorded per stored sample (deferred_fields) and at a stop (fault_measure)
-            fault, fault_value, deferred = singular(rm.J, self.sigma_stop), jnp.nan, {"J": rm.J}
+            fault, fault_value, deferred = singular(rm.J, self.sigma_stop, kern), jnp.nan, {"J": rm.J}
         aux = LawAux(ref=r, values=tuple(values), J=rm.J, J_dot=rm.J_dot, ctx=ctx, Jd_qd=rm.Jd_qd)
         return ControllerOutput(tau=tau, dstate=ControllerState(z=dz, parts=dparts), e_u1=e_u1, e_lam=e_lam,
                                 signals=signals, fault=fault, fault_value=fault_value, deferred=deferred, aux=aux)
@@ -391,8 +396,10 @@ class ReducedOrderController(Controller, Dissipative):
         Implements eq. (34)."""
         g = self.gains
         c = out.aux.ctx
-        mm = la.mm
-        j = (mm(c.x_p, _times(g.Q_p, self._blocks(g.Q_p, self.Q_blocks), c.x_p, self.m)) + 0.5 * g.alpha_lam * g.alpha_z * mm(c.e_lam, c.e_lam)
+        k = self.kernels
+        mm = k.mm
+        j = (mm(c.x_p, _times(g.Q_p, self._blocks(g.Q_p, self.Q_blocks), c.x_p, self.m, k))
+             + 0.5 * g.alpha_lam * g.alpha_z * mm(c.e_lam, c.e_lam)
              + g.alpha_lam * g.mu_z / (1.0 + g.beta_lam) * mm(state.z, state.z))
         extra = jnp.zeros_like(j)
         for term, value in zip(self.terms, out.aux.values):
@@ -408,7 +415,9 @@ class ReducedOrderController(Controller, Dissipative):
         """Storage function V of eqs. (36)/(55) with Θ* = 0 (so Θ̃ = Θ̂ and ε = f), plus the
         terms' contributions: V = x_pᵀ P_p x_p + α_λ/(2(1+β_λ)) ‖z‖² + Σ V_term."""
         c = out.aux.ctx
-        V = la.mm(c.x_p, _times(self.P_p, self._blocks(self.P_p, self.P_blocks), c.x_p, self.m)) + 0.5 * c.c * la.mm(state.z, state.z)
+        k = self.kernels
+        V = (k.mm(c.x_p, _times(self.P_p, self._blocks(self.P_p, self.P_blocks), c.x_p, self.m, k))
+             + 0.5 * c.c * k.mm(state.z, state.z))
         for term in self.terms:
             v = term.storage(c, state.parts)
             if v is not None:
@@ -421,7 +430,7 @@ class ReducedOrderController(Controller, Dissipative):
         motion (:meth:`u1_ddot`)."""
         g = self.gains
         c = out.aux.ctx
-        f_p = (u1_ddot - out.aux.ref.u1_d_ddot) + la.mm(g.K_p, c.e_u1) + la.mm(g.K_v, c.e_u1_dot)
+        f_p = (u1_ddot - out.aux.ref.u1_d_ddot) + self.kernels.mm(g.K_p, c.e_u1) + self.kernels.mm(g.K_v, c.e_u1_dot)
         f_f = c.e_lam - c.z
         for term, v in zip(self.terms, out.aux.values):
             if term.side == "position":
@@ -440,7 +449,7 @@ class ReducedOrderController(Controller, Dissipative):
         (docs/beyond-the-paper.md, section 11)."""
         j, extra = self.performance(state, out)
         f_p, f_f = self.supply_residuals(out, self.u1_ddot(out, qd, qdd))
-        supply = self.gains.rho**2 * (la.mm(f_p, f_p) + la.mm(f_f, f_f))
+        supply = self.gains.rho**2 * (self.kernels.mm(f_p, f_p) + self.kernels.mm(f_f, f_f))
         for term in self.terms:  # a term's bounded rate the proof does not cancel (a network's dead zone)
             s = term.extra_supply(out.aux.ctx, state.parts)
             if s is not None:
@@ -468,8 +477,8 @@ class ReducedOrderController(Controller, Dissipative):
         """d²/dt² of the measured u1 = ĥ1(q) along a motion with joint acceleration q̈:
         (Ĵ q̈ + J̇̂ q̇)_1 (the chain rule on the controller's own observation map)."""
         a = out.aux
-        Jd_qd = la.mm(a.J_dot, qd) if a.J_dot is not None else a.Jd_qd
-        return (la.mm(a.J, qdd) + Jd_qd)[: self.m]
+        Jd_qd = self.kernels.mm(a.J_dot, qd) if a.J_dot is not None else a.Jd_qd
+        return (self.kernels.mm(a.J, qdd) + Jd_qd)[: self.m]
 
 
 def sigma_min(J):
@@ -489,13 +498,13 @@ def _closed_form_sigma(J) -> bool:
     return J.shape in ((1, 1), (2, 2))
 
 
-def singular(J, stop):
+def singular(J, stop, kernels: la.Kernels = la.DEFAULT):
     """The singularity guard σ_min(Ĵ) < ``stop`` without the singular values (Ĵ square, larger than
     2 × 2): Ĵ Ĵᵀ − stop² I is not positive definite (a written-out Cholesky,
-    :func:`hinfnn._linalg.positive_definite`: the same test up to the rounding of the pivots, and
+    :meth:`hinfnn._linalg.Kernels.positive_definite`: the same test up to the rounding of the pivots, and
     no LAPACK call in the loop); never when ``stop`` is 0 (the guard off)."""
-    A = la.mm(J, J.T) - (stop * stop) * jnp.eye(J.shape[0], dtype=J.dtype)
-    return (stop > 0.0) & ~la.positive_definite(A)
+    A = kernels.mm(J, J.T) - (stop * stop) * jnp.eye(J.shape[0], dtype=J.dtype)
+    return (stop > 0.0) & ~kernels.positive_definite(A)
 
 
 @jax.jit

@@ -78,6 +78,10 @@ class _Network:
     Remark 2's clip (subclasses hold ``centres`` with the units on the last axis, ``n_out``,
     ``project`` and ``radius``)."""
 
+    #: How a network's products are written (:class:`hinfnn._linalg.Kernels`; the networks here hold
+    #: it as a static field, set by the program that traces them)
+    kernels = la.DEFAULT
+
     @property
     def n_units(self) -> int:
         """Hidden units (per output), j."""
@@ -137,6 +141,7 @@ class TanhNetwork(_Network):
     project: bool = static_field(default=False)
     centre_blocks: tuple | None = None  # the centres by blocks, for a compiled loop (with_centre_blocks)
     centre_bounds: tuple = static_field(default=())
+    kernels: la.Kernels = la.kernels_field()  # how its products are written (hinfnn._linalg.Kernels)
 
     @classmethod
     def build(cls, centres, *, n_out: int = 1, slope: float = 1.0, w_a=1.0, w_b=1.0,
@@ -190,7 +195,8 @@ class TanhNetwork(_Network):
 
     def features_blocks(self, a, b, bounds) -> tuple:
         """ξ of eq. (17), one array per centre block ``bounds`` (:meth:`layout`)."""
-        phi = la.mm(jnp.broadcast_to(self.w_a, a.shape), a) + la.mm(jnp.broadcast_to(self.w_b, b.shape), b)
+        mm = self.kernels.mm
+        phi = mm(jnp.broadcast_to(self.w_a, a.shape), a) + mm(jnp.broadcast_to(self.w_b, b.shape), b)
         return tuple(jnp.tanh(self.slope * (phi - self._centres(0, lo, hi))) for lo, hi in bounds)
 
     def output_blocks(self, xi_blocks, theta_blocks):
@@ -254,6 +260,7 @@ class CoordinateNetwork(_Network):
     project: bool = static_field(default=False)
     centre_blocks: tuple | None = None  # the centres by blocks, for a compiled loop (with_centre_blocks)
     centre_bounds: tuple = static_field(default=())
+    kernels: la.Kernels = la.kernels_field()  # how its products are written (hinfnn._linalg.Kernels)
 
     @classmethod
     def build(cls, centres, *, slope=1.0, w_a=1.0, w_b=1.0, radius: float | None = None,
@@ -339,7 +346,7 @@ def _projected(net, raw, xi_blocks, s, theta_blocks, gamma) -> tuple:
     removed."""
     if not net.project:
         return raw
-    growth = la.mm(s, net.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ
+    growth = net.kernels.mm(s, net.output_blocks(xi_blocks, theta_blocks))  # sᵀ Ξ Θ
     active = (sq_norm(theta_blocks) >= (1.0 - PROJECTION_BAND) * net.radius**2) & (growth > 0)
     coef = jnp.where(active, gamma * growth / net.radius**2, 0.0)
     return tuple(r - coef * t for r, t in zip(raw, theta_blocks))
@@ -363,6 +370,7 @@ class Adaptation:
     leak: jax.Array
     e_gain: jax.Array
     noise: jax.Array
+    kernels: la.Kernels = la.kernels_field()  # how its products are written (hinfnn._linalg.Kernels)
 
     @classmethod
     def make(cls, zone: float = 0.0, leak: float = 0.0, e_gain: float = 0.0, noise: float = 0.0,
@@ -377,12 +385,12 @@ class Adaptation:
 
     def gate(self, s):
         """g(s) = max(0, 1 − d/‖s‖): 0 inside the dead zone ‖s‖ ≤ d, → 1 far outside it; 1 for d = 0."""
-        ns = jnp.sqrt(la.mm(s, s))
+        ns = jnp.sqrt(self.kernels.mm(s, s))
         return jnp.where(ns > self.zone, 1.0 - self.zone / jnp.maximum(ns, 1e-300), 0.0)
 
     def rate(self, s):
         """ℓ(s) = σ + ν ‖s‖, the leakage rate (1/s)."""
-        return self.leak + self.e_gain * jnp.sqrt(la.mm(s, s))
+        return self.leak + self.e_gain * jnp.sqrt(self.kernels.mm(s, s))
 
     def update_blocks(self, net, xi_blocks, s, theta_blocks, gamma) -> tuple:
         """Θ̂̇ of eq. (30) or (31) with the dead zone, the leakage and Remark 2's projection, on
@@ -398,8 +406,8 @@ class Adaptation:
         gains −D, D = 2wℓ‖Θ̂‖² ≥ 0 (dissipation: the stricter inequality), and the uncancelled
         2wγ(1 − g) sᵀΞΘ̂, bounded by S = 2wγ (1 − g)‖s‖ ‖ΞΘ̂‖ = 2wγ min(‖s‖, d) ‖ΞΘ̂‖ ≥ 0: a supply the
         dead zone adds (zero outside it and for d = 0)."""
-        ns = jnp.sqrt(la.mm(s, s))
+        ns = jnp.sqrt(self.kernels.mm(s, s))
         out = net.output_blocks(xi_blocks, theta_blocks)
         D = 2.0 * weight * self.rate(s) * sq_norm(theta_blocks)
-        S = 2.0 * weight * gamma * jnp.minimum(ns, self.zone) * jnp.sqrt(la.mm(out, out))
+        S = 2.0 * weight * gamma * jnp.minimum(ns, self.zone) * jnp.sqrt(self.kernels.mm(out, out))
         return D, S

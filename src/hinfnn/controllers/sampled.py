@@ -89,8 +89,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _loop
-from .._loop import ROLL_FROM_JOINTS
+from .._linalg import Kernels
+from .._loop import LoopOptions
 from .._pytree import all_finite, pytree_dataclass
 from ..errors import HinfnnError
 from ..protocols import Measurement
@@ -310,20 +310,28 @@ class SampledController:
         check_references([(self.reference, self.controller.m, self.controller.k)])
         return True
 
+    @property
+    def kernels(self) -> Kernels:
+        """The kernels the compiled entry points are traced with: the simulator's for a single run
+        of this arm (:meth:`hinfnn._linalg.Kernels.loop`: on arms of 3 or more joints the
+        written-out factorisations and the products computed once)."""
+        return Kernels.loop(self.n_joints)
+
     def _jit(self, fn, **jit_kwargs):
-        """``jax.jit(fn)``, traced with the loop options the simulator traces this arm with
-        (:meth:`hinfnn._loop.LoopOptions.for_joints`: on arms of 3 or more joints the written-out
-        factorisations and the products computed once, ``arm_kernels``) and compiled with its
-        compile options (XLA's older loop emitters on arms, as the simulator's programs); the
-        paper's arm is traced and compiled as before."""
+        """``jax.jit(fn)`` (a method of this wrapper) on this wrapper with its controller and
+        reference holding :attr:`kernels` (:meth:`hinfnn._linalg.Kernels.hold`), compiled with
+        the simulator's compile options (XLA's older loop emitters on arms, as the simulator's
+        programs); the paper's arm is traced and compiled as before."""
         self._check_parts()
-        opts = _loop.LoopOptions().for_joints(self.n_joints)
+        wrapper = self.kernels.hold(self)
+        for name in ("_layout", "_treedef"):  # the state's layout, the same with any kernels: made once
+            wrapper.__dict__[name] = getattr(self, name)
+        held = getattr(wrapper, fn.__name__)
 
         @functools.wraps(fn)
         def traced(*args):
-            with _loop.active(opts):
-                return fn(*args)
-        return jax.jit(traced, compiler_options=opts.compiler_options(self.n_joints), **jit_kwargs)
+            return held(*args)
+        return jax.jit(traced, compiler_options=LoopOptions().compiler_options(self.n_joints), **jit_kwargs)
 
     @functools.cached_property
     def _update(self):
@@ -469,7 +477,7 @@ class SampledLoop:
 
     A thin stateful shell (at the edge, like I/O) around a pure compiled update: it keeps the
     sample buffer ``[t, h, q, q̇, force]``, fills it in place, calls the update and returns τ as a
-    NumPy array. Arms of at least :data:`hinfnn._loop.ROLL_FROM_JOINTS` joints call
+    NumPy array. Arms traced with the arm's kernels (:attr:`SampledController.kernels`, 3 joints or more) call
     :meth:`SampledController.step_leaves_kept` with the controller state's leaves, kept on the
     device between calls, their
     buffers donated to the outputs and the program compiled as the simulator's; the
@@ -507,7 +515,7 @@ class SampledLoop:
         self._shape_q, self._shape_F = (n,), (self._d,)
         self._ns = controller.sample_size
         self._i_q, self._i_qd, self._i_F = slice(2, 2 + n), slice(2 + n, 2 + 2 * n), slice(2 + 2 * n, self._ns)
-        self._packed = n < ROLL_FROM_JOINTS
+        self._packed = not controller.kernels.arm
         self._buf = np.zeros(controller.packed_size if self._packed else self._ns)
         self._leaves = ()
         self._set_state(state)

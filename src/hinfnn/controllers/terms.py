@@ -53,6 +53,7 @@ class Context:
     gains: Gains
     P_p: jax.Array
     augmented: bool = static_field(default=False)
+    kernels: la.Kernels = la.kernels_field()  # the controller's (hinfnn._linalg.Kernels): how terms write their algebra
 
     @property
     def c(self):
@@ -145,11 +146,11 @@ class RobustPosition(Term):
     fields: ClassVar[dict] = {"v_p": ("m/s²", "robustifying position term v_p, eq. (33)")}
 
     def evaluate(self, ctx, parts):
-        v_p = -la.spd_solve(ctx.gains.R_p, ctx.s_p)  # R_p symmetric positive definite (the design checks it)
+        v_p = -ctx.kernels.spd_solve(ctx.gains.R_p, ctx.s_p)  # R_p symmetric positive definite (the design checks it)
         return v_p, {}, {"v_p": v_p}
 
     def extra_performance(self, ctx, value):
-        return la.mm(value, la.mm(ctx.gains.R_p, value))
+        return ctx.kernels.mm(value, ctx.kernels.mm(ctx.gains.R_p, value))
 
 
 @pytree_dataclass
@@ -167,7 +168,7 @@ class RobustForce(Term):
 
     def extra_performance(self, ctx, value):
         g = ctx.gains
-        return g.alpha_lam * g.alpha_z / (2.0 * g.beta_lam * (1.0 + g.beta_lam)) * la.mm(value, value)
+        return g.alpha_lam * g.alpha_z / (2.0 * g.beta_lam * (1.0 + g.beta_lam)) * ctx.kernels.mm(value, value)
 
 
 class _NetworkTerm(Term):
@@ -325,11 +326,11 @@ class ForceRate(Term):
 
     def storage(self, ctx, parts):
         s = parts["s_lam"]
-        return 0.5 * ctx.c * ctx.gains.alpha_z * self.kappa * la.mm(s, s)
+        return 0.5 * ctx.c * ctx.gains.alpha_z * self.kappa * ctx.kernels.mm(s, s)
 
     def extra_dissipation(self, ctx, parts):
         s_dot = self._s_dot(ctx, parts)
-        return ctx.c * ctx.gains.alpha_z * self.kappa * self.tau_f * la.mm(s_dot, s_dot)
+        return ctx.c * ctx.gains.alpha_z * self.kappa * self.tau_f * ctx.kernels.mm(s_dot, s_dot)
 
     def start(self, ctx, parts):
         return {"s_lam": ctx.e_lam}

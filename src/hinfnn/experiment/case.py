@@ -23,13 +23,16 @@ class Case:
     ``scenario``: the scenario with this run's one controller kind; ``overrides``: what this case
     sets on top of the experiment's base scenario (recorded in ``metrics.json``); ``tags``: what
     the run stands for and what reports show of it; ``label``: how reports name it (default: the
-    controller's label with its variant)."""
+    controller's label with its variant); ``setup``: the objects its run is built from (a
+    :class:`~hinfnn.scenario.setup.Setup` of the scenario this case's was made from, shared by the
+    cases of one scenario, :func:`cases`; None: the case's scenario's own)."""
 
     name: str
     scenario: Any
     tags: dict = dataclasses.field(default_factory=dict)
     overrides: dict = dataclasses.field(default_factory=dict)
     label: str = ""
+    setup: Any = dataclasses.field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
         if "/" in self.name or not self.name:
@@ -52,15 +55,20 @@ class Case:
                        scenario=self.scenario)
 
     def run(self):
-        """The :class:`~hinfnn.sim.Run` to simulate (the scenario's objects, built once)."""
-        return self.scenario.run(self.kind, self.name, info=self.info())
+        """The :class:`~hinfnn.sim.Run` to simulate (the scenario's objects, built once: those of
+        ``setup`` when given, shared with the other cases of its scenario)."""
+        setup = self.setup if self.setup is not None else self.scenario.build()
+        return setup.run(self.kind, self.name, info=self.info())
 
 
 def cases(scenario, *, prefix: str = "", suffix: str = "", tags: dict | None = None,
           overrides: dict | None = None) -> list[Case]:
-    """One case per controller kind of ``scenario`` (named ``prefix + kind + suffix``)."""
+    """One case per controller kind of ``scenario`` (named ``prefix + kind + suffix``), all built from
+    the scenario's one :class:`~hinfnn.scenario.setup.Setup` (its plant, nominal models, reference
+    and start pose built once, the controllers by kind)."""
+    setup = scenario.build()
     return [Case(name=f"{prefix}{kind}{suffix}", scenario=scenario.single(kind), tags=dict(tags or {}),
-                 overrides=dict(overrides or {})) for kind in scenario.kinds]
+                 overrides=dict(overrides or {}), setup=setup) for kind in scenario.kinds]
 
 
 __all__ = ["Case", "cases"]

@@ -85,6 +85,24 @@ def check_memory(runs, *, fields=None, log=print):
     return plan
 
 
+def run_cases(cases: list[Case], folder: Path, base, *, command: str, runs=None, fields=None, progress=None,
+              log=print, save_every: int | None = None, memory: bool = True, document: Callable | None = None,
+              npz: str = "trajectory.npz", scenario_file: bool = True) -> tuple[Outcome, dict]:
+    """An experiment's cases from their runs to their result folder, the one choreography of every
+    workflow: build each case's run (``runs``: already built), refuse what would not fit in memory
+    (:func:`check_memory`; ``memory=False``: the caller planned it), simulate them batched by
+    compiled structure (:func:`simulate_cases`) and write ``folder`` (:func:`write_result` of the
+    base scenario ``base``; ``document(outcome)`` returns entries added to ``metrics.json``).
+    Returns the outcome and the metrics document."""
+    runs = build_runs(cases) if runs is None else runs
+    if memory:
+        check_memory(runs, fields=fields, log=log)
+    outcome = simulate_cases(cases, runs=runs, progress=progress, save_every=save_every, fields=fields)
+    doc = write_result(folder, base, outcome, command=command, npz=npz, scenario_file=scenario_file,
+                       extra=None if document is None else document(outcome))
+    return outcome, doc
+
+
 def write_result(folder: Path, base, outcome: Outcome, *, command: str, npz: str = "trajectory.npz",
                  save_interval: float | None = None, fields=None, extra: dict | None = None,
                  scenario_file: bool = True) -> dict:
@@ -141,4 +159,5 @@ def result_folder(out, *, command: str, name: str, kind: str, force: bool = Fals
         log(f"hinfnn: {written.moved}")
 
 
-__all__ = ["Outcome", "build_runs", "simulate_cases", "check_memory", "write_result", "result_folder", "Written"]
+__all__ = ["Outcome", "build_runs", "simulate_cases", "check_memory", "run_cases", "write_result", "result_folder",
+           "Written"]

@@ -55,6 +55,10 @@ class Arm:
     """
 
     n: int
+    #: How the arm's small linear algebra is written (:class:`hinfnn._linalg.Kernels`): a static
+    #: field of every arm written here, set by the program that traces it (:meth:`~hinfnn._linalg.Kernels.hold`);
+    #: an arm without the field computes with the default kernels.
+    kernels: ClassVar[la.Kernels] = la.DEFAULT
     #: The control law forms the Coriolis matrix (cheap closed forms: the Sec. VI arm) instead of
     #: using products C(q, q̇)v (:meth:`C_product`), which is what every other arm does.
     coriolis_matrix_in_law: ClassVar[bool] = False
@@ -107,14 +111,14 @@ class Arm:
     def C_product(self, terms: ArmTerms, q, qd, v):
         """C(q, q̇) v reusing what :meth:`law_terms` computed (``terms.aux``)."""
         if terms.C is not None:
-            return la.mm(terms.C, v)
+            return self.kernels.mm(terms.C, v)
         return self.C_times(q, qd, v)
 
     def J_dot_times(self, terms: ArmTerms, q, qd, v):
         """J̇(q, q̇) v (from ``terms.J_dot`` when formed, else by forward-mode autodiff of J v)."""
         if terms.J_dot is not None:
-            return la.mm(terms.J_dot, v)
-        return jax.jvp(lambda qq: la.mm(self.J(qq), v), (q,), (qd,))[1]
+            return self.kernels.mm(terms.J_dot, v)
+        return jax.jvp(lambda qq: self.kernels.mm(self.J(qq), v), (q,), (qd,))[1]
 
     # --- contact point --------------------------------------------------------------------------
     @property
@@ -172,8 +176,8 @@ class Arm:
         """q̈ = M⁻¹ (τ_total − C q̇ − G); τ_total already includes −JᵀF and disturbances."""
         t = terms if terms is not None else self.terms(q, qd)
         if t.bias is not None:
-            return la.spd_solve(t.M, tau_total - t.bias)
-        return la.solve(t.M, tau_total - la.mm(t.C, qd) - t.G)
+            return self.kernels.spd_solve(t.M, tau_total - t.bias)
+        return self.kernels.solve(t.M, tau_total - self.kernels.mm(t.C, qd) - t.G)
 
     def inverse_kinematics(self, x, q_guess, iterations: int = 50):
         """Solve h(q) = x by Newton's method from ``q_guess`` (square arms, n = dim x)."""
@@ -203,6 +207,7 @@ class PlanarPointMassArm(Arm):
     g: float = 9.8
     n: int = static_field(default=2)
     task: object = None
+    kernels: la.Kernels = la.kernels_field()
 
     def _mass_positions(self, q):
         angles = jnp.cumsum(q)

@@ -114,6 +114,7 @@ class AugmentedArm(Arm):
 
     arm: Any  # the wrapped UrdfArm (chain + tool-frame task map)
     task: AugmentedTask
+    kernels: la.Kernels = la.kernels_field()
 
     @property
     def n(self) -> int:
@@ -155,8 +156,8 @@ class AugmentedArm(Arm):
     def J_dot_times(self, terms: ArmTerms, q, qd, v):
         """J̇̂ v: the wrapped arm's rows (from its cache in ``terms``) and the extra rows'."""
         if terms.J_dot is not None:
-            return la.mm(terms.J_dot, v)
-        return _insert(self.arm.J_dot_times(terms, q, qd, v), la.mm(self._rows_dot(q, qd), v))
+            return self.kernels.mm(terms.J_dot, v)
+        return _insert(self.arm.J_dot_times(terms, q, qd, v), self.kernels.mm(self._rows_dot(q, qd), v))
 
     def point(self, q):
         return self.arm.point(q)

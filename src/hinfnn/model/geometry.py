@@ -64,6 +64,9 @@ class Geometry:
     exact_theta: bool = True
     #: λ's unit when θ is the constraint (hinfnn.model.surface.Surface.lambda_unit): θ is a length
     lambda_unit = "N"
+    #: How the small linear algebra is written (:class:`hinfnn._linalg.Kernels`; a subclass whose
+    #: code uses it has a static ``kernels`` field, set by the program that traces it)
+    kernels = la.DEFAULT
 
     def theta(self, p):
         raise NotImplementedError
@@ -116,6 +119,7 @@ class Plane(Geometry):
     normal_out: jax.Array
     tangent: jax.Array
     dim: int = static_field(default=3)
+    kernels: la.Kernels = la.kernels_field()
     fittable = True
 
     @classmethod
@@ -138,11 +142,11 @@ class Plane(Geometry):
         return -self.normal_out + 0.0 * p
 
     def coordinates(self, p):
-        local = la.mm(self._frame().T, p - self.point_)
+        local = self.kernels.mm(self._frame().T, p - self.point_)
         return local[:2], local[2]
 
     def point(self, s, d):
-        return self.point_ + la.mm(self._frame(), jnp.concatenate([s, jnp.atleast_1d(d)]))
+        return self.point_ + self.kernels.mm(self._frame(), jnp.concatenate([s, jnp.atleast_1d(d)]))
 
     def frame(self, s):
         return self._frame() + 0.0 * s[0]
@@ -351,6 +355,7 @@ class Line(Geometry):
     point_: jax.Array
     normal_out: jax.Array
     dim: int = static_field(default=2)
+    kernels: la.Kernels = la.kernels_field()
     fittable = True
 
     @classmethod
@@ -365,11 +370,11 @@ class Line(Geometry):
         return -self.normal_out + 0.0 * p
 
     def coordinates(self, p):
-        local = la.mm(_frame2(-self.normal_out).T, p - self.point_)
+        local = self.kernels.mm(_frame2(-self.normal_out).T, p - self.point_)
         return local[:1], local[1]
 
     def point(self, s, d):
-        return self.point_ + la.mm(_frame2(-self.normal_out), jnp.stack([s[0], d]))
+        return self.point_ + self.kernels.mm(_frame2(-self.normal_out), jnp.stack([s[0], d]))
 
     def frame(self, s):
         return _frame2(-self.normal_out) + 0.0 * s[0]

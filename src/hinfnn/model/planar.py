@@ -26,14 +26,14 @@ class TwoLinkArm(Arm):
     l2: float
     g: float = 9.8
     n: int = static_field(default=2)
+    kernels: la.Kernels = la.kernels_field()
     coriolis_matrix_in_law = True  # the law forms C (closed form, cheaper than products)
     task_is_point = True  # the task coordinates are the tip position
 
     # Each closed form is written once, on the sines and cosines of q1, q2, q1 + q2 (one
     # vectorised sine and cosine of three angles); terms() evaluates them once for all six.
-    @staticmethod
-    def _trig(q):
-        s, c = la.sincos(jnp.stack([q[0], q[1], q[0] + q[1]]))
+    def _trig(self, q):
+        s, c = self.kernels.sincos(jnp.stack([q[0], q[1], q[0] + q[1]]))
         return s[0], c[0], s[1], c[1], s[2], c[2]
 
     def _h(self, tr):

@@ -20,7 +20,7 @@ How the arithmetic is laid out, and why (``docs/architecture.md``, "Writing code
   stages. Buffers stay at most 512 bytes: XLA's CPU runtime runs a loop body's kernels inline
   only when every buffer they touch is that small (:data:`hinfnn._loop.SEQUENTIAL_VALUES`). In a
   batch each stored buffer is laid out with the member axis minor
-  (:func:`hinfnn._linalg.member_minor`).
+  (:meth:`hinfnn._linalg.Kernels.member_minor`, the chain's ``kernels``).
 * **The chain's structure is unrolled** at trace time: the Python loop over the (static) joints
   and joint types, prefix and suffix sums over the bodies written out.
 
@@ -33,9 +33,9 @@ the design's equilibria) are paid by their compile time, and there the layout is
 times the program: :func:`placements` computes the same kinematics by 3 × 3 array products
 (``UrdfChain.fk``), and :func:`frames_by_products` puts them in the layout every algorithm below
 reads, with nothing stored, so that those programs trace the same algorithms on a fifth of the
-program (``UrdfChain.frame_jacobian``, ``M`` and ``UrdfArm.J`` always; every algorithm inside
-:func:`hinfnn._loop.by_products`, which the design's and the setup programs of arms set). Both
-are checked against Pinocchio.
+program (``UrdfChain.fk``, ``frame_jacobian``, ``M`` and ``UrdfArm.J`` always; every algorithm when
+the chain's kernels say so, :attr:`hinfnn._linalg.Kernels.products`, which the design's and the
+setup programs of arms hold). Both are checked against Pinocchio.
 """
 
 from __future__ import annotations
@@ -46,8 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _loop
-from .._linalg import member_minor
+from .._linalg import DEFAULT, Kernels
 
 #: Largest number of float64 values in one stored buffer (512 bytes,
 #: :data:`hinfnn._loop.SEQUENTIAL_VALUES`).
@@ -84,11 +83,11 @@ def grid_stack(parts, width: int = ROW):
     return jnp.concatenate(rows, axis=0).reshape((-1,) + shape)[: len(parts)]
 
 
-def keep(parts, one):
+def keep(parts, one, kernels: Kernels = DEFAULT):
     """The arrays ``parts`` (equal shapes), each computed once and stored: stacked into buffers of
     at most :data:`BUFFER` values, each divided by ``one`` (:func:`runtime_one`; exact), which XLA
-    computes in one kernel and does not recompute in the kernels that read it. Returns the
-    parts as a tuple."""
+    computes in one kernel and does not recompute in the kernels that read it, laid out by
+    ``kernels`` (:meth:`~hinfnn._linalg.Kernels.member_minor`). Returns the parts as a tuple."""
     parts = [jnp.asarray(p) for p in parts]
     if not STORE or not parts:
         return tuple(parts)
@@ -97,12 +96,12 @@ def keep(parts, one):
     out = []
     for i in range(0, len(parts), per):
         group = parts[i:i + per]
-        x = member_minor(grid_stack(group) / one)
+        x = kernels.member_minor(grid_stack(group) / one)
         out.extend(x[j] for j in range(len(group)))
     return tuple(out)
 
 
-def table(rows, one):
+def table(rows, one, kernels: Kernels = DEFAULT):
     """Per-body tuples of scalars (``rows[i][k]``: component k of body i) stored component by
     component: returns a tuple of (n,) arrays (component k over the bodies). The stacking is
     the stored kernel's output, so nothing is gathered elsewhere."""
@@ -114,7 +113,7 @@ def table(rows, one):
     out = []
     for k0 in range(0, K, per):
         group = flat[k0 * n:min(K, k0 + per) * n]
-        x = member_minor(grid_stack(group) / one)
+        x = kernels.member_minor(grid_stack(group) / one)
         out.extend(x[j * n:(j + 1) * n] for j in range(len(group) // n))
     return tuple(out)
 
@@ -124,10 +123,10 @@ def table_column(rows, k):
     return jnp.stack([r[k] for r in rows])
 
 
-def keep_tree(tree, one):
+def keep_tree(tree, one, kernels: Kernels = DEFAULT):
     """:func:`keep` of every array of a pytree of arrays with equal shapes."""
     leaves, treedef = jax.tree.flatten(tree)
-    return jax.tree.unflatten(treedef, keep(leaves, one))
+    return jax.tree.unflatten(treedef, keep(leaves, one, kernels))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -233,7 +232,8 @@ class Frames(NamedTuple):
     bodies unless said): body rotations ``R`` (3 × 3), origins ``p`` (3), motion subspaces ``S``
     (6: S_i = (p_i × a_i, a_i) revolute, (a_i, 0) prismatic, a_i the world axis), body inertias
     about the base origin (``m``, ``h`` = m c (3), ``Ib`` (6 entries)), the tool frame ``R_tool``
-    (3 × 3 scalars) and ``p_tool`` (3 scalars), and ``one`` (:func:`runtime_one`)."""
+    (3 × 3 scalars) and ``p_tool`` (3 scalars), ``one`` (:func:`runtime_one`) and the ``kernels``
+    every algorithm below stores its stages with (:func:`keep`)."""
 
     R: tuple
     p: tuple
@@ -244,6 +244,7 @@ class Frames(NamedTuple):
     R_tool: tuple
     p_tool: tuple
     one: jax.Array
+    kernels: Kernels = DEFAULT
 
 
 def _rows(a):
@@ -258,12 +259,14 @@ def _mat(a):
 
 def frames(chain, q) -> Frames:
     """Forward pass: body placements (the static joints unrolled, one stored stage per body),
-    motion subspaces, body inertias in the base frame, tool frame. Under :func:`hinfnn._loop.by_products`,
-    :func:`frames_by_products`."""
-    if _loop.tracing_by_products():
+    motion subspaces, body inertias in the base frame, tool frame, in the chain's kernels
+    (``chain.kernels``): :func:`frames_by_products` when they say ``products``."""
+    kern = chain.kernels
+    if kern.products:
         return frames_by_products(chain, q)
     one = runtime_one(q)
-    s, c = keep([jnp.sin(q), jnp.cos(q)], one)
+
+    s, c = keep([jnp.sin(q), jnp.cos(q)], one, kern)
     R = p = None
     per_body = []
     for i, kind in enumerate(chain.joint_types):
@@ -285,7 +288,7 @@ def frames(chain, q) -> Frames:
             p, R = add(p, matvec(R, pp)), matmul(R, X)
         if kind == "prismatic":
             p = add(p, scale(q[i], matvec(R, a)))
-        vals = keep([R[r][k] for r in range(3) for k in range(3)] + list(p), one)
+        vals = keep([R[r][k] for r in range(3) for k in range(3)] + list(p), one, kern)
         R, p = tuple(tuple(vals[3 * r + k] for k in range(3)) for r in range(3)), vals[9:]
         per_body.append(vals)
     # per body: world axis, motion subspace, centre of mass, inertia about the base origin
@@ -306,18 +309,18 @@ def frames(chain, q) -> Frames:
               Ic[2][2] + m * (cc - cw[2] * cw[2]), Ic[0][1] - m * cw[0] * cw[1],
               Ic[0][2] - m * cw[0] * cw[2], Ic[1][2] - m * cw[1] * cw[2])
         inert_b.append(scale(m, cw) + Ib)
-    S = table(S_b, one)
-    inert = table(inert_b, one)
+    S = table(S_b, one, kern)
+    inert = table(inert_b, one, kern)
     R_all = tuple(tuple(table_column(per_body, 3 * r + k) for k in range(3)) for r in range(3))
     p_all = tuple(table_column(per_body, 9 + k) for k in range(3))
     Rn = tuple(tuple(per_body[-1][3 * r + k] for k in range(3)) for r in range(3))
     pn = per_body[-1][9:]
     T = tuple(tuple(chain.tool_rot[r, k] for k in range(3)) for r in range(3))
     tp = tuple(chain.tool_pos[k] for k in range(3))
-    tool = keep([x for row in matmul(Rn, T) for x in row] + list(add(pn, matvec(Rn, tp))), one)
+    tool = keep([x for row in matmul(Rn, T) for x in row] + list(add(pn, matvec(Rn, tp))), one, kern)
     R_tool = tuple(tuple(tool[3 * r + k] for k in range(3)) for r in range(3))
     return Frames(R=R_all, p=p_all, S=S, m=chain.mass, h=inert[:3], Ib=inert[3:], R_tool=R_tool, p_tool=tool[9:],
-                  one=one)
+                  one=one, kernels=kern)
 
 
 def skew(v):
@@ -389,7 +392,7 @@ def frames_by_products(chain, q) -> Frames:
                   S=tuple(lin[:, k] for k in range(3)) + tuple(ang[:, k] for k in range(3)),
                   m=m, h=tuple(m * c[:, k] for k in range(3)), Ib=Ib,
                   R_tool=tuple(tuple(pl.R_tool[r, k] for k in range(3)) for r in range(3)),
-                  p_tool=tuple(pl.p_tool[k] for k in range(3)), one=runtime_one(q))
+                  p_tool=tuple(pl.p_tool[k] for k in range(3)), one=runtime_one(q), kernels=chain.kernels)
 
 
 def as_matrix(T):
@@ -402,18 +405,18 @@ def frame_jacobian(fr: Frames):
     is (S_i,lin + S_i,ang × p_tool, S_i,ang) = (a_i × (p_tool − p_i), a_i) for a revolute joint."""
     S = fr.S
     lin = add(S[:3], cross(S[3:], fr.p_tool))
-    return jnp.stack(keep(lin + S[3:], fr.one))
+    return jnp.stack(keep(lin + S[3:], fr.one, fr.kernels))
 
 
-def prefix_sums(parts, one):
+def prefix_sums(parts, one, kernels: Kernels = DEFAULT):
     """:func:`prefix` of each component, the components stored first (a prefix sum reads each
     entry n times: XLA would store each component in a kernel of its own)."""
-    return tuple(prefix(x) for x in keep(parts, one))
+    return tuple(prefix(x) for x in keep(parts, one, kernels))
 
 
 def velocities(fr: Frames, qd):
     """Body spatial velocities v_i = Σ_{k ≤ i} S_k q̇_k (6 components, each (n,)), stored."""
-    return keep(prefix_sums(tuple(x * qd for x in fr.S), fr.one), fr.one)
+    return keep(prefix_sums(tuple(x * qd for x in fr.S), fr.one, fr.kernels), fr.one, fr.kernels)
 
 
 def frame_jacobian_dot(fr: Frames, qd, v=None):
@@ -425,7 +428,7 @@ def frame_jacobian_dot(fr: Frames, qd, v=None):
     vn = tuple(x[..., -1] for x in v)  # the last body's
     pd = add(vn[:3], cross(vn[3:], fr.p_tool))
     lin = add(add(Sd[:3], cross(Sd[3:], fr.p_tool)), cross(S[3:], pd))
-    return jnp.stack(keep(lin + Sd[3:], fr.one))
+    return jnp.stack(keep(lin + Sd[3:], fr.one, fr.kernels))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -433,7 +436,7 @@ def frame_jacobian_dot(fr: Frames, qd, v=None):
 # ---------------------------------------------------------------------------------------------
 def composite(fr: Frames):
     """Composite inertias I^c_i = Σ_{k ≥ i} I_k: (m, h (3), Ib (6)), each (n,), stored."""
-    vals = keep([suffix(fr.m)] + [suffix(x) for x in fr.h + fr.Ib], fr.one)
+    vals = keep([suffix(fr.m)] + [suffix(x) for x in fr.h + fr.Ib], fr.one, fr.kernels)
     return vals[0], vals[1:4], vals[4:]
 
 
@@ -441,17 +444,17 @@ def crba(fr: Frames, comp=None):
     """Joint-space inertia matrix by the composite-rigid-body algorithm: F_j = I^c_j S_j,
     M_ij = S_min(i,j) · F_max(i,j)."""
     mc, hc, Ibc = composite(fr) if comp is None else comp
-    F = keep(inertia_apply(mc, hc, Ibc, fr.S), fr.one)
+    F = keep(inertia_apply(mc, hc, Ibc, fr.S), fr.one, fr.kernels)
     n = fr.m.shape[-1]
     A = sdot(tuple(x[..., :, None] for x in fr.S), tuple(x[..., None, :] for x in F))  # A_ij = S_i · F_j
     M = jnp.where(np.triu(np.ones((n, n), dtype=bool)), A, jnp.swapaxes(A, -1, -2))
-    return keep([M], fr.one)[0]
+    return keep([M], fr.one, fr.kernels)[0]
 
 
 def gravity(fr: Frames, a0, comp=None):
     """G_i = S_i · I^c_i a0 (RNEA at q̇ = q̈ = 0 with composite inertias), a0 = (−g, 0)."""
     mc, hc, Ibc = composite(fr) if comp is None else comp
-    return keep([sdot(fr.S, inertia_apply(mc, hc, Ibc, a0))], fr.one)[0]
+    return keep([sdot(fr.S, inertia_apply(mc, hc, Ibc, a0))], fr.one, fr.kernels)[0]
 
 
 def rnea(fr: Frames, qd, qdd, a0, v=None):
@@ -462,11 +465,11 @@ def rnea(fr: Frames, qd, qdd, a0, v=None):
     acc_rate = tuple(x * qd for x in crm(v, fr.S))
     if qdd is not None:
         acc_rate = add(acc_rate, tuple(x * qdd for x in fr.S))
-    acc = tuple(x + x0 for x, x0 in zip(prefix_sums(acc_rate, fr.one), a0))
+    acc = tuple(x + x0 for x, x0 in zip(prefix_sums(acc_rate, fr.one, fr.kernels), a0))
     f = add(inertia_apply(fr.m, fr.h, fr.Ib, acc), crf(v, inertia_apply(fr.m, fr.h, fr.Ib, v)))
-    f = keep(f, fr.one)
+    f = keep(f, fr.one, fr.kernels)
     fs = tuple(suffix(x) for x in f)
-    return keep([sdot(fr.S, fs)], fr.one)[0]
+    return keep([sdot(fr.S, fs)], fr.one, fr.kernels)[0]
 
 
 def christoffel(fr: Frames, a, b, va=None):
@@ -477,15 +480,15 @@ def christoffel(fr: Frames, a, b, va=None):
     (:func:`velocities`)."""
     S = fr.S
     Va = velocities(fr, a) if va is None else va
-    Vb = keep(prefix_sums(tuple(x * b for x in S), fr.one), fr.one)
+    Vb = keep(prefix_sums(tuple(x * b for x in S), fr.one, fr.kernels), fr.one, fr.kernels)
     rate = add(tuple(x * b for x in crm(Va, S)), tuple(x * a for x in crm(Vb, S)))
-    acc = tuple(0.5 * x for x in prefix_sums(rate, fr.one))
+    acc = tuple(0.5 * x for x in prefix_sums(rate, fr.one, fr.kernels))
     IVa = inertia_apply(fr.m, fr.h, fr.Ib, Va)
     IVb = inertia_apply(fr.m, fr.h, fr.Ib, Vb)
     f = add(inertia_apply(fr.m, fr.h, fr.Ib, acc), scale(0.5, add(crf(Va, IVb), crf(Vb, IVa))))
-    f = keep(f, fr.one)
+    f = keep(f, fr.one, fr.kernels)
     fs = tuple(suffix(x) for x in f)
-    return keep([sdot(S, fs)], fr.one)[0]
+    return keep([sdot(S, fs)], fr.one, fr.kernels)[0]
 
 
 def gravity_vector(gravity):

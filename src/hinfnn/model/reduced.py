@@ -42,6 +42,7 @@ class ReducedModel:
     m: int = static_field()
     Jd_qd: jax.Array | None = None  # J̇̂ q̇ (the "product" path)
     J_p: jax.Array | None = None  # the tool point's Jacobian Ĵ_p (None: the task coordinates are the tool point)
+    kernels: la.Kernels = la.kernels_field()  # the arm's (hinfnn._linalg.Kernels)
 
     # --- partitions used by eqs. (11)-(14) ------------------------------------------------
     @property
@@ -86,19 +87,19 @@ class ReducedModel:
         if self.C_u1dot is not None:
             return self.C_u1dot
         u1_dot = self.x_dot[: self.m]
-        return jnp.concatenate([la.mm(self.C11, u1_dot), la.mm(self.C21, u1_dot)])
+        return jnp.concatenate([self.kernels.mm(self.C11, u1_dot), self.kernels.mm(self.C21, u1_dot)])
 
     # --- eqs. (13)-(14) ---------------------------------------------------------------------
     def force_terms(self):
         """The (k × m) and (k,) coefficients of eq. (14):
         C̄21 − M̄21 M̄11⁻¹ C̄11 and Ḡ2 − M̄21 M̄11⁻¹ Ḡ1."""
-        L = la.mm(self.M21, la.inv(self.M11))
-        return self.C21 - la.mm(L, self.C11), self.G2 - la.mm(L, self.G1)
+        L = self.kernels.mm(self.M21, la.inv(self.M11))
+        return self.C21 - self.kernels.mm(L, self.C11), self.G2 - self.kernels.mm(L, self.G1)
 
     def decoupling_matrix(self):
         """T = [B̄1; B̄2 − M̄21 M̄11⁻¹ B̄1] of eqs. (24), (51); τ = T⁻¹ [Λp; Λf]."""
-        L = la.mm(self.M21, la.inv(self.M11))
-        return jnp.concatenate([self.B1, self.B2 - la.mm(L, self.B1)], axis=0)
+        L = self.kernels.mm(self.M21, la.inv(self.M11))
+        return jnp.concatenate([self.B1, self.B2 - self.kernels.mm(L, self.B1)], axis=0)
 
 
 def reduced_model(arm, surface, q, qd, *, coriolis: str | None = None) -> ReducedModel:
@@ -111,6 +112,7 @@ def reduced_model(arm, surface, q, qd, *, coriolis: str | None = None) -> Reduce
     v = (u̇1, 0), with one product Ĉ(q, q̇) w (:meth:`~hinfnn.model.arm.Arm.C_product`): all of
     C̄ the law (25)–(26) uses (``C_bar`` is then None). Default: ``"matrix"`` for arms whose
     Coriolis matrix is a cheap closed form (``arm.coriolis_matrix_in_law``), else ``"product"``.
+    Written with the arm's kernels (``arm.kernels``, :class:`hinfnn._linalg.Kernels`).
     """
     if coriolis is None:
         coriolis = "matrix" if getattr(arm, "coriolis_matrix_in_law", False) else "product"
@@ -118,14 +120,15 @@ def reduced_model(arm, surface, q, qd, *, coriolis: str | None = None) -> Reduce
         raise ValueError(f"coriolis must be 'matrix' or 'product', got {coriolis!r}")
     if coriolis == "product":
         return _reduced_products(arm, surface, q, qd)
+    kern = arm.kernels
+    mm = kern.mm
     at = arm.terms(q, qd)
     x, J, J_dot, M = at.x, at.J, at.J_dot, at.M
-    x_dot = la.mm(J, qd)
+    x_dot = mm(J, qd)
     m = surface.m
     S = surface.S(x[:m])
     S_dot = surface.S_dot(x[:m], x_dot[:m])
     J_inv = la.inv(J)
-    mm = la.mm
     B_bar = mm(S.T, J_inv.T)  # Sᵀ Ĵ⁻ᵀ
     MJi = mm(M, J_inv)
     JiS = mm(J_inv, S)
@@ -147,6 +150,7 @@ def reduced_model(arm, surface, q, qd, *, coriolis: str | None = None) -> Reduce
         J_dot=J_dot,
         m=m,
         J_p=None if arm.task_is_point else arm.point_jacobian(q),
+        kernels=kern,
     )
 
 
@@ -160,17 +164,18 @@ def _reduced_products(arm, surface, q, qd) -> ReducedModel:
     which need only the products Ĉ(q, q̇) w and J̇̂ w (:meth:`~hinfnn.model.arm.Arm.C_product`,
     :meth:`~hinfnn.model.arm.Arm.J_dot_times`): all of C̄ the law (25)–(26) uses. The same
     quantities as the matrix path (tested)."""
-    mm = la.mm
+    kern = arm.kernels
+    mm = kern.mm
     at = arm.law_terms(q, qd)
     x, J, M = at.x, at.J, at.M
     x_dot = mm(J, qd)
     m = surface.m
     S = surface.S(x[:m])
     S_dot = surface.S_dot(x[:m], x_dot[:m])
-    # Each product below is read by several others: computed once (la.stored), not again inside
-    # every kernel that reads it (about 17,000 operations per right-hand side on a 6-DOF arm).
-    st = la.stored
-    J_inv = st(mm(J.T, la.chol_solve(la.chol(mm(J, J.T)), jnp.eye(J.shape[0], dtype=J.dtype))))
+    # Each product below is read by several others: computed once (kernels.stored), not again
+    # inside every kernel that reads it (on a 6-DOF arm, most of a right-hand side's operations).
+    st = kern.stored
+    J_inv = st(mm(J.T, kern.chol_solve(kern.chol(mm(J, J.T)), jnp.eye(J.shape[0], dtype=J.dtype))))
     B_bar = st(mm(S.T, J_inv.T))  # Sᵀ Ĵ⁻ᵀ
     MJi = st(mm(M, J_inv))
     JiS = st(mm(J_inv, S))
@@ -196,4 +201,5 @@ def _reduced_products(arm, surface, q, qd) -> ReducedModel:
         m=m,
         Jd_qd=Jd[:, 1],
         J_p=at.J_p,
+        kernels=kern,
     )

@@ -29,6 +29,9 @@ class Surface:
 
     m: int
     k: int
+    #: How the small linear algebra is written (:class:`hinfnn._linalg.Kernels`; a subclass whose
+    #: code uses it has a static ``kernels`` field, set by the program that traces it)
+    kernels = la.DEFAULT
     #: λ's unit: F = Âᵀλ (eq. 3) makes λ the force conjugate to θ̂, in N when θ̂ is a length (the
     #: lines in either scaling, the shapes' θ, the fitted distance); a user's θ̂ of another unit
     #: gives λ in N·m per unit of θ̂
@@ -61,7 +64,7 @@ class Surface:
 
         def body(_, x2):
             x = jnp.concatenate([x1, x2])
-            return x2 - la.solve(self.Pi(x), self.theta(x))
+            return x2 - self.kernels.solve(self.Pi(x), self.theta(x))
 
         x2 = jax.lax.fori_loop(0, iterations, body, jnp.zeros(self.k, dtype=jnp.result_type(x1)))
         residual = jnp.max(jnp.abs(self.theta(jnp.concatenate([x1, x2]))))
@@ -70,7 +73,7 @@ class Surface:
     def Gamma(self, x1):
         """Γ = ∂Ω/∂x1 = −Π⁻¹Σ at (x1, Ω(x1)), eq. (4)."""
         x = jnp.concatenate([x1, self.Omega(x1)])
-        return -la.solve(self.Pi(x), self.Sigma(x))
+        return -self.kernels.solve(self.Pi(x), self.Sigma(x))
 
     # --- eq. (6) ---------------------------------------------------------------------------------
     def S(self, x1):
@@ -145,6 +148,7 @@ class ImplicitSurface(Surface):
     theta_fn: Callable = static_field()
     m: int = static_field(default=1)
     k: int = static_field(default=1)
+    kernels: la.Kernels = la.kernels_field()
     lambda_unit = "N·m/θ"  # θ's unit is the user's
 
     def theta(self, x):
@@ -166,6 +170,7 @@ class TaskConstraint(Surface):
     task: object
     m: int = static_field(default=1)
     k: int = static_field(default=1)
+    kernels: la.Kernels = la.kernels_field()
 
     def theta(self, x):
         return jnp.atleast_1d(self.geometry.theta(self.task.point(x)))

@@ -23,6 +23,7 @@ a run records it as ``task_margin``).
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
@@ -149,35 +150,46 @@ def _log_scale_value(s2, c):
     return jnp.where(small, series, exact), small, t2
 
 
-@jax.custom_jvp
-def _log_scale(s2, c):
+@functools.cache
+def _log_scale_for(kernels: la.Kernels):
+    """:func:`_log_scale` whose derivative stores its values with ``kernels``
+    (:meth:`hinfnn._linalg.Kernels.stored`)."""
+
+    @jax.custom_jvp
+    def _log_scale(s2, c):
+        return _log_scale_value(s2, c)[0]
+
+    @_log_scale.defjvp
+    def _log_scale_jvp(primals, tangents):
+        s2, c = primals
+        ds2, dc = tangents
+        g, small, t2 = _log_scale_value(s2, c)
+        r = s2 + c * c
+        series = (-1.0 / 3.0 + 2.0 * t2 / 5.0 - 3.0 * t2**2 / 7.0 + 4.0 * t2**3 / 9.0 - 5.0 * t2**4 / 11.0) \
+            / jnp.where(small, c**3, 1.0)
+        exact = (c / r - g) / (2.0 * jnp.where(small, 1.0, s2))
+        g_s2 = jnp.where(small, series, exact)
+        # g, ∂g/∂s2 and 1/r computed together, once (stored: one kernel in a compiled arm loop,
+        # where each division read twice would otherwise be a kernel of its own)
+        g, g_s2, r_inv = kernels.stored(jnp.stack([g, g_s2, 1.0 / r]))
+        return g, g_s2 * ds2 - dc * r_inv
+
+    return _log_scale
+
+
+def _log_scale(s2, c, kernels: la.Kernels = la.DEFAULT):
     """θ / sin θ from s2 = sin²θ and c = cos θ, smooth in s2 (no square root at s2 = 0).
 
     For small s2 (and c > 0), θ / sin θ = atan(t)/ (c t) with t² = s2 / c²:
     (1/c)(1 − t²/3 + t⁴/5 − t⁶/7 + t⁸/9); the first dropped term is below 1e-17 there.
     Its derivatives are written out (custom JVP: fewer operations under the nested forward-mode
     derivatives of the task Jacobian and its rate): ∂g/∂c = −1/(s2 + c²) exactly, and
-    ∂g/∂s2 = (c/(s2 + c²) − g)/(2 s2), by its series for small s2."""
-    return _log_scale_value(s2, c)[0]
+    ∂g/∂s2 = (c/(s2 + c²) − g)/(2 s2), by its series for small s2; g, ∂g/∂s2 and 1/(s2 + c²)
+    stored with ``kernels``."""
+    return _log_scale_for(kernels)(s2, c)
 
 
-@_log_scale.defjvp
-def _log_scale_jvp(primals, tangents):
-    s2, c = primals
-    ds2, dc = tangents
-    g, small, t2 = _log_scale_value(s2, c)
-    r = s2 + c * c
-    series = (-1.0 / 3.0 + 2.0 * t2 / 5.0 - 3.0 * t2**2 / 7.0 + 4.0 * t2**3 / 9.0 - 5.0 * t2**4 / 11.0) \
-        / jnp.where(small, c**3, 1.0)
-    exact = (c / r - g) / (2.0 * jnp.where(small, 1.0, s2))
-    g_s2 = jnp.where(small, series, exact)
-    # g, ∂g/∂s2 and 1/r computed together, once (la.stored: one kernel in a compiled arm loop,
-    # where each division read twice would otherwise be a kernel of its own)
-    g, g_s2, r_inv = la.stored(jnp.stack([g, g_s2, 1.0 / r]))
-    return g, g_s2 * ds2 - dc * r_inv
-
-
-def so3_log(R):
+def so3_log(R, kernels: la.Kernels = la.DEFAULT):
     """Rotation vector r of a rotation matrix (|r| ≤ π): exp([r]×) = R.
 
     r = (θ / sin θ) · w with w = vee(R − Rᵀ)/2 = sin θ · axis and cos θ = (tr R − 1)/2; the
@@ -187,7 +199,7 @@ def so3_log(R):
     """
     w = (0.5 * (R[2, 1] - R[1, 2]), 0.5 * (R[0, 2] - R[2, 0]), 0.5 * (R[1, 0] - R[0, 1]))
     c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
-    g = _log_scale(w[0] * w[0] + w[1] * w[1] + w[2] * w[2], c)  # elementwise: no reduction kernel
+    g = _log_scale(w[0] * w[0] + w[1] * w[1] + w[2] * w[2], c, kernels)  # elementwise: no reduction kernel
     return jnp.stack([g * w[0], g * w[1], g * w[2]])
 
 
@@ -224,6 +236,7 @@ class PoseTaskMap:
     frame_rot: jax.Array | None = None
     frame_pos: jax.Array | None = None
     order: tuple = static_field(default=(0, 1, 2, 3, 4, 5))
+    kernels: la.Kernels = la.kernels_field()
 
     def __post_init__(self):
         if sorted(self.order) != list(range(6)):
@@ -245,8 +258,9 @@ class PoseTaskMap:
 
     def _raw(self, p, R):
         pos = p if self.frame_pos is None else p - self.frame_pos
-        pos = pos if self.frame_rot is None else la.mm(self.frame_rot.T, pos)
-        return jnp.concatenate([pos, so3_log(la.mm(self.R_ref.T, R))])
+        k = self.kernels
+        pos = pos if self.frame_rot is None else k.mm(self.frame_rot.T, pos)
+        return jnp.concatenate([pos, so3_log(k.mm(self.R_ref.T, R), k)])
 
     def __call__(self, p, R):
         raw = self._raw(p, R)
@@ -310,6 +324,7 @@ class FittedTaskMap:
     plane: str = static_field(default="xz")
     tool_axis: str = static_field(default="x")
     orientation: bool = static_field(default=True)
+    kernels: la.Kernels = la.kernels_field()
 
     @property
     def space_dim(self) -> int:
@@ -336,8 +351,9 @@ class FittedTaskMap:
     def _orientation(self, s, R):
         F = self.geometry.frame(s)
         if self.space_dim == 3:
-            Rd = F if self.R_off is None else la.mm(F, self.R_off)
-            return so3_log(la.stored(la.mm(Rd.T, R)))  # read by every entry of the log: computed once
+            k = self.kernels
+            Rd = F if self.R_off is None else k.mm(F, self.R_off)
+            return so3_log(k.stored(k.mm(Rd.T, R)), k)  # read by every entry of the log: computed once
         a, b = self.space_rows
         k = _AXES[self.tool_axis]
         v = jnp.stack([R[a, k], R[b, k]])
@@ -417,16 +433,16 @@ def joint_origins(chain, q, count: int):
     R, p = jnp.eye(3), jnp.zeros(3)
     out = []
     for i in range(count):
-        p = p + la.mm(R, chain.placement_pos[i])
-        R = la.mm(R, chain.placement_rot[i])
+        p = p + chain.kernels.mm(R, chain.placement_pos[i])
+        R = chain.kernels.mm(R, chain.placement_rot[i])
         out.append(p)
         a = chain.axes[i]
         if chain.joint_types[i] == "prismatic":
-            p = p + la.mm(R, a) * q[i]
+            p = p + chain.kernels.mm(R, a) * q[i]
         else:
             K = jnp.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
             s, c = jnp.sin(q[i]), jnp.cos(q[i])
-            R = la.mm(R, jnp.eye(3) + s * K + (1.0 - c) * la.mm(K, K))
+            R = chain.kernels.mm(R, jnp.eye(3) + s * K + (1.0 - c) * chain.kernels.mm(K, K))
     return out
 
 

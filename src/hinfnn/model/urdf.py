@@ -470,6 +470,14 @@ class UrdfChain:
     ``mass[i]``, centre of mass ``com[i]`` and rotational inertia ``inertia[i]`` about it (body
     axes); the tool frame is ``tool_rot, tool_pos`` in body n's frame; ``gravity`` is the
     gravitational acceleration in the base frame. Joint limits are kept, not enforced.
+
+    Two formulations of the forward kinematics (:mod:`hinfnn.model.rbd`), and each public method
+    says which it uses: :meth:`fk`, :meth:`frame_jacobian` and :meth:`M` always by 3 × 3 products
+    (:func:`~hinfnn.model.rbd.placements`, for the programs that run once); the others on
+    :meth:`_kinematics`, which follows the chain's ``kernels`` (:class:`hinfnn._linalg.Kernels`):
+    component by component with stored stages (:func:`~hinfnn.model.rbd.frames`, the compiled
+    loop's layout) by default and in the simulator's programs, by products when the kernels say
+    ``products`` (the design's and the setup programs of arms hold such kernels).
     """
 
     placement_rot: jax.Array
@@ -489,11 +497,13 @@ class UrdfChain:
     joint_types: tuple = static_field()
     joint_names: tuple = static_field(default=())
     body_links: tuple = static_field(default=())
+    kernels: la.Kernels = la.kernels_field()
 
     # --- kinematics (hinfnn.model.rbd) --------------------------------------------------------
     def _kinematics(self, q) -> rbd.Frames:
         """Forward pass (:func:`hinfnn.model.rbd.frames`): body placements, motion subspaces
-        S_i = (p_i × a_i, a_i) (revolute) or (a_i, 0) (prismatic), body inertias, tool frame."""
+        S_i = (p_i × a_i, a_i) (revolute) or (a_i, 0) (prismatic), body inertias, tool frame;
+        component by component, or by products when ``self.kernels.products``."""
         return rbd.frames(self, q)
 
     def fk(self, q):
@@ -520,7 +530,7 @@ class UrdfChain:
 
     def frame_jacobian_dot(self, q, qd):
         """d/dt of :meth:`frame_jacobian` along q̇; J̇ q̇ is the tool's classical acceleration
-        (p̈, ω̇) at q̈ = 0."""
+        (p̈, ω̇) at q̈ = 0. On :meth:`_kinematics` (the chain's kernels)."""
         return self._jacobian_dot(self._kinematics(q), qd)
 
     # --- dynamics (hinfnn.model.rbd) ----------------------------------------------------------
@@ -557,7 +567,7 @@ class UrdfChain:
         return rbd.crba(rbd.frames_by_products(self, q))
 
     def bias(self, q, qd):
-        """C(q, q̇) q̇ + G(q) by recursive Newton–Euler (q̈ = 0)."""
+        """C(q, q̇) q̇ + G(q) by recursive Newton–Euler (q̈ = 0), on :meth:`_kinematics` (the chain's kernels)."""
         return self._rnea(self._kinematics(q), qd, None, self._a0())
 
     def _gravity(self, k: rbd.Frames):
@@ -565,30 +575,30 @@ class UrdfChain:
         return rbd.gravity(k, self._a0())
 
     def G(self, q):
-        """Gravity torque G(q) = ∂U/∂q (RNEA at q̇ = q̈ = 0)."""
+        """Gravity torque G(q) = ∂U/∂q (RNEA at q̇ = q̈ = 0), on :meth:`_kinematics` (the chain's kernels)."""
         return self._gravity(self._kinematics(q))
 
     def potential(self, q):
-        """Potential energy U(q) = −Σ m_i g · c_i (zero at the base origin)."""
+        """Potential energy U(q) = −Σ m_i g · c_i (zero at the base origin), on :meth:`_kinematics`."""
         return rbd.potential(self._kinematics(q), self.gravity)
 
     def inverse_dynamics(self, q, qd, qdd):
-        """τ = M(q) q̈ + C(q, q̇) q̇ + G(q) (RNEA)."""
+        """τ = M(q) q̈ + C(q, q̇) q̇ + G(q) (RNEA), on :meth:`_kinematics` (the chain's kernels)."""
         return self._rnea(self._kinematics(q), qd, qdd, self._a0())
 
     def forward_dynamics(self, q, qd, tau):
         """q̈ = M(q)⁻¹ (τ − C(q, q̇) q̇ − G(q)) (CRBA and RNEA share the forward pass; M by its
-        Cholesky factor)."""
+        Cholesky factor), on :meth:`_kinematics` (the chain's kernels)."""
         k = self._kinematics(q)
-        return la.spd_solve(self._crba(k), tau - self._rnea(k, qd, None, self._a0()))
+        return self.kernels.spd_solve(self._crba(k), tau - self._rnea(k, qd, None, self._a0()))
 
     def C(self, q, qd):
         """Coriolis matrix from the Christoffel symbols of M (Ṁ − 2C skew-symmetric):
-        column j is Γ(q̇, e_j) (:meth:`_christoffel`)."""
+        column j is Γ(q̇, e_j) (:meth:`_christoffel`), on :meth:`_kinematics` (the chain's kernels)."""
         return self._coriolis(self._kinematics(q), qd)
 
     def C_times(self, q, qd, v):
-        """C(q, q̇) v without forming C (one bilinear Newton–Euler pass)."""
+        """C(q, q̇) v without forming C (one bilinear Newton–Euler pass), on :meth:`_kinematics`."""
         return self._christoffel(self._kinematics(q), qd, v)
 
     # --- model uncertainty -------------------------------------------------------------------
@@ -694,7 +704,7 @@ def _tool_frame(k: rbd.Frames):
     return jnp.stack(k.p_tool), rbd.as_matrix(k.R_tool)
 
 
-def _task_derivatives(task, p, R, Jf, Jf_dot, qd):
+def _task_derivatives(task, p, R, Jf, Jf_dot, qd, kernels: la.Kernels = la.DEFAULT):
     """Task Jacobian J = ∂x/∂q and J̇ from the frame Jacobian and the task map's derivative.
 
     Column j of J is the directional derivative of the task map along the frame motion of joint
@@ -704,22 +714,23 @@ def _task_derivatives(task, p, R, Jf, Jf_dot, qd):
     def column(p, R, v, W):
         return jax.jvp(task, (p, R), (v, W))[1]
 
-    vt, wt = la.mm(Jf[:3], qd), la.mm(Jf[3:], qd)
-    Rd = la.mm(skew(wt), R)
+    mm = kernels.mm
+    vt, wt = mm(Jf[:3], qd), mm(Jf[3:], qd)
+    Rd = mm(skew(wt), R)
 
     def both(v, w, vd, wd):
-        W = la.mm(skew(w), R)
-        Wd = la.mm(skew(wd), R) + la.mm(skew(w), Rd)
+        W = mm(skew(w), R)
+        Wd = mm(skew(wd), R) + mm(skew(w), Rd)
         return jax.jvp(column, (p, R, v, W), (vt, Rd, vd, Wd))
 
     J, Jd = jax.vmap(both, in_axes=1, out_axes=1)(Jf[:3], Jf[3:], Jf_dot[:3], Jf_dot[3:])
     return J, Jd
 
 
-def _task_derivatives_times(task, p, R, Jf, Jf_dot, qd, V):
+def _task_derivatives_times(task, p, R, Jf, Jf_dot, qd, V, kernels: la.Kernels = la.DEFAULT):
     """J̇ V for a few joint-space directions (columns of V, or a vector): the columns of
     :func:`_task_derivatives` for those directions only."""
-    mm = la.mm
+    mm = kernels.mm
 
     def column(p, R, vl, W):
         return jax.jvp(task, (p, R), (vl, W))[1]
@@ -738,11 +749,11 @@ def _task_derivatives_times(task, p, R, Jf, Jf_dot, qd, V):
     return jax.vmap(one, in_axes=1, out_axes=1)(V)
 
 
-def _task_jacobian(task, p, R, Jf):
+def _task_jacobian(task, p, R, Jf, kernels: la.Kernels = la.DEFAULT):
     """J = ∂x/∂q alone (the plant needs no J̇): one directional derivative of the task map per
     joint."""
     def column(v, w):
-        return jax.jvp(task, (p, R), (v, la.mm(skew(w), R)))[1]
+        return jax.jvp(task, (p, R), (v, kernels.mm(skew(w), R)))[1]
 
     return jax.vmap(column, in_axes=1, out_axes=1)(Jf[:3], Jf[3:])
 
@@ -758,6 +769,7 @@ class UrdfArm(Arm):
 
     chain: UrdfChain
     task: Any
+    kernels: la.Kernels = la.kernels_field()
 
     @property
     def n(self) -> int:
@@ -773,14 +785,14 @@ class UrdfArm(Arm):
 
     def _J_Jdot(self, k, qd, v=None):
         return _task_derivatives(self.task, *_tool_frame(k), self.chain._jacobian(k),
-                                 self.chain._jacobian_dot(k, qd, v), qd)
+                                 self.chain._jacobian_dot(k, qd, v), qd, self.kernels)
 
     def J(self, q):
         """∂h/∂q = (∂task/∂(p, R)) · frame Jacobian (the kinematics by 3 × 3 products, as
         :meth:`UrdfChain.fk`: J alone is computed by the programs that run once; the compiled
         loop's comes from :meth:`law_terms` and :meth:`plant_terms`)."""
         k = rbd.frames_by_products(self.chain, q)
-        return _task_jacobian(self.task, *_tool_frame(k), rbd.frame_jacobian(k))
+        return _task_jacobian(self.task, *_tool_frame(k), rbd.frame_jacobian(k), self.kernels)
 
     def J_dot(self, q, qd):
         """dJ/dt along q̇ (frame Jacobian, its time derivative and the task map's derivatives)."""
@@ -822,7 +834,7 @@ class UrdfArm(Arm):
         Jf = self.chain._jacobian(k)
         Jf_dot = self.chain._jacobian_dot(k, qd, v)
         p, R = _tool_frame(k)
-        J = _task_jacobian(self.task, p, R, Jf)
+        J = _task_jacobian(self.task, p, R, Jf, self.kernels)
         return ArmTerms(x=self.task(p, R), J=J, J_dot=None, M=self.chain._crba(k), C=None,
                         G=self.chain._gravity(k), aux=(k, Jf, Jf_dot, v),
                         J_p=None if self.task_is_point else jnp.stack([Jf[i] for i in self.task.space_rows]))
@@ -830,7 +842,7 @@ class UrdfArm(Arm):
     def C_product(self, terms: ArmTerms, q, qd, v):
         """C(q, q̇) v by one bilinear Newton–Euler pass on the kinematics of :meth:`law_terms`."""
         if terms.C is not None:
-            return la.mm(terms.C, v)
+            return self.kernels.mm(terms.C, v)
         if terms.aux is None:
             return self.chain.C_times(q, qd, v)
         k, va = terms.aux[0], terms.aux[3]
@@ -840,11 +852,11 @@ class UrdfArm(Arm):
         """J̇(q, q̇) v: one column of :func:`_task_derivatives` (the task map's second directional
         derivative along the frame motion), not the whole J̇."""
         if terms.J_dot is not None:
-            return la.mm(terms.J_dot, v)
+            return self.kernels.mm(terms.J_dot, v)
         if terms.aux is None:
-            return la.mm(self.J_dot(q, qd), v)
+            return self.kernels.mm(self.J_dot(q, qd), v)
         k, Jf, Jf_dot, _ = terms.aux
-        return _task_derivatives_times(self.task, *_tool_frame(k), Jf, Jf_dot, qd, v)
+        return _task_derivatives_times(self.task, *_tool_frame(k), Jf, Jf_dot, qd, v, self.kernels)
 
     @property
     def task_is_point(self) -> bool:
@@ -870,7 +882,7 @@ class UrdfArm(Arm):
         k = self.chain._kinematics(q)
         Jf = self.chain._jacobian(k)
         p, R = _tool_frame(k)
-        return ArmTerms(x=self.task(p, R), J=_task_jacobian(self.task, p, R, Jf),
+        return ArmTerms(x=self.task(p, R), J=_task_jacobian(self.task, p, R, Jf, self.kernels),
                         J_dot=None, M=self.chain._crba(k), C=None, G=None,
                         bias=self.chain._rnea(k, qd, None, self.chain._a0()),
                         p=self.task.space(p), J_p=jnp.stack([Jf[i] for i in self.task.space_rows]))
@@ -886,5 +898,5 @@ class UrdfArm(Arm):
         if terms is None:
             return self.chain.forward_dynamics(q, qd, tau_total)
         if terms.bias is not None:
-            return la.spd_solve(terms.M, tau_total - terms.bias)
-        return la.solve(terms.M, tau_total - la.mm(terms.C, qd) - terms.G)
+            return self.kernels.spd_solve(terms.M, tau_total - terms.bias)
+        return self.kernels.solve(terms.M, tau_total - self.kernels.mm(terms.C, qd) - terms.G)

@@ -78,6 +78,7 @@ class RigidBodyPlant(ContinuousPlant):
     friction: Friction | None = None
     sensor: Sensor | None = None  # the robot's sensor (None: ideal; hinfnn.plant.instruments)
     actuator: Actuator | None = None  # the robot's motors (None: ideal)
+    kernels: la.Kernels = la.kernels_field()  # how its linear algebra is written (hinfnn._linalg.Kernels)
 
     @property
     def cartesian(self) -> bool:
@@ -112,18 +113,18 @@ class RigidBodyPlant(ContinuousPlant):
 
     def _sense_cartesian(self, state: JointState):
         at = self.arm.plant_terms(state.q, state.qd)  # x, J, M, C q̇ + G, tool point p and J_p
-        p_dot = la.mm(at.J_p, state.qd)
+        p_dot = self.kernels.mm(at.J_p, state.qd)
         d, d_dot = jax.jvp(self.surface.signed_distance, (at.p,), (p_dot,))  # exact penetration
         n = self.surface.normal(at.p)
         f_n = self.contact.normal_force(d, d_dot)
         F_c = f_n * n
         F_t = jnp.zeros_like(F_c)
         if self.friction is not None:
-            v_t = p_dot - la.mm(n, p_dot) * n
+            v_t = p_dot - self.kernels.mm(n, p_dot) * n
             F_t = self.friction.force(f_n, v_t)
             F_c = F_c + F_t
-        tau_c = la.mm(at.J_p.T, F_c)
-        L_M = la.chol(at.M)
+        tau_c = self.kernels.mm(at.J_p.T, F_c)
+        L_M = self.kernels.chol(at.M)
         return (Measurement(q=state.q, qd=state.qd, force=F_c),
                 ContactCache(terms=at, F=F_c, normal_force=f_n, penetration=d, tau_c=tau_c, friction=F_t, L_M=L_M))
 
@@ -131,9 +132,9 @@ class RigidBodyPlant(ContinuousPlant):
         """(q̇, q̈) and q̈ from eq. (1) with the TRUE parameters."""
         t_ = cache.terms
         if cache.tau_c is None:  # the paper's path, unchanged
-            qdd = self.arm.forward_dynamics(state.q, state.qd, tau + w - la.mm(t_.J.T, cache.F), terms=t_)
+            qdd = self.arm.forward_dynamics(state.q, state.qd, tau + w - self.kernels.mm(t_.J.T, cache.F), terms=t_)
         else:
-            qdd = la.chol_solve(cache.L_M, tau + w - cache.tau_c - t_.bias)
+            qdd = self.kernels.chol_solve(cache.L_M, tau + w - cache.tau_c - t_.bias)
         return JointState(q=state.qd, qd=qdd), qdd
 
     def record(self, state: JointState, w, cache: ContactCache) -> PlantRecord:
@@ -168,14 +169,14 @@ class RigidBodyPlant(ContinuousPlant):
             _, c = self._sense_cartesian(JointState(q=q, qd=qd))
             return c.F, c.normal_force, c.penetration
         t = terms if terms is not None else self.arm.terms(q, qd)
-        x_dot = la.mm(t.J, qd)
+        x_dot = self.kernels.mm(t.J, qd)
         p, p_dot = jax.jvp(self.surface.signed_distance, (t.x,), (x_dot,))
         f_n = self.contact.normal_force(p, p_dot)
         n = self.surface.inward_normal(t.x)
         if self.friction is None:
             return f_n * n, f_n, p
         # task coordinates = the tip position here (Sec. VI): friction along the line
-        return f_n * n + self.friction.force(f_n, x_dot - la.mm(n, x_dot) * n), f_n, p
+        return f_n * n + self.friction.force(f_n, x_dot - self.kernels.mm(n, x_dot) * n), f_n, p
 
     def diagnostics(self, state: JointState, w, cache: ContactCache) -> dict:
         """The recorded signals with the penetration, as one dict (:meth:`record`)."""
@@ -213,13 +214,13 @@ class RigidBodyPlant(ContinuousPlant):
 def _effective_mass(plant, q):
     if plant.cartesian:  # the tool point, its Jacobian and M alone (a URDF arm's by 3 × 3 products, UrdfChain.fk)
         arm = plant.arm
-        Jn = la.mm(arm.point_jacobian(q).T, plant.surface.normal(arm.point(q)))
+        Jn = plant.kernels.mm(arm.point_jacobian(q).T, plant.surface.normal(arm.point(q)))
         M = arm.M(q)
     else:
         t = plant.arm.terms(q, jnp.zeros_like(q))
-        Jn = la.mm(t.J.T, plant.surface.inward_normal(t.x))
+        Jn = plant.kernels.mm(t.J.T, plant.surface.inward_normal(t.x))
         M = t.M
-    return 1.0 / la.mm(Jn, jnp.linalg.solve(M, Jn))
+    return 1.0 / plant.kernels.mm(Jn, jnp.linalg.solve(M, Jn))
 
 
 @kept("initial_q_cartesian")

@@ -4,8 +4,10 @@ from .batch import Run, simulate_many
 from .integrate import rk4_step
 from .plan import StepPlan
 from .recorder import FIELD_SETS, Accumulators
-from .simulate import Limits, SimState, initial_state, release_programs, rhs, simulate, simulate_batch, stack
+from .simulate import (Limits, RunProgram, SimState, initial_state, release_programs, rhs, simulate, simulate_batch,
+                       stack)
 from .trajectory import RunInfo, Trajectory
 
-__all__ = ["simulate", "release_programs", "simulate_batch", "simulate_many", "Run", "stack", "initial_state", "rhs",
-           "Limits", "SimState", "StepPlan", "rk4_step", "Trajectory", "RunInfo", "FIELD_SETS", "Accumulators"]
+__all__ = ["simulate", "release_programs", "simulate_batch", "simulate_many", "Run", "RunProgram", "stack",
+           "initial_state", "rhs", "Limits", "SimState", "StepPlan", "rk4_step", "Trajectory", "RunInfo", "FIELD_SETS",
+           "Accumulators"]

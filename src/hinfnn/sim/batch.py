@@ -87,7 +87,7 @@ def simulate_many(runs: list[Run], *, progress=None, save_every: int | None = No
     other): XLA compiles without Python's lock, so while one group runs or compiles the next
     compiles. The groups still run one at a time (:data:`_RUNNING`). The numbers are the same bit for
     bit as compiled one after the other. Each thread runs in a copy of the caller's
-    context (:mod:`contextvars`: the loop options). If a group fails or the caller is interrupted,
+    context (:mod:`contextvars`). If a group fails or the caller is interrupted,
     the others stop after their current chunk (a compile in progress finishes first) and the error
     is raised.
     """

@@ -47,8 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _linalg as la
-from .. import _loop
-from .._loop import LoopOptions
+from .._loop import SEQUENTIAL_VALUES, LoopOptions
 from .._programs import ExportedProgram, KeptFunction
 from .._pytree import all_finite, pytree_dataclass, structure_key
 from ..errors import ConfigError, SimulationError
@@ -179,13 +178,15 @@ EVERY_STEP = ("tau", "penetration", "e_u1", "e_lam", "_cfault", "_cfault_value",
               "_pfault_index")
 
 
-def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rolled=None, book: bool = True):
+def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rolled=None, book: bool = True,
+             loop: LoopOptions = LoopOptions()):
     """(sample, step): the sampled-mode controller update at step k, and one step k -> k + 1
     with failure detection (a no-op for k ≥ n_steps) that also returns the record at step k.
-    ``rolled``: RK4's stages as a loop (default: the active loop options' choice); ``book``: the
-    theorems' bookkeeping integrated (:func:`rhs`)."""
+    ``rolled``: RK4's stages as a loop (default: the loop options' choice); ``book``: the
+    theorems' bookkeeping integrated (:func:`rhs`); ``loop``: the loop options the step is written
+    with (:meth:`~hinfnn._loop.LoopOptions.for_joints` of the plant)."""
     discrete = plant.discrete
-    rolled = _loop.current().rolled(plant.n) if rolled is None else rolled
+    rolled = loop.rolled(plant.n) if rolled is None else rolled
 
     def sample(c: Carry, k, skip=False):
         """At a sample instant: τ held from now on, computed from the state of the previous
@@ -230,9 +231,9 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             rates, kept = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc, enabled=book)
             acc = jax.tree.map(lambda a, r: a + dt * r, y.acc, rates)
             return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **kept}
-        opts = dict(rolled=rolled, rolled_stages=_loop.current().rolled_stages,
-                    record_once=_loop.current().record_once, take=take, every=EVERY_STEP)
-        if sampled and _loop.current().frozen_law:
+        opts = dict(rolled=rolled, rolled_stages=loop.rolled_stages,
+                    record_once=loop.record_once, take=take, every=EVERY_STEP)
+        if sampled and loop.frozen_law:
             # the law's state is frozen between samples (its rate is zero): RK4 integrates the
             # plant and the accumulators, the law's state passes through unchanged (as it would
             # with its zero rate: y + dt/6 · 0, exactly)
@@ -329,7 +330,7 @@ def _derived(ctrl, rec, fields):
 
 
 def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every, n_take, *, n_records, sampled,
-           fields, book=True):
+           fields, book=True, loop: LoopOptions = LoopOptions(), kernels: la.Kernels = la.DEFAULT):
     """Records ``r = 0 … n_records − 1`` of a chunk starting at step ``k0``: record r is taken at
     step k = k0 + r · save_every, as the first of the ``save_every`` steps after it. Only the
     first ``n_take`` (traced) are taken; the other slots run no step and hold zeros.
@@ -345,9 +346,13 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
     share that trace through ``jax.jit``'s trace cache (``inline=True`` puts the same operations
     in the program as a plain call would). Its arguments must then have the same types in both
     places (hence the strongly typed ``first``); if they did not, the step would be traced twice,
-    with the same result (a test counts the traces), in about twice the time."""
+    with the same result (a test counts the traces), in about twice the time.
+
+    ``loop``: the loop options made for the plant (and the batch); ``kernels``: the kernels the
+    plant, the controller and the reference hold (:meth:`hinfnn._linalg.Kernels.hold`), which lay
+    out the chunk's outputs."""
     ctrl = ctrl.prepared()  # its constants by the blocks the loop reads, cut once here
-    sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, book=book)
+    sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, book=book, loop=loop)
     step = jax.jit(step, inline=True)
 
     def one_record(c, r):
@@ -366,20 +371,20 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
         c, rec = jax.lax.fori_loop(0, n_inner, body, (c, rec0))
         return c, _derived(ctrl, rec, fields)
 
-    return la.default_layout(_record_scan(one_record, carry, n_records))
+    return kernels.default_layout(_record_scan(one_record, carry, n_records, loop.record_blocks))
 
 
-def _record_scan(one_record, carry, n_records):
-    """``lax.scan(one_record, carry, arange(n_records))``, by blocks when the loop options ask for it
-    (``record_blocks``): a scan over blocks of an inner scan over b samples, b the largest divisor
+def _record_scan(one_record, carry, n_records, blocks: bool = True):
+    """``lax.scan(one_record, carry, arange(n_records))``, by blocks when ``blocks`` (the loop
+    option ``record_blocks``): a scan over blocks of an inner scan over b samples, b the largest divisor
     of ``n_records`` whose b samples of the largest recorded array (one member's, under ``vmap``)
     hold at most :data:`hinfnn._loop.SEQUENTIAL_VALUES` values. The inner loop's body then touches
     no larger buffer, and XLA runs its kernels inline; only the block loop writes the chunk's
     stacked records. The same samples, in the same order."""
     shapes = jax.eval_shape(one_record, carry, jnp.zeros((), jnp.int64))[1]
     per = max([math.prod(x.shape) for x in jax.tree.leaves(shapes)] + [1])
-    fits = [b for b in range(2, n_records + 1) if n_records % b == 0 and b * per <= _loop.SEQUENTIAL_VALUES]
-    if not (_loop.current().record_blocks and fits):
+    fits = [b for b in range(2, n_records + 1) if n_records % b == 0 and b * per <= SEQUENTIAL_VALUES]
+    if not (blocks and fits):
         return jax.lax.scan(one_record, carry, jnp.arange(n_records))
     b = max(fits)
 
@@ -390,7 +395,7 @@ def _record_scan(one_record, carry, n_records):
     return carry, jax.tree.map(lambda x: x.reshape(n_records, *x.shape[2:]), recs)
 
 
-def _final(plant, ctrl, ref, carry):
+def _final(plant, ctrl, ref, carry, kernels: la.Kernels = la.DEFAULT):
     """The full final state (the controller's arrays by name) and why the run stopped, from the
     carry after the last chunk. A controller fault's measure is the controller's
     (:meth:`~hinfnn.protocols.Controller.fault_measure`), at the frozen state: the state at the
@@ -409,7 +414,7 @@ def _final(plant, ctrl, ref, carry):
         fault_value = jnp.where(carry.status == int(RunStatus.CONTROLLER_FAULT), measure, fault_value)
     details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts,
                    fault_value=fault_value, fault_index=carry.bad_fault_index)
-    return la.default_layout((carry.status, carry.t_fail, details, final))
+    return kernels.default_layout((carry.status, carry.t_fail, details, final))
 
 
 def _init_carry(ctrl, y0, n, plant=None, sampled: bool = False):
@@ -436,20 +441,21 @@ def _init_carry(ctrl, y0, n, plant=None, sampled: bool = False):
                  maxes={k: jnp.zeros((), f64) for k in STEP_MAXES}, sensor=sensor, applied=applied)
 
 
-def _with_options(fn, loop: LoopOptions, members=None, n_joints: int = 2):
-    """``fn`` traced with ``loop`` active (:func:`hinfnn._loop.active`), under ``fn``'s name (the
-    compiled program's name, e.g. ``jit__chunk``). ``members``: a batch's size from ``fn``'s
-    arguments, for the options a batch decides (:meth:`~hinfnn._loop.LoopOptions.for_joints`)."""
+def _with_options(make, loop: LoopOptions, members=None, n_joints: int = 2, name: str = "program"):
+    """The program ``make(options, kernels)(*args)`` under the name ``name`` (the compiled
+    program's name, e.g. ``jit__chunk``): the loop options ``loop`` (made for the plant,
+    :meth:`~hinfnn._loop.LoopOptions.for_joints`), their kernels
+    (:meth:`hinfnn._linalg.Kernels.of`) held by every object of the arguments
+    (:meth:`~hinfnn._linalg.Kernels.hold`), both chosen once, here, as the program is traced.
+    ``members``: a batch's size from the arguments, for the options a batch decides
+    (``member_minor``)."""
 
     def traced(*args):
         opts = loop if members is None else loop.for_joints(n_joints, members(*args))
-        with _loop.active(opts):
-            return fn(*args)
+        kernels = la.Kernels.of(opts)
+        return make(opts, kernels)(*kernels.hold(args))
 
-    base = fn
-    while not hasattr(base, "__name__") and hasattr(base, "func"):  # functools.partial
-        base = base.func
-    traced.__name__ = traced.__qualname__ = getattr(base, "__name__", "program")
+    traced.__name__ = traced.__qualname__ = name
     return traced
 
 
@@ -468,23 +474,34 @@ def _compiled(in_axes, n_records, sampled, fields, loop: LoopOptions = LoopOptio
     between processes (:class:`~hinfnn._programs.ExportedProgram`)."""
     options = loop.compiler_options(n_joints)
     loop = loop.for_joints(n_joints)
-    chunk = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields, book=book)
-    final, init = _final, functools.partial(_init_carry, sampled=sampled)
+
+    def chunk(opts, kernels):
+        fn = functools.partial(_chunk, n_records=n_records, sampled=sampled, fields=fields, book=book, loop=opts,
+                               kernels=kernels)
+        if in_axes is None:
+            return fn
+        p, c, r, lim = in_axes
+        return jax.vmap(fn, in_axes=(p, c, r, lim, 0, None, None, None, None, None, None))
+
+    def final(opts, kernels):
+        fn = functools.partial(_final, kernels=kernels)
+        return fn if in_axes is None else jax.vmap(fn, in_axes=(in_axes[0], in_axes[1], in_axes[2], 0))
+
+    def init(opts, kernels):
+        fn = functools.partial(_init_carry, sampled=sampled)
+        return fn if in_axes is None else jax.vmap(fn, in_axes=(in_axes[1], 0, None, in_axes[0]))
+
     members = {"chunk": None, "final": None}
     if in_axes is not None:
-        p, c, r, lim = in_axes
-        chunk = jax.vmap(chunk, in_axes=(p, c, r, lim, 0, None, None, None, None, None, None))
-        final = jax.vmap(final, in_axes=(p, c, r, 0))
-        init = jax.vmap(init, in_axes=(c, 0, None, p))
         # the batch's own options (member_minor) by its size: the leading axis of the carry
         members = {"chunk": lambda *a: jax.tree.leaves(a[4])[0].shape[0],
                    "final": lambda *a: jax.tree.leaves(a[3])[0].shape[0]}
-    chunk = ExportedProgram(_with_options(chunk, loop, members["chunk"], n_joints), "chunk",
+    chunk = ExportedProgram(_with_options(chunk, loop, members["chunk"], n_joints, "_chunk"), "chunk",
                             (in_axes, n_records, sampled, fields, loop, book), carry_arg=4,
                             compiler_options=options)  # kept lowered on disk (hinfnn._programs)
-    final = KeptFunction(_with_options(final, loop, members["final"], n_joints), "final", (in_axes, loop),
+    final = KeptFunction(_with_options(final, loop, members["final"], n_joints, "_final"), "final", (in_axes, loop),
                          compiler_options=options)
-    return chunk, final, jax.jit(_with_options(init, loop), static_argnums=2)
+    return chunk, final, jax.jit(_with_options(init, loop, name="_init_carry"), static_argnums=2)
 
 
 def release_programs() -> None:
@@ -502,61 +519,129 @@ def release_programs() -> None:
     gc.collect()
 
 
+@dataclasses.dataclass(frozen=True)
+class RunProgram:
+    """The compiled programs of one run structure, built once and used by every caller: a single
+    run (:func:`simulate`), a batch (:func:`simulate_batch`), the compile-ahead
+    (:func:`lower_ahead`, :func:`lower_ahead_batch`) and the memory plan (:func:`record_shapes`,
+    :meth:`shapes`).
+
+    The structure: ``in_axes`` (None for a single run; else, for the plant, the controller, the
+    reference and the limits, 0 when stacked along a batch axis and None when shared), the
+    chunk's record ``slots`` (:meth:`hinfnn.sim.plan.StepPlan.chunk`), sampled or continuous
+    control, the stored ``fields`` (None: a single run's program stores every field), the loop
+    options, the plant's joints and the theorems' bookkeeping. Its programs (chunk, final state,
+    first carry) are :func:`_compiled` for that key, traced once per process (and kept lowered on
+    disk between processes). Horizon, dt and output interval are the chunk's traced scalars
+    (:meth:`scalars`), not part of the structure."""
+
+    in_axes: tuple | None
+    slots: int
+    sampled: bool
+    fields: tuple | None
+    loop: LoopOptions
+    n_joints: int
+    book: bool = True
+
+    @classmethod
+    def of(cls, plan: StepPlan, in_axes, fields, loop: LoopOptions, n_joints: int, book: bool = True) -> "RunProgram":
+        """The program of a run of ``plan`` (a single run when ``in_axes`` is None, whose program
+        stores every field, the driver keeping those asked for: one program; its record slots are
+        independent of the horizon)."""
+        slots, _ = plan.chunk(batched=in_axes is not None)
+        return cls(in_axes, slots, plan.sampled, fields if in_axes is not None else None, loop, n_joints, book)
+
+    @classmethod
+    def single(cls, n_joints: int, sampled: bool, loop: LoopOptions, book: bool = True) -> "RunProgram":
+        """The program of every single run of a plant of ``n_joints`` joints (any horizon, dt,
+        output interval and stored fields)."""
+        return cls(None, SINGLE_RECORDS, sampled, None, loop, n_joints, book)
+
+    @property
+    def programs(self) -> tuple:
+        """(chunk, final, init): the compiled programs (:func:`_compiled`, one per structure)."""
+        return _compiled(self.in_axes, self.slots, self.sampled, self.fields, self.loop, self.n_joints, self.book)
+
+    def scalars(self, plan: StepPlan) -> tuple:
+        """(samples per chunk, the chunk's traced scalars) of a run of ``plan``."""
+        _, per_chunk = plan.chunk(batched=self.in_axes is not None)
+        return per_chunk, _chunk_scalars(plan.n_steps, plan.dt, plan.n_hold, plan.save_every, per_chunk)
+
+    def _args(self, plant, ctrl, ref, limits, y0, plan: StepPlan | None, dt: float):
+        """(chunk, the arguments a chunk call gets, the carry as its type): their values do not
+        matter to :meth:`lower` and :meth:`shapes` (a plan of one step of ``dt`` without ``plan``)."""
+        chunk, _, init = self.programs
+        carry = init.eval_shape(ctrl, y0, self.n_joints, plant)
+        scalars = _chunk_scalars(1, dt, 1, 1, 1) if plan is None else self.scalars(plan)[1]
+        return chunk, (plant, ctrl, ref, limits, carry, jnp.zeros((), jnp.int64), *scalars)
+
+    def lower(self, plant, ctrl, ref, limits, y0, *, plan: StepPlan | None = None, dt: float = 1e-4):
+        """The chunk program lowered for these arguments' types, or None when it is not kept
+        between processes (:meth:`hinfnn._programs.KeptFunction.lower_ahead`); nothing is compiled
+        or run."""
+        chunk, args = self._args(plant, ctrl, ref, limits, y0, plan, dt)
+        return chunk.lower_ahead(*args)
+
+    def shapes(self, plant, ctrl, ref, limits, y0, *, dt: float = 1e-4) -> dict:
+        """``{field: ShapeDtypeStruct}`` of one stored sample of every field the chunk records,
+        from the chunk program itself (``eval_shape``: traced once, and ``jax.jit`` keeps that
+        trace for the run's first chunk)."""
+        chunk, args = self._args(plant, ctrl, ref, limits, y0, None, dt)
+        records = chunk.eval_shape(*args)[1]
+        axis = 1 if self.in_axes is not None else 0
+        return {k: jax.ShapeDtypeStruct(v.shape[:axis] + v.shape[axis + 1:], v.dtype) for k, v in records.items()}
+
+    def run(self, plant, ctrl, ref, limits, y0, plan: StepPlan, *, fields, progress=None, what: str = ""):
+        """Run the chunks of ``plan`` from Python; returns (records, status, t_fail, details, final).
+
+        The n_records + 1 records (t = 0, …, t_final) are copied chunk by chunk into arrays
+        allocated once, so memory is what is stored, never proportional to the steps. ``fields``:
+        those kept (a single run's program records them all)."""
+        n_total, n_steps, save_every = plan.samples, plan.n_steps, plan.save_every
+        chunk, final, init = self.programs
+        per_chunk, scalars = self.scalars(plan)
+        carry = init(ctrl, y0, self.n_joints, plant)
+        axis = 0 if self.in_axes is None else 1  # the time axis of the records
+        out: dict[str, np.ndarray] = {}
+        n_chunks = -(-n_total // per_chunk)
+
+        def store(c, rec):
+            start = c * per_chunk
+            stop = min(start + per_chunk, n_total)
+            for k, v in pick(rec, fields).items():  # the fields asked for (a single run's program has all)
+                v = np.asarray(v)
+                if k not in out:
+                    shape = v.shape[:axis] + (n_total,) + v.shape[axis + 1:]
+                    out[k] = np.empty(shape, v.dtype)
+                if axis == 0:
+                    out[k][start:stop] = v[:stop - start]
+                else:
+                    out[k][:, start:stop] = v[:, :stop - start]
+            if progress is not None:
+                progress(min(stop * save_every, n_steps), n_steps, what)
+
+        pending = None  # the previous chunk's records, copied while the next chunk runs
+        for c in range(n_chunks):
+            k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)  # typed as _chunk_scalars
+            carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, *scalars)
+            if pending is not None:
+                store(*pending)
+            pending = (c, rec)
+        store(*pending)  # n_chunks >= 1
+        del pending
+        return (out, *final(plant, ctrl, ref, carry))
+
+
 def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, fields, loop: LoopOptions,
            book: bool = True, progress=None, what: str = ""):
-    """Run the chunks from Python; returns (records, status, t_fail, details, final).
-
-    The n_records + 1 records (t = 0, …, t_final) are copied chunk by chunk into arrays allocated
-    once, so memory is what is stored, never proportional to the steps."""
-    n_total, n_steps, save_every = plan.samples, plan.n_steps, plan.save_every
-    chunk, final, init, per_chunk, scalars = _chunk_program(plan, in_axes, fields, loop, n_joints, book)
-    carry = init(ctrl, y0, n_joints, plant)
-    axis = 0 if in_axes is None else 1  # the time axis of the records
-    out: dict[str, np.ndarray] = {}
-    n_chunks = -(-n_total // per_chunk)
-
-    def store(c, rec):
-        start = c * per_chunk
-        stop = min(start + per_chunk, n_total)
-        for k, v in pick(rec, fields).items():  # the fields asked for (a single run's program has all)
-            v = np.asarray(v)
-            if k not in out:
-                shape = v.shape[:axis] + (n_total,) + v.shape[axis + 1:]
-                out[k] = np.empty(shape, v.dtype)
-            if axis == 0:
-                out[k][start:stop] = v[:stop - start]
-            else:
-                out[k][:, start:stop] = v[:, :stop - start]
-        if progress is not None:
-            progress(min(stop * save_every, n_steps), n_steps, what)
-
-    pending = None  # the previous chunk's records, copied while the next chunk runs
-    for c in range(n_chunks):
-        k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)  # typed as _chunk_scalars
-        carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, *scalars)
-        if pending is not None:
-            store(*pending)
-        pending = (c, rec)
-    store(*pending)  # n_chunks >= 1
-    del pending
-    return (out, *final(plant, ctrl, ref, carry))
-
-
-def _chunk_program(plan: StepPlan, in_axes, fields, loop: LoopOptions, n_joints: int, book: bool):
-    """(chunk, final, init, samples per chunk, the chunk's traced scalars) of a run of ``plan``:
-    the program :func:`_drive` calls chunk by chunk and :func:`lower_ahead_batch` lowers ahead. A
-    single run's program stores every field, the driver keeping those asked for (one program); its
-    record slots are independent of the horizon."""
-    slots, per_chunk = plan.chunk(batched=in_axes is not None)
-    chunk, final, init = _compiled(in_axes, slots, plan.sampled, fields if in_axes is not None else None, loop,
-                                   n_joints, book)
-    return chunk, final, init, per_chunk, _chunk_scalars(plan.n_steps, plan.dt, plan.n_hold, plan.save_every,
-                                                         per_chunk)
+    """:meth:`RunProgram.run` of the program of this structure."""
+    program = RunProgram.of(plan, in_axes, fields, loop, n_joints, book)
+    return program.run(plant, ctrl, ref, limits, y0, plan, fields=fields, progress=progress, what=what)
 
 
 def _chunk_scalars(n_steps, dt, n_hold, save_every, per_chunk):
     """The chunk program's traced scalars as :func:`_drive` passes them (their types are part of
-    the program's signature: :func:`record_shapes` traces the same one)."""
+    the program's signature: :meth:`RunProgram.shapes` traces the same one)."""
     i64 = functools.partial(jnp.asarray, dtype=jnp.int64)
     return (i64(n_steps), jnp.asarray(dt, dtype=jnp.float64), i64(max(n_hold, 1)), i64(save_every),
             i64(per_chunk))
@@ -826,17 +911,8 @@ def lower_ahead(plant, controller, reference, *, q0, dt: float = 1e-4, control_p
     groups' programs so, at once."""
     sampled = control_period is not None or plant.discrete
     y0 = initial_state(plant, controller, q0=q0)
-    chunk, args = _single_chunk(plant, controller, reference, limits or Limits(), y0, dt, sampled,
-                                loop or LoopOptions(), _flag(bookkeeping, "bookkeeping"))
-    return chunk.lower_ahead(*args)
-
-
-def _single_chunk(plant, controller, reference, limits, y0, dt, sampled, loop, book):
-    """(the chunk program of a single run, the arguments :func:`_drive` gives it, the carry as its
-    type): their values do not matter to :func:`lower_ahead` and :func:`record_shapes`."""
-    chunk, _, init = _compiled(None, SINGLE_RECORDS, sampled, None, loop, plant.n, book)
-    carry = init.eval_shape(controller, y0, plant.n, plant)
-    return chunk, (plant, controller, reference, limits, carry, jnp.zeros((), jnp.int64), *_chunk_scalars(1, dt, 1, 1, 1))
+    program = RunProgram.single(plant.n, sampled, loop or LoopOptions(), _flag(bookkeeping, "bookkeeping"))
+    return program.lower(plant, controller, reference, limits or Limits(), y0, dt=dt)
 
 
 def lower_ahead_batch(plants: list, controllers: list, references: list, *, q0: list, limits: list, t_final: float,
@@ -855,14 +931,12 @@ def lower_ahead_batch(plants: list, controllers: list, references: list, *, q0: 
                            limits=limits[0], loop=loop, bookkeeping=bookkeeping)
     plan = StepPlan.make(t_final, dt, control_period=control_period, save_interval=save_interval,
                          save_every=save_every, discrete=plant0.discrete)
-    chunk, _, init, _, scalars = _chunk_program(plan, (0, 0, 0, 0), select(fields), loop, plant0.n,
-                                                _flag(bookkeeping, "bookkeeping"))
+    program = RunProgram.of(plan, (0, 0, 0, 0), select(fields), loop, plant0.n, _flag(bookkeeping, "bookkeeping"))
     idx = loop.groups(B, plant0.n)[0]
     take = functools.partial(_take, idx=idx) if idx.size != B else (lambda x: x)
     args = [take(stack(list(x))) for x in (plants, controllers, references, limits)]
     y0 = take(stack([initial_state(p, c, q0=q) for p, c, q in zip(plants, controllers, q0)]))
-    carry = init.eval_shape(args[1], y0, plant0.n, args[0])
-    return chunk.lower_ahead(*args, carry, jnp.zeros((), jnp.int64), *scalars)
+    return program.lower(*args, y0, plan=plan)
 
 
 def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
@@ -890,17 +964,18 @@ def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control
     if key in _RECORD_SHAPES:
         return dict(_RECORD_SHAPES[key])
 
-    def one(plant, ctrl, ref, lim, y0):
-        carry = _init_carry(ctrl, y0, plant.n, plant, sampled)
-        _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True, book=book)
-        return _derived(ctrl, step(carry, jnp.zeros((), jnp.int64), True)[1], fields)
+    def one(opts, kernels):
+        def run(plant, ctrl, ref, lim, y0):
+            carry = _init_carry(ctrl, y0, plant.n, plant, sampled)
+            _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True, book=book, loop=opts)
+            return _derived(ctrl, step(carry, jnp.zeros((), jnp.int64), True)[1], fields)
 
-    if single:  # the single-run program as _drive calls it
-        chunk, chunk_args = _single_chunk(*args, dt, sampled, loop, book)
-        records = chunk.eval_shape(*chunk_args)[1]
-        out = {k: jax.ShapeDtypeStruct(v.shape[1:], v.dtype) for k, v in pick(records, fields).items()}
+        return run
+
+    if single:  # the single-run program as a run calls it
+        out = pick(RunProgram.single(plant.n, sampled, loop, book).shapes(*args, dt=dt), fields)
     else:
-        out = jax.eval_shape(_with_options(one, loop.for_joints(plant.n)), *args)
+        out = jax.eval_shape(_with_options(one, loop.for_joints(plant.n), name="one"), *args)
     shapes = {k: (tuple(v.shape), np.dtype(v.dtype)) for k, v in out.items()}
     if len(_RECORD_SHAPES) < 256:
         _RECORD_SHAPES[key] = shapes

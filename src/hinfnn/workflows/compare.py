@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..experiment import Case, cases, check_memory, result_folder, simulate_cases, write_result
+from ..experiment import Case, cases, result_folder, run_cases
 
 #: Metrics compared (and their ratios) in compare.md.
 COMPARED = ("rms_e_u1", "rms_e_u1_last2s", "rms_e_lam", "rms_e_lam_last2s", "J_T", "fraction_out_of_contact")
@@ -84,11 +84,9 @@ def compare(sc, key: str, values: list, out: Path | None = None, *, force: bool 
     todo = comparison_cases(sc, key, values)
     with result_folder(out, command="compare", name=sc.name, kind="run", force=force, log=log,
                        command_line=command) as written:
-        runs = [c.run() for c in todo]
-        check_memory(runs, log=log)
-        outcome = simulate_cases(todo, runs=runs, progress=progress)
-        doc = write_result(written.path, sc, outcome, command=command,
-                           extra={"compare": {"key": key, "values": list(values), "seconds": outcome.seconds}})
+        outcome, doc = run_cases(todo, written.path, sc, command=command, progress=progress, log=log,
+                                 document=lambda o: {"compare": {"key": key, "values": list(values),
+                                                                 "seconds": o.seconds}})
         atomic_write_text(written.path / "compare.md", comparison_table(doc, key, values))
         from ..report import run_figures
 

@@ -21,7 +21,7 @@ import datetime
 import math
 from pathlib import Path
 
-from ..experiment import cases, check_memory, result_folder, simulate_cases, write_result
+from ..experiment import cases, result_folder, run_cases, write_result
 from ..report.markdown import _f, percent
 from ..scenario import Scenario
 from ..sim import release_programs
@@ -63,13 +63,10 @@ def run_gallery(out: Path | None = None, *, overrides=(), only=None, force: bool
                        command_line=command) as written:
         for sc in scenarios:
             todo = cases(sc, tags={"scenario": sc.name}, overrides=dict(sc.overrides))
-            runs = [c.run() for c in todo]
-            check_memory(runs, log=log)
             label = (lambda d, t, what, n=sc.name: progress(d, t, f"{n}: {what}")) if progress else None
-            outcome = simulate_cases(todo, runs=runs, progress=label)
             sub = written.path / sc.name
             sub.mkdir()
-            doc = write_result(sub, sc, outcome, command=command)
+            outcome, doc = run_cases(todo, sub, sc, command=command, progress=label, log=log)
             figures = [Path(p).name for p in run_figures(outcome.trajectories, sub)]
             sections.append({"scenario": sc, "doc": doc, "figures": figures, "seconds": outcome.seconds})
             log(f"{sc.name}: {len(todo)} runs in {outcome.seconds:.0f} s")

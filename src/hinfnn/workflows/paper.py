@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..experiment import Case, check_memory, result_folder, simulate_cases, write_result
+from ..experiment import Case, result_folder, run_cases, simulate_cases
 from ..scenario import Scenario
 
 DAMPED = 200.0  # N·s/m, the sensitivity study's contact damping
@@ -148,13 +148,13 @@ def _write_study(root: Path, base: Scenario, cases, runs, save_every, progress, 
     from ..report import paper_figures
     from .paper_report import study_report
 
-    outcome = simulate_cases(cases, runs=runs, progress=progress, save_every=save_every)
+    outcome, doc = run_cases(cases, root, base, command=command, runs=runs, progress=progress, save_every=save_every,
+                             memory=False, npz="trajectory.npz", scenario_file=False)  # memory: memory_plan's
     t0 = time.perf_counter()
     figures = []
     for suffix, contact, _ in CONTACTS:
         figures += paper_figures(outcome.select(contact=contact), root, suffix=suffix)
     fig_seconds = time.perf_counter() - t0
-    doc = write_result(root, base, outcome, command=command, npz="trajectory.npz", scenario_file=False)
     timings = {"simulation (compile + run, all runs)": outcome.seconds, "figures": fig_seconds}
     del outcome  # the study's every-step trajectories: written; free them before the comparison runs
     if beyond:

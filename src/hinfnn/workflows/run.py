@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from ..experiment import cases, check_memory, result_folder, simulate_cases, write_result
+from ..experiment import cases, result_folder, run_cases
 from ..scenario.core import parse_toml
 
 
@@ -48,13 +48,14 @@ def run_scenario(sc, *, out=None, force: bool = False, fields=None, progress=Non
     todo = cases(sc, overrides=dict(sc.overrides))
     with result_folder(out, command="run", name=result_name(sc), kind="run", force=force, log=log,
                        command_line=command) as written:
-        runs = [c.run() for c in todo]
-        check_memory(runs, fields=fields, log=log)
-        outcome = simulate_cases(todo, runs=runs, progress=progress, fields=fields)
-        _startup.mark("simulated")
-        if progress is not None and hasattr(progress, "done"):
-            progress.done()
-        doc = write_result(written.path, sc, outcome, command=command)
+        def done(outcome):  # simulated: the files are written next
+            _startup.mark("simulated")
+            if progress is not None and hasattr(progress, "done"):
+                progress.done()
+            return None
+
+        outcome, doc = run_cases(todo, written.path, sc, command=command, fields=fields, progress=progress, log=log,
+                                 document=done)
         _startup.mark("files_written")
         if figures:
             from ..report import run_figures  # matplotlib: imported once the simulation is done

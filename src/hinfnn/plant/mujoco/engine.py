@@ -344,6 +344,7 @@ class CartesianSensing:
     task: object
     surface: object
     chain: object = None
+    kernels: la.Kernels = la.kernels_field()  # how its products are written (hinfnn._linalg.Kernels)
 
     @property
     def cartesian(self) -> bool:
@@ -355,7 +356,7 @@ class CartesianSensing:
         point = self.task.space(p)
         F_c = -jnp.stack([on_tool[i] for i in rows])
         n_in = self.surface.normal(point)
-        F_t = F_c - la.mm(n_in, F_c) * n_in
+        F_t = F_c - self.kernels.mm(n_in, F_c) * n_in
         if self.chain is None:
             x, margin = self.task(p, R), self.task.margin(p, R)
         else:
