@@ -12,8 +12,11 @@
   damping ratio within 1 % of the requested k, c; MuJoCo's Coulomb friction is the regularised law
   docs/mujoco.md states (slope below the cone, μ f_n on it, the soft cone's normal-force gain);
 * the batch path (mujoco.batch) and the one-row path give the same numbers;
-* a user's MJCF: wrong joint names, a missing tool site, a surface MuJoCo cannot model and viscous
-  friction are ConfigErrors naming the key (exit 2 from the CLI).
+* MuJoCo's viscous tool friction is the built-in plant's law at the tool point (terminal sliding
+  speed, the sensed tangential force at every instant), on both row paths;
+* a user's MJCF: wrong joint names, a missing tool site, a surface MuJoCo cannot model and a
+  negative viscous friction are ConfigErrors naming the key (exit 2 from the CLI; a viscous
+  friction too stiff for MuJoCo's step too).
 
 Everything here steps MuJoCo from NumPy (no compiled JAX program): the closed loops are in
 tests/test_mujoco.py.
@@ -583,7 +586,7 @@ def test_user_mjcf_keeps_its_dynamics_and_switches_its_actuators_off():
     (dict(tool_site="flange"), "plant.mjcf.tool_site", ["no site named 'flange'", "attachment_site"]),
     (dict(surface=SineProfile(amplitude=jnp.asarray(0.05), wavelength=jnp.asarray(0.6), phase=jnp.asarray(0.0),
                               offset=jnp.asarray(0.1))), "plant.surface.kind", ["'sine'", "'cylinder'"]),
-    (dict(friction=Friction(coulomb=0.2, viscous=2.0)), "plant.friction.viscous", ["Coulomb friction only"]),
+    (dict(friction=Friction(coulomb=0.2, viscous=-2.0)), "plant.friction.viscous", ["finite number >= 0", "-2.0"]),
     (dict(surface=Sphere.build((0.5, 0.1, -0.25), 0.0015)), "plant.surface.radius", ["too small"]),
 ])
 def test_user_mjcf_errors_name_the_key(kw, key, words):
@@ -618,7 +621,7 @@ def test_missing_mjcf_file_and_a_model_that_is_not_an_arm(tmp_path):
     (["plant.mjcf.tool_site=attachment_site"], "plant.mjcf.tool_site"),  # the MJCF is generated: it would be ignored
     (['plant.mjcf.locked_joints=["elbow_joint"]'], "plant.mjcf.locked_joints"),
     (["plant.mjcf.file=ur5f", "plant.mjcf.tool_site=attachment_site"], "plant.mjcf.file"),
-    (["plant.friction.viscous=2.0"], "plant.friction.viscous"),
+    (["plant.friction.viscous=1e5"], "plant.friction.viscous"),  # held over a 0.1-ms MuJoCo step: too stiff
     (["plant.timestep=3e-4"], "plant.timestep"),
 ])
 def test_cli_exits_2_naming_the_key(overrides, key, capsys):
