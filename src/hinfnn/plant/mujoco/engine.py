@@ -147,7 +147,7 @@ class _Family:
             mj.mj_setState(m, d, x[2:], self._spec)
             try:
                 if c_v > 0.0:
-                    f_v = self._step_viscous(m, d, nsub, c_v, x[-self.nv:])
+                    f_v = self._step_viscous(m, d, nsub, c_v, x[-self.nv:], 0.5 * ts)
                 else:
                     for _ in range(nsub):
                         mj.mj_step(m, d)
@@ -175,13 +175,14 @@ class _Family:
         return slot
 
     # --- viscous tool friction ------------------------------------------------------------------
-    def _step_viscous(self, m, d, nsub: int, c_v: float, base):
+    def _step_viscous(self, m, d, nsub: int, c_v: float, base, half: float):
         """``nsub`` MuJoCo steps of d (its state set, ``qfrc_applied`` = ``base``) with the viscous
-        tool friction: before each step the force F_v at that step's state (:func:`_viscous_force`,
-        after a forward pass there) is applied as ``qfrc_applied`` = base − J_pᵀ F_v and held over
-        the step (``mj_step``), as τ is held over the control period; at the end state the forward
-        pass with the force there (what the sensor reads). Returns that force (zeros out of
-        contact). :meth:`_run_viscous` does the same on a batch, with the same numbers."""
+        tool friction: before each step, after a forward pass at that step's state, the force F_v
+        (:func:`_viscous_force`) at the step's midpoint velocity q̇ + ``half`` q̈ (``half`` = half
+        the timestep; q̈ of that forward pass) is applied as ``qfrc_applied`` = base − J_pᵀ F_v and
+        held over the step (``mj_step``); at the end state the forward pass with the force at
+        that state's velocity (what the sensor reads). Returns that force (zeros out of contact).
+        :meth:`_run_viscous` does the same on a batch, with the same numbers."""
         mj = self.mujoco
         jacp = np.empty((3, self.nv))
         adr, site = self.sensor_adr, self.site
@@ -193,7 +194,7 @@ class _Family:
             f = zero
             if sensor[0] > 0.0 and sensor[1] > 0.0:  # in contact, pushing
                 mj.mj_jacSite(m, d, jacp, None, site)
-                f = _viscous_force(jacp, d.qvel, sensor, c_v)
+                f = _viscous_force(jacp, d.qvel if k == nsub else d.qvel + half * d.qacc, sensor, c_v)
                 d.qfrc_applied[:] = base - f @ jacp
                 applied = True
             elif applied:
@@ -255,7 +256,8 @@ class _Family:
             except Exception as err:  # mujoco.batch.SimulationError: those members keep their old state
                 failed = list(getattr(err, "ids", plain))
             if vidx.size:
-                f_v, vfailed = self._run_viscous(b, v, vidx, nsub[vidx], c_v[c_v > 0.0],
+                half = np.array([0.5 * self.scenes[int(member[i])].timestep for i in vidx])
+                f_v, vfailed = self._run_viscous(b, v, vidx, nsub[vidx], c_v[c_v > 0.0], half,
                                                  x[vidx, o + 1 + nq + 2 * nv:o + 1 + nq + 3 * nv])
                 failed += vfailed
             good = np.setdiff1d(idx, np.asarray(failed, dtype=np.int64))
@@ -278,7 +280,7 @@ class _Family:
             self._release(rows, item)
         return out
 
-    def _run_viscous(self, b, v, ids, nsub, c_v, base):
+    def _run_viscous(self, b, v, ids, nsub, c_v, half, base):
         """:meth:`_step_viscous` on the batch rows ``ids`` (their state and ``qfrc_applied`` =
         ``base`` in the batch's arrays ``v``), ``nsub`` MuJoCo steps each, one step at a time for
         all of them. Returns (F_v at each row's end state, the rows MuJoCo failed on: they are
@@ -311,7 +313,8 @@ class _Family:
                 jacp, _ = b.jac(np.full(sel.size, self.site_body), v["site_xpos"][sel, self.site], ids=sel)
                 for j, i, J in zip(pushing, sel, jacp[:, :, :self.n]):
                     J = np.ascontiguousarray(J)
-                    f_v[j] = _viscous_force(J, v["qvel"][i], sensor[i], c_v[j])
+                    qd = v["qvel"][i] if nsub[j] == k else v["qvel"][i] + half[j] * v["qacc"][i]
+                    f_v[j] = _viscous_force(J, qd, sensor[i], c_v[j])
                     v["qfrc_applied"][i] = base[j] - f_v[j] @ J
             if (rows & (nsub == k)).any():
                 call(b.forward, rows & (nsub == k))
