@@ -427,10 +427,12 @@ def test_ur5_closed_loop_on_mujoco_matches_the_builtin_plant():
     are what is compared): the built-in plant (RK4, dt = 0.1 ms) and MuJoCo (its RK4, 10 steps of
     0.1 ms per control period, one call per period, the viscous force applied at the tool point at
     each step) give the same λ, e_u1, penetration and tool force at every control instant:
-    |Δλ| < 0.01 N, |Δe_u1| < 1e-7 (m and rad), and the friction force |F_t| within 1e-3 N (c_v times
-    a 5e-5 m/s difference of the tool's sliding speed; it is up to 3 N here, so a missing or
-    misplaced viscous force fails). (H∞-only over 1 s: 5.3e-5 N, benchmarks/mujoco_friction.py;
-    benchmarks/mujoco_table.py compares 10-s runs of both laws of the issue.)"""
+    |Δλ| < 0.01 N, |Δe_u1| < 1e-7 (m and rad), as without friction, and the friction force |F_t|
+    within 1e-4 N (c_v times a 5e-6 m/s difference of the tool's sliding speed; |F_t| is up to
+    0.5 N here, so a missing or misplaced viscous force fails; measured 2.3e-6 N, and 8.5e-5 N with
+    the force held at each MuJoCo step's start velocity instead of its midpoint's). (H∞-only over
+    1 s: 1.9e-5 N, benchmarks/mujoco_friction.py; benchmarks/mujoco_table.py compares 10-s runs of
+    both laws of the issue.)"""
     over = {"controller.kind": "fl", "plant.friction.coulomb": 0.0, "plant.friction.viscous": 20.0,
             "simulation.control": "sampled", "simulation.control_period": 1e-3, "simulation.t_final": 0.05,
             "simulation.output_interval": 1e-3}
@@ -446,8 +448,8 @@ def test_ur5_closed_loop_on_mujoco_matches_the_builtin_plant():
           f"max |ΔF_contact| = {np.abs(a['F_contact'] - b['F_contact']).max():.3g} N, max |ΔF_t| = {d_ft:.3g} N "
           f"(|F_t| up to {b['friction_force'].max():.3g} N)")
     assert np.abs(b["lam"]).max() > 1.0 and np.all(b["penetration"][5:] > 0)  # pressing, in contact
-    assert b["friction_force"].max() > 0.5  # sliding: the friction is there to compare
-    assert d_lam < 0.01 and d_u1 < 1e-7 and d_ft < 1e-3
+    assert b["friction_force"].max() > 0.25  # sliding: the friction is there to compare
+    assert d_lam < 0.01 and d_u1 < 1e-7 and d_ft < 1e-4
     np.testing.assert_allclose(a["penetration"], b["penetration"], atol=1e-7)
     np.testing.assert_allclose(a["F_contact"], b["F_contact"], atol=0.01)
 
