@@ -12,8 +12,11 @@
   damping ratio within 1 % of the requested k, c; MuJoCo's Coulomb friction is the regularised law
   docs/mujoco.md states (slope below the cone, μ f_n on it, the soft cone's normal-force gain);
 * the batch path (mujoco.batch) and the one-row path give the same numbers;
-* a user's MJCF: wrong joint names, a missing tool site, a surface MuJoCo cannot model and viscous
-  friction are ConfigErrors naming the key (exit 2 from the CLI).
+* MuJoCo's viscous tool friction is the built-in plant's law at the tool point (terminal sliding
+  speed, the sensed tangential force at every instant), on both row paths;
+* a user's MJCF: wrong joint names, a missing tool site, a surface MuJoCo cannot model and a
+  negative viscous friction are ConfigErrors naming the key (exit 2 from the CLI; a viscous
+  friction too stiff for MuJoCo's step too).
 
 Everything here steps MuJoCo from NumPy (no compiled JAX program): the closed loops are in
 tests/test_mujoco.py.
@@ -394,6 +397,61 @@ def test_friction_is_mujocos_regularised_coulomb():
             assert gain > 0.005 * P and f_n - spring == pytest.approx(gain, rel=0.03)
 
 
+def test_viscous_friction_acts_at_the_tool_point_while_the_contact_pushes():
+    """The UR5 (gravity off) pressed on a plane with P = 20 N along its normal and pushed along it
+    with T = 5 N (constant joint torques J_pᵀ(P n + T t) at the start pose), μ = 0 and viscous
+    friction c_v = 500 N·s/m: the tool point slides at the terminal speed T / c_v along t (to 1 %
+    after 0.1 s, 15 time constants m_t / c_v), and at every control instant the sensed force's
+    tangential part is c_v v_t of that state (v_t the tool point's velocity J_p q̇ less its normal
+    part; to 1e-9 relative), the normal part MuJoCo's contact force. Rows stepped by mujoco.batch
+    (with a frictionless member and an out-of-contact row) and one at a time give the same
+    numbers bit for bit; c_v = 0 is the frictionless member (docs/mujoco.md, "Friction", eq. (7))."""
+    P, T, k, c, c_v = 20.0, 5.0, 1e5, 200.0, 500.0
+    chain = load_urdf(UR5, "base_link", "tool0", tool_xyz=(0.0, 0.0, 0.1)).with_gravity(jnp.zeros(3))
+    n_in, _ = _normal_mode(chain, Q_UR5)
+    p0 = np.asarray(chain.fk(jnp.asarray(Q_UR5))[0])
+    surface = _surface_through("plane", p0, n_in, P / k)
+    t_dir = np.cross(n_in, [0.0, 1.0, 0.0])
+    t_dir /= np.linalg.norm(t_dir)
+    plants = [MujocoPlant.from_models(UrdfArm(chain, PositionTaskMap()), surface, PenaltyContact(k, c),
+                                      SquareWave.none(6), control_period=1e-3, timestep=1e-4,
+                                      friction=Friction(coulomb=0.0, viscous=cv)) for cv in (c_v, 0.0)]
+    fam, n = plants[0]._family, 6
+    assert plants[1]._family is fam and fam.viscous == {int(plants[0].member): c_v}
+    Jp = np.asarray(chain.frame_jacobian(jnp.asarray(Q_UR5)))[:3]
+    tau = Jp.T @ (P * n_in + T * t_dir)
+    jp, sens = 4 * n + 12, 10 * n + 12  # the output row: q, q̇, warm start, q̈, p, R, jacp, jacr, sensor
+
+    def row(member, t, y):
+        return np.concatenate([[member, 1e-3, t], y[:3 * n], tau])
+
+    y = np.concatenate([Q_UR5, np.zeros(2 * n)])
+    rows = []
+    for i in range(100):
+        y = fam._one(row(float(plants[0].member), 1e-3 * i, y), "step")
+        rows.append(row(float(plants[0].member), 1e-3 * (i + 1), y))
+        qd, J, s = y[n:2 * n], y[jp:jp + 3 * n].reshape(3, n), y[sens:]
+        f, nrm, tan = s[1:4], s[5:8], s[8:11]
+        on_tool = f[0] * nrm + f[1] * tan + f[2] * np.cross(nrm, tan)
+        v = J @ qd
+        v_t = v - (v @ nrm) * nrm
+        assert s[0] > 0 and f[0] > 0  # in contact, pushing
+        np.testing.assert_allclose(on_tool - f[0] * nrm, -c_v * v_t, rtol=1e-9, atol=1e-12)
+    speed = v_t @ t_dir
+    print(f"tangential speed {speed:.6f} m/s (T / c_v = {T / c_v:.6f}), across {np.linalg.norm(v_t - speed * t_dir):.2e}")
+    assert speed == pytest.approx(T / c_v, rel=0.01)
+    # the batch path: the viscous member's rows, the same state on the frictionless member, one out of contact
+    free = rows[50].copy()
+    free[0] = float(plants[1].member)
+    lifted = rows[60].copy()
+    lifted[3:3 + n] = Q_UR5 + 0.05 * np.array([0.0, 1.0, 0.0, 0.0, 0.0, 0.0])
+    x = np.array([rows[10], free, rows[40], lifted, rows[99]])
+    single = np.array([fam._one(r, "step") for r in x])
+    np.testing.assert_array_equal(fam.run(x, "step"), single)
+    assert single[3, sens] == 0 and single[1, sens] > 0  # out of contact; in contact without friction
+    np.testing.assert_array_equal(single[1, sens + 2:sens + 4], 0.0)
+
+
 def test_batch_and_single_row_paths_agree():
     """Rows stepped by mujoco.batch (several members, several models) and one at a time on an
     MjData: the same numbers, bit for bit."""
@@ -528,7 +586,7 @@ def test_user_mjcf_keeps_its_dynamics_and_switches_its_actuators_off():
     (dict(tool_site="flange"), "plant.mjcf.tool_site", ["no site named 'flange'", "attachment_site"]),
     (dict(surface=SineProfile(amplitude=jnp.asarray(0.05), wavelength=jnp.asarray(0.6), phase=jnp.asarray(0.0),
                               offset=jnp.asarray(0.1))), "plant.surface.kind", ["'sine'", "'cylinder'"]),
-    (dict(friction=Friction(coulomb=0.2, viscous=2.0)), "plant.friction.viscous", ["Coulomb friction only"]),
+    (dict(friction=Friction(coulomb=0.2, viscous=-2.0)), "plant.friction.viscous", ["finite number >= 0", "-2.0"]),
     (dict(surface=Sphere.build((0.5, 0.1, -0.25), 0.0015)), "plant.surface.radius", ["too small"]),
 ])
 def test_user_mjcf_errors_name_the_key(kw, key, words):
@@ -563,7 +621,7 @@ def test_missing_mjcf_file_and_a_model_that_is_not_an_arm(tmp_path):
     (["plant.mjcf.tool_site=attachment_site"], "plant.mjcf.tool_site"),  # the MJCF is generated: it would be ignored
     (['plant.mjcf.locked_joints=["elbow_joint"]'], "plant.mjcf.locked_joints"),
     (["plant.mjcf.file=ur5f", "plant.mjcf.tool_site=attachment_site"], "plant.mjcf.file"),
-    (["plant.friction.viscous=2.0"], "plant.friction.viscous"),
+    (["plant.friction.viscous=1e5"], "plant.friction.viscous"),  # held over a 0.1-ms MuJoCo step: too stiff
     (["plant.timestep=3e-4"], "plant.timestep"),
 ])
 def test_cli_exits_2_naming_the_key(overrides, key, capsys):

@@ -437,6 +437,13 @@ def _check_step_against_contact(sc, plant, q0) -> None:
             raise ConfigError(f"{slope:g} N s/m is too large for MuJoCo's timestep {dt:g} s (effective mass {m_eff:.3g} kg): "
                               f"it needs friction_damping <= {0.5 * m_eff / dt:.4g} N s/m (or a smaller timestep)",
                               key="plant.friction_damping")
+        # the viscous force is applied at each MuJoCo step from that step's state and held over it
+        # (explicit): a damper of rate c_v / m_eff, the same rule
+        if fr.viscous / m_eff * dt > 0.5:
+            raise ConfigError(f"{fr.viscous:g} N s/m is too large for MuJoCo's timestep {dt:g} s (effective mass "
+                              f"{m_eff:.3g} kg): the viscous force is held over each MuJoCo step, so it needs "
+                              f"viscous <= {0.5 * m_eff / dt:.4g} N s/m (or a smaller plant.timestep)",
+                              key="plant.friction.viscous")
     elif fr.active:
         # the smoothed Coulomb law is a damper of slope mu f_n / v_s for |v_t| << v_s: the same rule
         f_scale = _force_scale(sc)
@@ -446,7 +453,8 @@ def _check_step_against_contact(sc, plant, q0) -> None:
                 f"{fr.v_smooth:g} m/s is too small for dt = {dt:g} s: the smoothed Coulomb friction acts as a damper of "
                 f"mu f_n / v_s + c_v = {slope:.4g} N s/m at the reference force {f_scale:.3g} N (effective mass "
                 f"{m_eff:.3g} kg), so RK4 needs v_s >= {fr.coulomb * f_scale / max(0.5 * m_eff / dt - fr.viscous, 1e-300):.3g} "
-                "m/s (or a smaller dt)", key="plant.friction.v_smooth")
+                f"m/s or simulation.dt <= {0.5 * m_eff / slope:.3g} s (the built-in plant is integrated at simulation.dt)",
+                key="plant.friction.v_smooth")
 
 
 def _force_scale(sc) -> float:

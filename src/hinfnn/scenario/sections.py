@@ -803,9 +803,9 @@ class MjcfConfig:
 class MujocoPlantConfig(PlantConfig):
     """MuJoCo as the true plant (optional extra ``hinfnn[mujoco]``; docs/mujoco.md): the true arm
     (generated from ``plant.arm``, or a user's MJCF: ``plant.mjcf``) and surface as a MuJoCo model,
-    the contact converted from N/m and N·s/m, MuJoCo's Coulomb friction; one plant step (one call
-    into MuJoCo) per simulation dt, in MuJoCo timesteps, with the torque held (sampled-data
-    control)."""
+    the contact converted from N/m and N·s/m, MuJoCo's Coulomb friction and hinfnn's viscous
+    friction at the tool point; one plant step (one call into MuJoCo) per simulation dt, in MuJoCo
+    timesteps, with the torque held (sampled-data control)."""
 
     discrete: ClassVar[bool] = True
     integrator: Literal["RK4", "implicit", "implicitfast", "Euler"] = param(
@@ -834,10 +834,6 @@ class MujocoPlantConfig(PlantConfig):
             what = ("the two_link arm's MuJoCo model has the inclined_line only (its task space is the tip position)"
                     if two_link else "the inclined_line is the two_link arm's (task space); use a plane or a line")
             raise ConfigError(f"{what}, got a {self.arm.model!r} arm on a {kind!r}", key=f"{path}.surface.kind")
-        if self.friction.viscous != 0.0:
-            raise ConfigError(f"must be 0 for the MuJoCo plant, got {self.friction.viscous:g} N s/m: MuJoCo's contact "
-                              "has Coulomb friction only (its slope below the cone is plant.friction_damping)",
-                              key=f"{path}.friction.viscous")
         if two_link and self.friction.active:
             raise ConfigError("the two_link arm's MuJoCo model is frictionless; set plant.friction's coefficients to 0 "
                               "or use plant.engine = \"hinfnn\"", key=f"{path}.friction.coulomb")

@@ -51,6 +51,10 @@ class _Family:
     tool), dist, normal (3, surface → tool), tangent (3))]`` at the END of the step: after the
     substeps, MuJoCo's forward pass at the new state with the step's applied force still applied
     (what a sensor reads just before the next torque arrives).
+
+    A member with viscous tool friction (c_v > 0, :attr:`viscous`) is stepped one MuJoCo step at
+    a time with the viscous force applied at the tool point (:meth:`_step_viscous`), and that force
+    is added to the contact sensor's tangential force in the output row.
     """
 
     def __init__(self, mujoco, scene: S.Scene, signature):
@@ -63,6 +67,8 @@ class _Family:
         self.size_out = self.nq + 3 * self.nv + 12 + 6 * self.n + S.SENSOR_SIZE
         self.scenes: dict[int, S.Scene] = {}
         self.meta: dict[int, object] = {}
+        #: viscous tool friction c_v (N·s/m) of each member (absent: 0)
+        self.viscous: dict[int, float] = {}
         self._first = scene
         self._free: dict[int, list] = {}
         self._lock = threading.Lock()
@@ -84,6 +90,9 @@ class _Family:
             if key not in self.scenes:
                 self.scenes[key] = scene
                 self.meta[key] = meta
+                c_v = _viscous_of(getattr(meta, "friction", None))
+                if c_v > 0.0:
+                    self.viscous[key] = c_v
             _MEMBERS[key] = self
             return key
 
@@ -125,7 +134,7 @@ class _Family:
         slot = self._slots.get(int(x[0]))
         if slot is None:
             slot = self._slot(int(x[0]))
-        m, ts, pool = slot
+        m, ts, pool, c_v = slot
         nsub = 0
         if kind == "step":
             nsub = round(x[1] / ts)
@@ -137,9 +146,12 @@ class _Family:
             mj = self.mujoco
             mj.mj_setState(m, d, x[2:], self._spec)
             try:
-                for _ in range(nsub):
-                    mj.mj_step(m, d)
-                mj.mj_forward(m, d)
+                if c_v > 0.0:
+                    f_v = self._step_viscous(m, d, nsub, c_v, x[-self.nv:], 0.5 * ts)
+                else:
+                    for _ in range(nsub):
+                        mj.mj_step(m, d)
+                    mj.mj_forward(m, d)
             except Exception:  # MuJoCo raised (mju_error): this row is unusable
                 out.fill(np.nan)
                 return out
@@ -150,15 +162,49 @@ class _Family:
             out[o[2]:o[3]] = d.site_xmat[self.site]
             mj.mj_jacSite(m, d, out[o[3]:o[4]].reshape(3, self.nv), out[o[4]:o[5]].reshape(3, self.nv), self.site)
             out[o[5]:] = d.sensordata[self.sensor_adr:self.sensor_adr + S.SENSOR_SIZE]
+            if c_v > 0.0:
+                _add_to_sensor(out[o[5]:], f_v)
             return out
         finally:
             pool.append(d)
 
     def _slot(self, key: int):
         scene = self._scene(key)
-        slot = (scene.model, scene.timestep, [])
+        slot = (scene.model, scene.timestep, [], self.viscous.get(key, 0.0))
         self._slots[key] = slot
         return slot
+
+    # --- viscous tool friction ------------------------------------------------------------------
+    def _step_viscous(self, m, d, nsub: int, c_v: float, base, half: float):
+        """``nsub`` MuJoCo steps of d (its state set, ``qfrc_applied`` = ``base``) with the viscous
+        tool friction: before each step, after a forward pass at that step's state, the force F_v
+        (:func:`_viscous_force`) at the step's midpoint velocity q̇ + ``half`` q̈ (``half`` = half
+        the timestep; q̈ of that forward pass) is applied as ``qfrc_applied`` = base − J_pᵀ F_v and
+        held over the step (``mj_step``); at the end state the forward pass with the force at
+        that state's velocity (what the sensor reads). Returns that force (zeros out of contact).
+        :meth:`_run_viscous` does the same on a batch, with the same numbers."""
+        mj = self.mujoco
+        jacp = np.empty((3, self.nv))
+        adr, site = self.sensor_adr, self.site
+        zero = np.zeros(3)
+        applied = False  # d.qfrc_applied holds a viscous force (else: base)
+        mj.mj_forward(m, d)
+        for k in range(nsub + 1):
+            sensor = d.sensordata[adr:adr + S.SENSOR_SIZE]
+            f = zero
+            if sensor[0] > 0.0 and sensor[1] > 0.0:  # in contact, pushing
+                mj.mj_jacSite(m, d, jacp, None, site)
+                f = _viscous_force(jacp, d.qvel if k == nsub else d.qvel + half * d.qacc, sensor, c_v)
+                d.qfrc_applied[:] = base - f @ jacp
+                applied = True
+            elif applied:
+                d.qfrc_applied[:] = base
+                applied = False
+            if k == nsub:
+                mj.mj_forward(m, d)
+                return f
+            mj.mj_step(m, d)
+            mj.mj_forward(m, d)
 
     def run(self, x, kind: str):
         """Step (``kind`` "step") or initialise ("init") every row of x (rows, size_in)."""
@@ -199,14 +245,21 @@ class _Family:
             v["qacc_warmstart"][idx] = x[idx, o + 1 + nq + nv:o + 1 + nq + 2 * nv]
             v["qfrc_applied"][idx] = x[idx, o + 1 + nq + 2 * nv:o + 1 + nq + 3 * nv]
             failed = []
+            c_v = np.array([self.viscous.get(int(member[i]), 0.0) for i in idx])
+            vidx, plain = idx[c_v > 0.0], idx[c_v == 0.0]
             try:
                 if kind == "step":
-                    for k in np.unique(nsub[idx]):
-                        b.step(ids=idx[nsub[idx] == k], nstep=int(k), stage=mujoco.mjtStage.mjSTAGE_ACC)
-                else:
-                    b.forward(ids=idx)
+                    for k in np.unique(nsub[plain]):
+                        b.step(ids=plain[nsub[plain] == k], nstep=int(k), stage=mujoco.mjtStage.mjSTAGE_ACC)
+                elif plain.size:
+                    b.forward(ids=plain)
             except Exception as err:  # mujoco.batch.SimulationError: those members keep their old state
-                failed = list(getattr(err, "ids", idx))
+                failed = list(getattr(err, "ids", plain))
+            if vidx.size:
+                half = np.array([0.5 * self.scenes[int(member[i])].timestep for i in vidx])
+                f_v, vfailed = self._run_viscous(b, v, vidx, nsub[vidx], c_v[c_v > 0.0], half,
+                                                 x[vidx, o + 1 + nq + 2 * nv:o + 1 + nq + 3 * nv])
+                failed += vfailed
             good = np.setdiff1d(idx, np.asarray(failed, dtype=np.int64))
             if good.size == 0:
                 return out
@@ -220,9 +273,54 @@ class _Family:
                 w = arr.shape[1]
                 out[good, c:c + w] = arr
                 c += w
+            for j, i in enumerate(vidx):
+                if i in good:
+                    _add_to_sensor(out[i, c - S.SENSOR_SIZE:c], f_v[j])
         finally:
             self._release(rows, item)
         return out
+
+    def _run_viscous(self, b, v, ids, nsub, c_v, half, base):
+        """:meth:`_step_viscous` on the batch rows ``ids`` (their state and ``qfrc_applied`` =
+        ``base`` in the batch's arrays ``v``), ``nsub`` MuJoCo steps each, one step at a time for
+        all of them. Returns (F_v at each row's end state, the rows MuJoCo failed on: they are
+        dropped)."""
+        acc = int(self.mujoco.mjtStage.mjSTAGE_ACC)
+        f_v = np.zeros((ids.size, 3))
+        alive = np.ones(ids.size, dtype=bool)
+        failed: list = []
+
+        def call(fn, rows, **kw):
+            try:
+                fn(ids=ids[rows], **kw)
+            except Exception as err:  # mujoco.batch.SimulationError: those rows are dropped
+                bad = {int(i) for i in getattr(err, "ids", ids[rows])}
+                failed.extend(bad)
+                alive[[int(i) in bad for i in ids]] = False
+
+        call(b.forward, alive.copy())
+        adr = self.sensor_adr
+        for k in range(int(nsub.max(initial=0)) + 1):
+            rows = alive & (nsub >= k)
+            if not rows.any():
+                break
+            sensor = v["sensordata"][:, adr:adr + S.SENSOR_SIZE]
+            pushing = np.nonzero(rows & (sensor[ids, 0] > 0.0) & (sensor[ids, 1] > 0.0))[0]
+            f_v[rows] = 0.0
+            v["qfrc_applied"][ids[rows]] = base[rows]
+            if pushing.size:
+                sel = ids[pushing]
+                jacp, _ = b.jac(np.full(sel.size, self.site_body), v["site_xpos"][sel, self.site], ids=sel)
+                for j, i, J in zip(pushing, sel, jacp[:, :, :self.n]):
+                    J = np.ascontiguousarray(J)
+                    qd = v["qvel"][i] if nsub[j] == k else v["qvel"][i] + half[j] * v["qacc"][i]
+                    f_v[j] = _viscous_force(J, qd, sensor[i], c_v[j])
+                    v["qfrc_applied"][i] = base[j] - f_v[j] @ J
+            if (rows & (nsub == k)).any():
+                call(b.forward, rows & (nsub == k))
+            if (rows & (nsub > k)).any():
+                call(b.step, rows & (nsub > k), nstep=1, stage=acc)
+        return f_v, failed
 
     def host_step(self, x):
         x = np.asarray(x, dtype=np.float64)
@@ -233,6 +331,32 @@ class _Family:
         x = np.asarray(x, dtype=np.float64)
         lead = x.shape[:-1]
         return self.run(x.reshape(-1, x.shape[-1]), "init").reshape(lead + (self.size_out,))
+
+
+def _viscous_of(friction) -> float:
+    """c_v (N·s/m) of a :class:`~hinfnn.plant.contact.Friction` (0 for None)."""
+    return 0.0 if friction is None else float(friction.viscous)
+
+
+def _viscous_force(jacp, qvel, sensor, c_v: float):
+    """F_v = c_v v_t, the viscous force the tool exerts on the surface (world axes), v_t the tool
+    point's velocity J_p q̇ less its part along the contact normal n (the surface's at the tool
+    point): ``jacp`` (3, n) the tool point's Jacobian, ``qvel`` (n,), ``sensor`` the contact
+    sensor's row after a forward pass at that state, taken while the contact pushes (its normal
+    force > 0; out of it the force is 0). Implements docs/mujoco.md eq. (7), the built-in plant's
+    viscous term (:meth:`hinfnn.plant.contact.Friction.force`)."""
+    vel = jacp @ qvel
+    n = sensor[5:8]
+    return c_v * (vel - (n @ vel) * n)
+
+
+def _add_to_sensor(sensor, f_v) -> None:
+    """Add the viscous force F_v (the tool's on the surface, world) to a contact sensor row's
+    force (on the tool, contact frame: normal, tangent t, n × t), in place: its tangential
+    components gain −F_v·t and −F_v·(n × t) (F_v is tangential)."""
+    n, t = sensor[5:8], sensor[8:11]
+    sensor[2] -= f_v @ t
+    sensor[3] -= f_v @ np.cross(n, t)
 
 
 _FAMILIES: dict = {}
@@ -396,9 +520,10 @@ class _Meta:
         self.friction_damping = friction_damping
 
 
-def _content_key(scene: S.Scene, sensing, disturbance) -> int:
-    """A plant's member key: a 48-bit hash of its MuJoCo model (the MJCF at full precision) and of
-    its sensing data (task map, true surface), exact in float64, the same in every process."""
+def _content_key(scene: S.Scene, sensing, disturbance, viscous: float = 0.0) -> int:
+    """A plant's member key: a 48-bit hash of its MuJoCo model (the MJCF at full precision), of
+    its sensing data (task map, true surface) and of its viscous tool friction (not in the MJCF),
+    exact in float64, the same in every process."""
     import hashlib
 
     from ..._pytree import value_key
@@ -406,6 +531,8 @@ def _content_key(scene: S.Scene, sensing, disturbance) -> int:
     h = hashlib.sha256(scene.xml.encode())
     h.update(repr(value_key(sensing)).encode())
     h.update(repr((scene.source, scene.timestep)).encode())
+    if viscous:
+        h.update(repr(("viscous", float(viscous))).encode())
     return int.from_bytes(h.digest()[:6], "little")
 
 
@@ -467,7 +594,7 @@ class MujocoPlant(DiscretePlant):
             raise ConfigError(f"must be one of {CALLBACKS}, got {callback!r}", key="plant.callback")
         kind = type(sensing).__name__
         family = _family_of(scene, kind)
-        member = family.add(scene, meta, _content_key(scene, sensing, disturbance))
+        member = family.add(scene, meta, _content_key(scene, sensing, disturbance, _viscous_of(meta.friction)))
         chain = getattr(meta.arm, "chain", None)
         limits = None if chain is None else (jnp.asarray(chain.lower, dtype=jnp.float64),
                                              jnp.asarray(chain.upper, dtype=jnp.float64))
@@ -490,7 +617,9 @@ class MujocoPlant(DiscretePlant):
                     friction=None, friction_damping: float = S.FRICTION_DAMPING) -> "MujocoPlant":
         """The MuJoCo plant of a TRUE arm, surface, contact (:class:`~hinfnn.PenaltyContact`, N/m
         and N·s/m), joint disturbance (:class:`~hinfnn.SquareWave`) and tool friction
-        (:class:`~hinfnn.plant.contact.Friction`: its Coulomb μ; MuJoCo has no viscous term).
+        (:class:`~hinfnn.plant.contact.Friction`: its Coulomb μ is MuJoCo's friction cone, its
+        viscous c_v a force hinfnn applies at the tool point at every MuJoCo step while the contact
+        pushes; docs/mujoco.md, "Friction").
 
         ``arm``: :class:`~hinfnn.TwoLinkArm` (surface: :class:`~hinfnn.InclinedLine`) or a
         :class:`~hinfnn.model.urdf.UrdfArm` (URDF or planar chain; surface: a plane, sphere,
@@ -505,8 +634,9 @@ class MujocoPlant(DiscretePlant):
         mu, c_v = _friction_values(friction)
         if isinstance(arm, TwoLinkArm):
             S._check_two_link(arm, surface)
-            if mu > 0:
-                raise ConfigError("the two_link arm's MuJoCo model is frictionless", key="plant.friction.coulomb")
+            if mu > 0 or c_v > 0:
+                raise ConfigError("the two_link arm's MuJoCo model is frictionless",
+                                  key="plant.friction.coulomb" if mu > 0 else "plant.friction.viscous")
             scene = S.build_scene(surface, contact, rows=(0, 2), arm_xml=S.two_link_xml(arm), timestep=ts,
                                   integrator=integrator)
             sensing = LineSensing(surface=surface)
@@ -741,14 +871,12 @@ class MujocoPlant(DiscretePlant):
 
 
 def _friction_values(friction):
+    """(μ, c_v) of a :class:`~hinfnn.plant.contact.Friction` (zeros for None): μ is MuJoCo's
+    Coulomb cone, c_v the viscous force hinfnn applies at the tool point."""
     if friction is None:
         return 0.0, 0.0
-    mu, c_v = float(friction.coulomb), float(friction.viscous)
-    if c_v != 0.0:
-        raise ConfigError(f"must be 0 for the MuJoCo plant, got {c_v:g} N s/m: MuJoCo's contact has Coulomb friction "
-                          "only (plant.friction.coulomb; its slope below the cone is plant.friction_damping)",
-                          key="plant.friction.viscous")
-    return mu, c_v
+    S._check_number("plant.friction.viscous", friction.viscous)
+    return float(friction.coulomb), float(friction.viscous)
 
 
 def _cartesian_sensing(task, surface, chain) -> CartesianSensing:
