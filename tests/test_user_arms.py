@@ -125,7 +125,7 @@ def test_any_file_name_is_a_file(tmp_path):
 @pytest.mark.parametrize("make, pattern", [
     (lambda d: str(d / "arm.urdf.xacro"), r"is a xacro file: expand it with xacro first"),
     (lambda d: str(d), r"is a folder, not a URDF file.*\(it holds a.urdf\)"),
-    (lambda d: str(d / "missing.urdf"), r"no such file; .*shipped with hinfnn: 'kinova', 'panda', 'planar/sec6_two_link'"),
+    (lambda d: str(d / "missing.urdf"), r"no such file; .*shipped with hinfnn: 'fr3', 'kinova', 'panda'"),
     (lambda d: "pandaa", r"is neither a file nor a robot shipped with hinfnn \(.*'ur5'.*\); did you mean 'panda'\?"),
 ])
 def test_file_values_refused(tmp_path, make, pattern):
