@@ -277,6 +277,10 @@ def test_design_command_on_every_shipped_scenario(name, capsys):
             if k == "sampled":  # a sampled scenario (ur5-polish): the one-period map's spectral radius
                 assert m["stable"] is (m["radius"] < 1.0) is (not paper), (label, k, m["radius"])
                 continue
+            if k == "noise":  # the sampled loop with the declared sensor's delay: its gains per N of noise
+                assert m["stable"] is (m["radius"] < 1.0), (label, k, m["radius"])
+                assert not m["stable"] or (m["lam_per_n"] > 0 and min(m["tau_per_n"]) >= 0), (label, m)
+                continue
             assert m["polynomial_match"] < 1e-8 and m["coupling"] < 1e-12 and m["residual"] < 1e-6, (label, k)
             assert m["stable"] is (not paper), (label, k, m["mode"])
     assert rep["path"]["found"] == rep["path"]["points"] and rep["path"]["sigma_min"] > 0

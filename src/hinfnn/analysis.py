@@ -919,7 +919,8 @@ def format_design_report(rep: dict) -> str:
                         lines.append(f"    {label}, sensor noise with {m['delay']} sample(s) of delay: the "
                                      f"sampled loop is UNSTABLE (spectral radius {m['radius']:.5g})")
                         continue
-                    lim = ("" if not np.all(np.isfinite(m["torque_limit"])) else
+                    limits = np.array([math.inf if v is None else v for v in m["torque_limit"]], dtype=float)
+                    lim = ("" if not np.all(np.isfinite(limits)) else
                            f"; 3 sigma of torque within the limits up to sensor noise {m['largest_sigma']:.3g} N")
                     lines.append(f"    {label}, noise gains with {m['delay']} sample(s) of delay at "
                                  f"{m['stiffness']:g} N/m: "
