@@ -288,6 +288,26 @@ def test_a_lock_step_virtual_run_is_the_simulation_and_loads(virtual_scenario, t
     assert {"cycle_latency [s]", "force_measured_1 [N]", "tau_law_2 [N·m]", "lam [N]"} <= columns
 
 
+def test_the_virtual_robot_has_the_truths_sensor_and_motors(tmp_path):
+    """A lock-step virtual run with a noisy, one-sample-late sensor and torque-limited motors reads and drives
+    the plant as the simulation of the same scenario does: the same law's torques and errors at every sample
+    (the noise from the same seeded stream), and the motors' limit binds."""
+    sc = H.Scenario.load("paper", VIRTUAL + ["plant.sensor.force_noise=0.5", "plant.sensor.delay=1",
+                                             "plant.sensor.seed=3", "plant.actuator.torque_limit=[60.0, 30.0]"])
+    res = run_virtual(sc, tmp_path)
+    assert res.doc["runs"][0]["status"] == "ok" and res.log.stop is None
+    traj = H.load(res.target).trajectories["hinf_nn"]
+    sim = sc.simulate()
+    # every sample the law acts on (the simulation's record at t_final is not one, and with a delayed sensor
+    # its e_lam there is not what the sensor would give at a next sample)
+    np.testing.assert_allclose(traj.tau_law[:-1], sim.tau[:-1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(traj.e_lam[:-1], sim.e_lam[:-1], rtol=0, atol=1e-9)
+    assert np.max(np.abs(np.asarray(sim.tau)[:-1, 1])) > 30.0  # the law asks beyond the limit the motors hold
+    assert float(np.max(np.asarray(sim.torque_saturated))) == 1.0
+    ideal = run_virtual(H.Scenario.load("paper", VIRTUAL), tmp_path, name="ideal")
+    assert not np.allclose(H.load(ideal.target).trajectories["hinf_nn"].e_lam, traj.e_lam)
+
+
 @pytest.mark.parametrize("fault, rule, status", [
     (Fault("force_spike", t=0.02, value=500.0), "force_limit", "diverged"),
     (Fault("force_spike", t=0.02, value=1e30), "force_out_of_range", "ok"),

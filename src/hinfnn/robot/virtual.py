@@ -4,7 +4,11 @@
 scenario's true plant (``plant.engine = "mujoco"``: :class:`hinfnn.plant.mujoco.MujocoPlant`) at
 the scenario's start pose and then advances it by one control period h at each tick of the wall
 clock (t0 + k h), holding the newest torque the loop wrote (zero-order hold), and publishes the
-reading of each new state. The loop and the server share two small blocks of memory (a reading and
+reading of each new state. The truth's sensor and motors (``[plant.sensor]``, ``[plant.actuator]``:
+:mod:`hinfnn.plant.instruments`) act as in a simulation: the published reading is what the sensor
+gives at that sample (noise from the same seeded stream, bias, delay, bandwidth), and the torque
+that drives the plant is the written one through the motors' torque and rate limits less the
+joints' friction. The loop and the server share two small blocks of memory (a reading and
 a command, each behind a sequence counter): the loop reaches the plant only through the
 :class:`~hinfnn.robot.Robot` interface, so the timing, the jitter and the late cycles are real.
 A tick at which no fresh torque has arrived since the previous one holds the old torque again and
@@ -122,6 +126,25 @@ def serve(config: dict) -> None:
         step = jax.jit(lambda t, s, tau: plant.step(t, s, tau, period)[0])
         step(0.0, state, jnp.zeros(n)).q.block_until_ready()  # compiled before the clock starts
         upper = np.asarray(plant.joint_limits()[1], dtype=float)
+        # the truth's sensor and motors (plant.sensor, plant.actuator), as the simulator applies them
+        sensor, act = plant.sensor, plant.actuator
+        if sensor is not None:
+            from hinfnn.protocols import Measurement
+
+            def true_reading(s):
+                return Measurement(q=s.q, qd=s.qd, force=s.force)
+
+            sense = jax.jit(lambda k, s, st: sensor.read(k, period, true_reading(s), st))
+            sensed = sensor.start(true_reading(state))
+            sense(0, state, sensed)[0].q.block_until_ready()
+        if act is not None:
+            def _drive(tau, previous, first, qd):
+                applied = act.apply(tau, previous, period, first)
+                return applied, applied - act.friction(qd)
+
+            actuate = jax.jit(_drive)
+            applied = jnp.zeros(n)
+            actuate(jnp.zeros(n), applied, True, state.qd)[0].block_until_ready()
     except Exception as err:  # noqa: BLE001 - reported to the loop's process as one line
         say(f"error {type(err).__name__}: {' '.join(str(err).split())}")
         return
@@ -131,11 +154,16 @@ def serve(config: dict) -> None:
         return
     fired = [False] * len(faults)
     prev = None
+    if sensor is None:
+        sensed = None
 
     def publish(k, state, missed):
-        nonlocal prev
+        nonlocal prev, sensed
         t = k * period
-        q, qd, force = (np.array(a, dtype=float) for a in (state.q, state.qd, state.force))
+        reading = state
+        if sensor is not None:  # what the robot's sensor gives at sample k (noise, bias, delay, bandwidth)
+            reading, sensed = sense(k, state, sensed)
+        q, qd, force = (np.array(a, dtype=float) for a in (reading.q, reading.qd, reading.force))
         for i, f in enumerate(faults):
             if f.kind == "stall" or not f.active(t, fired[i]):
                 continue
@@ -184,7 +212,10 @@ def serve(config: dict) -> None:
             missed, last = 0, seq
         if not np.all(np.isfinite(tau)):  # never given to the engine: the robot's own guard
             tau = np.zeros(n)
-        state = step(k * period, state, jnp.asarray(tau))
+        drive = jnp.asarray(tau)
+        if act is not None:  # the motors: torque and rate limits, then the joints' friction
+            applied, drive = actuate(drive, applied, k == 0, state.qd)
+        state = step(k * period, state, drive)
         k += 1
         publish(k, state, missed)
     S[1] = behind
