@@ -16,6 +16,7 @@ from hinfnn.robot import Reading, run_loop
 from hinfnn.robot.safety import SafetyLimits
 from hinfnn.scenario import Scenario
 from hinfnn.scenario.sections import SafetyConfig
+from robot_helpers import ScriptedRobot
 
 pytestmark = pytest.mark.xdist_group("job")
 
@@ -157,30 +158,11 @@ class PhasedLoop:
         return np.array([1.0, 2.0])
 
 
-class Script:
-    def __init__(self, readings):
-        self.readings, self.period, self.n, self.i, self.written = readings, 1e-3, 2, 0, []
-
-    def start(self):
-        pass
-
-    def stop(self):
-        pass
-
-    def read(self):
-        r = self.readings[min(self.i, len(self.readings) - 1)]
-        self.i += 1
-        return r
-
-    def write(self, tau):
-        self.written.append(np.array(tau))
-
-
 def drive(phases, forces, t_final):
     L = SafetyLimits.from_config(SafetyConfig(contact_loss_after=0.0, contact_loss_time=0.003, stop_time=0.002),
                                  period=1e-3, n=2)
     loop = PhasedLoop(phases)
-    bot = Script([Reading(t=k * 1e-3, q=np.zeros(2), qd=np.zeros(2), force=np.array([0.0, -f]))
+    bot = ScriptedRobot([Reading(t=k * 1e-3, q=np.zeros(2), qd=np.zeros(2), force=np.array([0.0, -f]))
                   for k, f in enumerate(forces)])
     return run_loop(bot, types.SimpleNamespace(loop=lambda: loop), L, t_final=t_final,
                     gravity=lambda q: np.zeros(2), point_jacobian=lambda q: np.eye(2)), loop

@@ -15,11 +15,11 @@ import pytest
 
 import hinfnn as H
 from hinfnn.errors import ConfigError
-from hinfnn.robot import Fault, Reading, Robot, VirtualRobot, run_loop, run_robot
+from hinfnn.robot import Fault, Reading, VirtualRobot, run_loop, run_robot
 from hinfnn.robot import safety as S
 from hinfnn.scenario.sections import SafetyConfig
+from robot_helpers import PERIOD, ScriptedRobot
 
-PERIOD = 1e-3
 
 
 def limits(**kw):
@@ -128,30 +128,6 @@ def test_retract_moves_the_tool_against_the_last_force():
 
 
 # --- the loop on a scripted robot ---------------------------------------------------------------------------
-class ScriptedRobot(Robot):
-    """Gives the readings of a list, in order, and keeps what was written."""
-
-    def __init__(self, readings):
-        self.readings = list(readings)
-        self.period, self.n = PERIOD, 2
-        self.written = []
-        self.i = 0
-
-    def start(self):
-        pass
-
-    def stop(self):
-        pass
-
-    def read(self):
-        r = self.readings[min(self.i, len(self.readings) - 1)]
-        self.i += 1
-        return r
-
-    def write(self, tau):
-        self.written.append(np.array(tau))
-
-
 class SpyLoop:
     """The controller's loop as the runner calls it, keeping every sample it was given."""
 
