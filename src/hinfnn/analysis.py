@@ -367,12 +367,11 @@ def k_prime(ctrl) -> float:
 
 
 def network_gain(ctrl, e_lam: float = 0.0, z: float = 0.0) -> float:
-    """g_f = γ2‖ξ_f‖² at the inputs (e_λ, z): the adaptive law's integral gain on e_λ at Θ̂_f = 0."""
-    net = ctrl.network_f
-    if net is None:
-        return 0.0
-    xi = np.asarray(net.features(jnp.array([e_lam]), jnp.array([z])))
-    return float(ctrl.gains.gamma_2) * float(xi @ xi)
+    """g_f = γ2‖ξ_f‖² at the inputs (e_λ, z): the adaptive law's integral gain on e_λ at Θ̂_f = 0
+    (:func:`hinfnn.controllers.network.integral_gain` of the controller's F_f)."""
+    from .controllers.network import integral_gain
+
+    return integral_gain(ctrl.network_f, ctrl.gains.gamma_2, e_lam, z)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -28,7 +28,7 @@ from ..errors import DesignError
 from . import terms as T
 from .gains import Gains
 from .law import BLOCK, ReducedOrderController
-from .network import Adaptation, TanhNetwork, paper_network_f, paper_network_p
+from .network import Adaptation, TanhNetwork, integral_gain, paper_network_f, paper_network_p
 from .riccati import design_riccati
 
 
@@ -260,8 +260,9 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
 
         sensing = None
         if filtering:
+            force_net = next((t.network for t in terms if isinstance(t, T.ForceNetwork)), None)
             sensing = dict(order=ff["order"], cutoff_hz=ff["cutoff_hz"], noise=float(ff.get("noise", 0.0)),
-                           delay=int(ff.get("delay", 0)), g_f=_network_gain(terms, g))
+                           delay=int(ff.get("delay", 0)), g_f=integral_gain(force_net, g.gamma_2))
         d = design_force_rate(arm, surface, g, robust=comp.robust, sensing=sensing, **force_rate)
         terms = terms + (T.ForceRate(kappa=jnp.asarray(d.kappa), tau_f=jnp.asarray(d.tau_f),
                                      design=Note(d.as_dict().items())),)
@@ -284,19 +285,6 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
     if adaptation:
         ctrl = robust_adaptation(ctrl, **adaptation)
     return ctrl
-
-
-def _network_gain(terms, gains) -> float:
-    """g_f = γ2‖ξ_f(0, 0)‖²: the adaptive law's force network at Θ̂_f = 0 is an integral action of
-    this gain on e_λ (its largest over the outputs); 0 without the network."""
-    import numpy as np
-
-    net = next((t.network for t in terms if isinstance(t, T.ForceNetwork)), None)
-    if net is None:
-        return 0.0
-    k = net.n_out
-    xi = np.atleast_2d(np.asarray(net.features(jnp.zeros(k), jnp.zeros(k)), dtype=float))
-    return float(np.asarray(gains.gamma_2, dtype=float).max()) * float(np.max(np.sum(xi * xi, axis=1)))
 
 
 class FeedbackLinearization:

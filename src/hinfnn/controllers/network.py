@@ -333,6 +333,17 @@ class CoordinateNetwork(_Network):
         return _projected(self, raw, xi_blocks, s, theta_blocks, gamma)
 
 
+def integral_gain(net, gamma_2, e_lam: float = 0.0, z: float = 0.0) -> float:
+    """g_f = γ2‖ξ_f(e_λ, z)‖²: the force network F_f of eq. (31) at Θ̂_f = 0 is an integral action
+    of this gain on e_λ, at the inputs (e_λ, z) (every constraint's); the largest over the outputs
+    and over γ2's entries; 0 without a network (``net`` None). Design-time (NumPy)."""
+    if net is None:
+        return 0.0
+    k = net.n_out
+    xi = np.atleast_2d(np.asarray(net.features(jnp.full(k, float(e_lam)), jnp.full(k, float(z))), dtype=float))
+    return float(np.max(np.asarray(gamma_2, dtype=float))) * max(float(row @ row) for row in xi)
+
+
 #: Remark 2's projection acts from ‖Θ‖² ≥ (1 − this) d²: the radial clip leaves Θ on the sphere to
 #: the rounding of ‖Θ‖, and a test at d² exactly would switch the projection on or off by that
 #: rounding (two compiled programs of the same law, a run and a batch member, then part ways). Acting
