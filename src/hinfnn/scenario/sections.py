@@ -1278,6 +1278,13 @@ class SensorAssumptionConfig:
                                                              "whole control samples; \"declared\": "
                                                              "plant.sensor.delay", ge=0, le=1000)
 
+    def resolved(self, declared: tuple[float, int]) -> tuple[float, int]:
+        """(noise σ, N; delay, samples) the design assumes, "declared" taken from ``declared``
+        (the scenario's plant.sensor: :attr:`hinfnn.scenario.setup.Setup.declared_sensor`)."""
+        noise = declared[0] if self.noise == "declared" else self.noise
+        delay = declared[1] if self.delay == "declared" else self.delay
+        return float(noise), int(delay)
+
 
 @section
 class ControllerConfig:
@@ -1339,10 +1346,8 @@ class ControllerConfig:
                 raise ConfigError("the force filter is discrete, designed at the control period: it needs sampled "
                                   "control (simulation.control = \"sampled\", or a plant that steps itself)",
                                   key="controller.force_filter.order")
-            noise = declared[0] if self.sensor.noise == "declared" else self.sensor.noise
-            delay = declared[1] if self.sensor.delay == "declared" else self.sensor.delay
-            force_filter = dict(order=ff.order, cutoff_hz=ff.cutoff_hz, noise=float(noise), delay=int(delay),
-                                period=period)
+            noise, delay = self.sensor.resolved(declared)
+            force_filter = dict(order=ff.order, cutoff_hz=ff.cutoff_hz, noise=noise, delay=delay, period=period)
         try:
             return design(kind, arm, surface, self.gains.build(), augmented=self.augmented,
                           network_p=self.network_p.build("controller.network_p", surface.m),

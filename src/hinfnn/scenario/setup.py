@@ -207,7 +207,7 @@ class Setup:
         ``plant.sensor``'s, its data sheet), or None with the paper's laws."""
         sc = self.scenario
         sensor = sc.plant.sensor
-        force_noise = self.declared_sensor[0] if sc.controller.sensor.noise == "declared" else sc.controller.sensor.noise
+        force_noise = sc.controller.sensor.resolved(self.declared_sensor)[0]
         noisy = bool(force_noise or np.any(sensor.q_noise) or np.any(sensor.qd_noise))
         if sc.controller.adaptation.resolved(noisy) == "none":
             return None
