@@ -19,7 +19,9 @@ a robot run is written, loaded, shown, plotted and exported as a simulated one.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import gc
 import math
 import time
 
@@ -102,13 +104,38 @@ def _runs(flags) -> list[int]:
     return out
 
 
+@contextlib.contextmanager
+def _no_collection():
+    """Python's cyclic garbage collector held off for the loop (a full collection can take
+    milliseconds: a late cycle): what exists is collected and frozen first, collection is
+    re-enabled (if it was on) when the loop ends, whatever ends it. The loop's own allocations are
+    freed by reference counting as usual."""
+    was = gc.isenabled()
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+        if was:
+            gc.enable()
+
+
 def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, gravity, point_jacobian,
              log=None) -> LoopLog:
     """Drive ``robot`` with ``sampled`` (a :class:`hinfnn.controllers.SampledController`, its
     compiled update warmed up before the call) until the robot's time reaches ``t_final`` or the
     safety layer stops it. ``gravity(q)``, ``point_jacobian(q)``: the nominal arm's G and tool-point
     Jacobian as NumPy (the hold and the retraction). ``log(line)``: each event as it fires. The
-    robot must be started; the loop does not stop it."""
+    robot must be started; the loop does not stop it. Python's cyclic garbage collector is held
+    off while the loop runs (:func:`_no_collection`)."""
+    with _no_collection():
+        return _drive(robot, sampled, limits, t_final=t_final, gravity=gravity, point_jacobian=point_jacobian, log=log)
+
+
+def _drive(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, gravity, point_jacobian,
+           log=None) -> LoopLog:
     period = robot.period
     loop = sampled.loop()
     phase_of = getattr(loop, "phase", None) or (lambda: None)

@@ -30,6 +30,7 @@ been descheduled).
 from __future__ import annotations
 
 import dataclasses
+import gc
 import math
 import time
 from pathlib import Path
@@ -187,6 +188,9 @@ def serve(config: dict) -> None:
 
     S[0] = _RUNNING
     publish(0, state, 0)
+    gc.collect()  # the served plant's clock must not stop for a collection (the loop's side does the same)
+    gc.freeze()
+    gc.disable()
     while C[0] < 2 and S[0] == _RUNNING:  # the clock starts with the first torque (the arm held until then)
         time.sleep(1e-4)
     t0 = time.perf_counter()
