@@ -53,7 +53,8 @@ def test_the_job_finds_contact_and_hands_over_to_the_law(base):
     assert -np.asarray(tr.penetration)[0] == pytest.approx(0.02, abs=1e-3)
     # contact detected on the measured force at the sample the force first reaches the threshold
     F = np.linalg.norm(np.asarray(tr.F).reshape(len(t), -1), axis=1)
-    assert F[i_c - 1] >= sc.job.contact_force and np.all(F[:i_c - 1] < sc.job.contact_force)
+    threshold = sc.job.contact_threshold(0.0)  # "auto" with an ideal sensor: 2 N
+    assert threshold == 2.0 and F[i_c - 1] >= threshold and np.all(F[:i_c - 1] < threshold)
     # the law's state is frozen until contact, then runs (z of eq. (27) starts at 0 at the contact)
     z = np.asarray(tr.z).reshape(len(t), -1)
     assert np.all(z[:i_c + 1] == 0.0) and np.any(z[i_c + 2:] != 0.0)
@@ -135,12 +136,28 @@ def test_the_default_start_in_contact_is_todays_run_bit_for_bit():
     (["job.start=approach", "job.approach_speed=-0.1"], "job.approach_speed"),
     (["job.start=approach", "job.ramp_time=-1"], "job.ramp_time"),
     (["job.start=approach"], "job.start"),  # the paper's continuous control: the phases need samples
-    (["job.start=approach", "simulation.control=sampled", "plant.sensor.force_noise=1.0"], "job.contact_force"),
+    # a threshold in the sensor's noise: given, or "auto" from a controller told the sensor is ideal
+    (["job.start=approach", "simulation.control=sampled", "plant.sensor.force_noise=1.0", "job.contact_force=5"],
+     "job.contact_force"),
+    (["job.start=approach", "simulation.control=sampled", "plant.sensor.force_noise=1.0", "controller.sensor.noise=0"],
+     "job.contact_force"),
 ])
 def test_bad_job_keys_are_typed_errors(keys, key):
     with pytest.raises(ConfigError) as err:
         Scenario.load("paper", keys)
     assert err.value.key == key
+
+
+def test_auto_contact_threshold_clears_the_assumed_noise():
+    """``job.contact_force = "auto"``: 2 N with an ideal sensor, 6√3 σ with the σ the controller
+    assumes (above the 5√3 σ floor of a noisy sensor's reading in free space), a number as given."""
+    sc = Scenario.load("paper", ["job.start=approach", "simulation.control=sampled", "plant.sensor.force_noise=1.0"])
+    assert sc.job.contact_force == "auto"
+    assert sc.job.contact_threshold(0.0) == 2.0 and sc.job.contact_threshold(0.1) == 2.0
+    assert sc.job.contact_threshold(1.0) == pytest.approx(6.0 * np.sqrt(3.0))
+    assert float(sc.build().controller().job.contact_force) == pytest.approx(6.0 * np.sqrt(3.0))
+    given = Scenario.load("paper", ["job.start=approach", "simulation.control=sampled", "job.contact_force=3"])
+    assert given.job.contact_threshold(5.0) == 3.0
 
 
 # --- the robot loop -----------------------------------------------------------------------------------

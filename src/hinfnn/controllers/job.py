@@ -353,10 +353,11 @@ def approach_pose(arm, constraint, q_contact, height):
     return q, jnp.max(jnp.abs(arm.h(q) - target))
 
 
-def job_params(cfg) -> JobParams:
-    """The :class:`JobParams` of a scenario's ``[job]`` section."""
+def job_params(cfg, contact_force: float) -> JobParams:
+    """The :class:`JobParams` of a scenario's ``[job]`` section, with its contact threshold
+    ``contact_force`` resolved (N: :meth:`hinfnn.scenario.sections.JobConfig.contact_threshold`)."""
     return JobParams.make(speed=cfg.approach_speed, travel=cfg.approach_height + cfg.approach_margin,
-                          gain=cfg.approach_gain, contact_force=cfg.contact_force, ramp_time=cfg.ramp_time,
+                          gain=cfg.approach_gain, contact_force=contact_force, ramp_time=cfg.ramp_time,
                           process_time=cfg.process_time, lift_height=cfg.lift_height, lift_time=cfg.lift_time)
 
 

@@ -1621,8 +1621,10 @@ class JobConfig:
     approach_gain: float = param(20.0, doc="bandwidth of the free-space motion law (computed torque on the nominal "
                                  "model with integral action, its three poles at -approach_gain), rad/s", gt=0.0,
                                  le=1e3)
-    contact_force: float = param(2.0, doc="contact is detected when the MEASURED force at the tool reaches this, N "
-                                 "(above the sensor's noise and bias)", gt=0.0, le=1e6)
+    contact_force: Literal["auto"] | float = param("auto", doc="contact is detected when the MEASURED force at the tool "
+                                                   "reaches this, N (above the sensor's noise and bias); \"auto\": "
+                                                   "2 N, or 6 sqrt(3) times the noise controller.sensor assumes where "
+                                                   "that is more", gt=0.0, le=1e6)
     ramp_time: float = param(0.5, doc="lam_d ramps from the force at contact to the reference's over this time, s "
                              "(the reference's time origin is the contact)", ge=0.0, le=100.0)
     process_time: float = param(0.0, doc="time in the process phase after the ramp before the unload and lift-off, s; "
@@ -1634,17 +1636,36 @@ class JobConfig:
     def approach(self) -> bool:
         return self.start == "approach"
 
-    def check_sensor(self, sensor, path: str = "job") -> None:
-        """``contact_force`` must exceed what the declared sensor reads with no contact: its bias
-        plus 5 standard deviations of the noise's norm (ConfigError at ``job.contact_force``)."""
+    #: ``contact_force = "auto"``: at least this, N (an ideal sensor's threshold) ...
+    CONTACT_FORCE_MIN: ClassVar[float] = 2.0
+    #: ... and this many times the noise σ the controller assumes (per axis: the noise's norm has
+    #: standard deviation about √3 σ; 6√3 σ clears 5√3 σ, the floor :meth:`check_sensor` demands).
+    CONTACT_FORCE_SIGMAS: ClassVar[float] = 6.0 * math.sqrt(3.0)
+
+    def contact_threshold(self, noise: float) -> float:
+        """The contact-detection threshold, N: ``contact_force``, or with "auto" the larger of
+        :attr:`CONTACT_FORCE_MIN` and :attr:`CONTACT_FORCE_SIGMAS` × ``noise`` (the σ the controller
+        assumes, controller.sensor)."""
+        if self.contact_force == "auto":
+            return max(self.CONTACT_FORCE_MIN, self.CONTACT_FORCE_SIGMAS * float(noise))
+        return float(self.contact_force)
+
+    def check_sensor(self, sensor, noise: float, path: str = "job") -> None:
+        """The threshold (:meth:`contact_threshold`, ``noise`` the σ the controller assumes) must
+        exceed what the declared sensor reads with no contact: its bias plus 5 standard deviations
+        of the noise's norm (ConfigError at ``job.contact_force``)."""
         if not self.approach:
             return
         floor = float(np.linalg.norm(sensor.force_bias)) if sensor.force_bias else 0.0
         floor += 5.0 * math.sqrt(3.0) * float(sensor.force_noise)
-        if not self.contact_force > floor:
+        value = self.contact_threshold(noise)
+        if not value > floor:
+            how = f"got {value:g} N" if self.contact_force != "auto" else (
+                f"\"auto\" gives {value:g} N from the noise controller.sensor assumes ({float(noise):g} N): set a "
+                "number, or declare the sensor's noise in controller.sensor.noise")
             raise ConfigError(f"must exceed the force the sensor reads with no contact, |plant.sensor.force_bias| + "
-                              f"5 sqrt(3) plant.sensor.force_noise = {floor:.4g} N, got {self.contact_force:g} N (a "
-                              "threshold in the noise detects contact in free space)", key=f"{path}.contact_force")
+                              f"5 sqrt(3) plant.sensor.force_noise = {floor:.4g} N, {how} (a threshold in the noise "
+                              "detects contact in free space)", key=f"{path}.contact_force")
 
 
 @section

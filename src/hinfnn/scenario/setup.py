@@ -170,10 +170,11 @@ class Setup:
         if self.control_period is None:
             raise ConfigError("a job with an approach runs under sampled control (its phases switch at samples): set "
                               "simulation.control = \"sampled\", or job.start = \"contact\"", key="job.start")
-        job.check_sensor(sc.plant.sensor)
+        noise = sc.controller.sensor.resolved(self.declared_sensor)[0]
+        job.check_sensor(sc.plant.sensor, noise)
         from ..controllers.job import JobController, job_params
 
-        return JobController(law=law, job=job_params(job), kind=law.kind)
+        return JobController(law=law, job=job_params(job, job.contact_threshold(noise)), kind=law.kind)
 
     def _design_inputs(self):
         """(u1_path, q_start): the reference's path and the start pose the force-rate rule reads
