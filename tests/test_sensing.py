@@ -180,9 +180,10 @@ def test_noise_gains_and_delay_of_the_linearised_loop_against_simulation():
 
 def test_a_noisy_late_sensor_on_the_ur5_drum_holds_within_the_torque_limits_only_with_the_design():
     """ur5-polish on MuJoCo at 1 kHz, H∞-only law, σ = 1 N and one sample of delay on the sensor, the
-    UR5's torque limits: the force-rate gain of section 7's rule (designed for an ideal sensor)
-    drives the motors into their limits a large part of the time, the design for the declared
-    sensor never after the first 0.2 s, with a smaller true force error. (One compiled MuJoCo
+    UR5's torque limits: the force-rate gain of section 7's rule (designed for an ideal sensor, ṡ
+    the differenced force: source "force") drives the motors into their limits a large part of the
+    time, the design for the declared sensor (source "auto": the joint rates) never after the first
+    0.2 s, with a smaller true force error. (One compiled MuJoCo
     program for both laws, 1.2-s runs: tens of seconds; the one test of the design on the arm and
     plant the issue measured.)"""
     pytest.importorskip("mujoco")
@@ -191,7 +192,7 @@ def test_a_noisy_late_sensor_on_the_ur5_drum_holds_within_the_torque_limits_only
 
     over = {"controller.kind": "hinf", "simulation.t_final": 1.2, "plant.sensor.force_noise": 1.0,
             "plant.sensor.delay": 1, "plant.actuator.torque_limit": "urdf"}
-    paper = H.load_scenario("ur5-polish", over)
+    paper = H.load_scenario("ur5-polish", {**over, "controller.force_rate.source": "force"})
     designed = H.load_scenario("ur5-polish", {**over, "controller.force_filter.order": "design"})
     sd = dict(designed.build_controller().terms[-1].design)["sensing"]
     assert sd["delay"] == 1 and sd["noise"] == 1.0  # the declared sensor, copied by the scenario
