@@ -348,11 +348,30 @@ def split_loops(A, ctrl, q_eq, names) -> dict:
 # --- the polynomial -------------------------------------------------------------------------------
 
 
-def force_loop_polynomial(m_s, k_u, K_prime, mu_z, alpha_z, kappa=0.0, tau_f=0.0, g_f=0.0) -> np.ndarray:
+def force_loop_polynomial(m_s, k_u, K_prime, mu_z, alpha_z, kappa=0.0, tau_f=0.0, g_f=0.0, filt=None,
+                          rate_filtered=True) -> np.ndarray:
     """Coefficients (highest power first) of the force loop's characteristic polynomial (module
     docstring); with ``g_f`` > 0 the adaptive law's linearised network (the polynomial then has
-    one degree more)."""
+    one degree more).
+
+    ``filt`` (docs/beyond-the-paper.md section 12): the force filter's transfer function
+    F = N_f/D_f as (N_f, D_f) coefficient arrays, in front of the proportional term, z, the
+    network and (``rate_filtered``, the differenced force) the force-rate term; the joint rates'
+    term (``rate_filtered`` False, τ_f = 0) reads the unfiltered rate. The loop
+    m_s s² + k_u(1 + g_P F) + k_u κ s R + α_z k_u F/(s + μ_z) + k_u g_f F/s = 0 (R = F/(τ_f s + 1)
+    or 1) is multiplied by D_f (τ_f s + 1)(s + μ_z) (and s with the network)."""
     P, add = np.polymul, np.polyadd
+    if filt is not None:
+        Nf, Df = (np.atleast_1d(np.asarray(c, dtype=float)) for c in filt)
+        Tf = [tau_f, 1.0]
+        base = P(add(P([m_s, 0.0, 0.0], Df), add(P([k_u], Df), P([k_u * (K_prime - 1.0)], Nf))), Tf)
+        rate = P([k_u * kappa, 0.0], Nf if rate_filtered else P(Df, Tf))
+        inner = add(base, rate)
+        z_part = P([alpha_z * k_u], P(Nf, Tf))
+        if g_f == 0.0:
+            return add(P(inner, [1.0, mu_z]), z_part)
+        inner = add(P(inner, [1.0, 0.0]), P([k_u * g_f], P(Nf, Tf)))
+        return add(P(inner, [1.0, mu_z]), P(z_part, [1.0, 0.0]))
     if g_f == 0.0:
         inner = add(add(P([m_s, 0, 0], [tau_f, 1]), P([k_u * K_prime], [tau_f, 1])), [k_u * kappa, 0])
         return add(P(inner, [1, mu_z]), P([alpha_z * k_u], [tau_f, 1]))
@@ -470,10 +489,11 @@ def _linearise(plant, ctrl, ref, q_eq, stiffness) -> dict:
     g = ctrl.gains
     g_f = network_gain(ctrl)
     kappa_loop = kappa
-    if fr is not None and fr.source == "velocity":  # ṡ = (k_s/k) λ̇ from the joint rates: no filter state
+    velocity = fr is not None and fr.source == "velocity"
+    if velocity:  # ṡ = (k_s/k) λ̇ from the joint rates: no filter state
         kappa_loop, tau = kappa * float(fr.stiffness) / float(stiffness), 0.0
     poly = force_loop_polynomial(c["m_s"], c["k_u"], k_prime(ctrl), float(g.mu_z), float(g.alpha_z), kappa_loop, tau,
-                                 g_f)
+                                 g_f, filt=_filter_transfer(ctrl), rate_filtered=not velocity)
     roots = np.roots(poly)
     force = sorted(parts["force"], key=lambda e: -e.real)
     matched = None
@@ -488,6 +508,20 @@ def _linearise(plant, ctrl, ref, q_eq, stiffness) -> dict:
                 coupling=parts["coupling"], neutral=neutral, roots=roots, polynomial_match=matched,
                 least_damped=Mode(least_damped(force)), constants=c, kappa=kappa, tau_f=tau, g_f=g_f,
                 stable=bool(np.all(eigs.real < 0)))
+
+
+def _filter_transfer(ctrl):
+    """(N_f, D_f) of the law's force filter as the continuous loop sees it (its state's rate
+    ((A − I)x + Bu)/h, output Cx + Du), or None without a filter."""
+    f = ctrl.force_filter
+    if f is None:
+        return None
+    from scipy import signal
+
+    A_, B, C, D = f.matrices()
+    h = float(np.asarray(f.period))
+    num, den = signal.ss2tf((A_ - np.eye(A_.shape[0])) / h, (B / h)[:, None], C[None, :], np.array([[D]]))
+    return np.asarray(num[0], dtype=float), np.asarray(den, dtype=float)
 
 
 def contact_modes(scenario, kind: str, stiffness: float, u1d=None, lam_d=None, ctrl=None) -> dict:
