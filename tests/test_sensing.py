@@ -9,6 +9,7 @@ import dataclasses
 import inspect
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -349,3 +350,43 @@ def test_velocity_noise_gains_against_simulation():
     tau = np.asarray(a["tau"])[keep]
     rate_std = np.std(np.diff(tau, axis=0), axis=0) / 1e-3 / sigma
     assert rate_std == pytest.approx(np.asarray(nr["tau_rate_per_n"]), rel=0.2)
+
+
+def _height_and_slanted_angle(x, p):
+    return jnp.stack([p[0] - x[1], p[1] - x[2] - 0.5 * x[1]])  # non-orthogonal normals of unequal norms
+
+
+def test_velocity_rate_per_constraint_on_two_slanted_constraints():
+    """k = 2 constraints whose gradients are neither orthogonal nor of unit norm (a 3-link planar arm,
+    tip height and a slanted tool angle): a penalty contact of stiffness k along each unit normal,
+    F = kÂᵀD²θ̂, reads λ = (ÂÂᵀ)⁻¹ÂF = kD²θ̂, so on the surface λ̇ = kD²ÂĴq̇, the law's
+    ``theta_rate`` times k (forward-mode derivative along q̇, 1e-10), and not k(ÂÂᵀ)⁻¹ÂĴq̇."""
+    from hinfnn.controllers.law import force_multiplier
+    from hinfnn.model.arm import PlanarPointMassArm
+    from hinfnn.model.surface import ImplicitSurface
+    from hinfnn.model.taskmap import PlanarTaskMap
+
+    arm = PlanarPointMassArm(masses=jnp.array([2.0, 1.5, 1.0]), lengths=jnp.array([0.8, 0.7, 0.5]), g=9.81, n=3,
+                             task=PlanarTaskMap("xy", with_angle=True))
+    surface = ImplicitSurface(params=jnp.array([0.4, -1.0]), theta_fn=_height_and_slanted_angle, m=1, k=2)
+    ctrl = H.controllers.design("hinf", arm, surface)
+    q = arm.inverse_kinematics(jnp.array([1.0, 0.4, -1.2]), jnp.array([0.3, -0.6, -0.9]))
+    x = arm.h(q)
+    assert np.max(np.abs(np.asarray(surface.theta(x)))) < 1e-9  # on both constraints
+    qd = jnp.array([0.3, -0.7, 0.5])
+    k = 1e5
+
+    def lam(q):
+        x = arm.h(q)
+        A_hat = surface.A_hat(x)
+        D2 = 1.0 / jnp.sum(A_hat * A_hat, axis=1)
+        return force_multiplier(A_hat, k * A_hat.T @ (D2 * surface.theta(x)))
+
+    _, lam_dot = jax.jvp(lam, (q,), (qd,))
+    out = ctrl.evaluate(0.0, ctrl.init(), H.Measurement(q=q, qd=qd, force=jnp.zeros(2)),
+                        A.constant_reference(1.0, jnp.array([10.0, 10.0])))
+    rate = k * np.asarray(out.aux.ctx.theta_rate)
+    np.testing.assert_allclose(rate, np.asarray(lam_dot), rtol=1e-10, atol=1e-10 * float(np.max(np.abs(lam_dot))))
+    A_hat = np.asarray(surface.A_hat(x))
+    other = k * np.linalg.solve(A_hat @ A_hat.T, A_hat @ np.asarray(arm.J(q)) @ np.asarray(qd))
+    assert np.max(np.abs(other - rate)) > 0.1 * np.max(np.abs(rate))
