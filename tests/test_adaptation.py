@@ -209,7 +209,8 @@ def test_leakage_bounds_the_weights_under_noise_where_the_papers_law_drifts():
     4.4 at 0.02 s, 0.7 at 1 s). One compiled program for both (σ = 0 is the paper's law)."""
     sets = ["simulation.control=sampled", "simulation.control_period=0.001", "simulation.t_final=1.0",
             "plant.sensor.force_noise=1.0", "plant.sensor.seed=3", "controller.force_rate.stiffness_max=100000.0",
-            "controller.adaptation.robust=sigma"]
+            "controller.adaptation.robust=sigma",
+            "controller.force_rate.source=force"]  # ṡ the differenced force: its noise is what drives the drift
     runs = [H.load_scenario("paper-stable", [*sets, f"controller.adaptation.leak={leak}"]).build().run()
             for leak in (0.0, 5.0)]
     r = runs[0]

@@ -348,11 +348,30 @@ def split_loops(A, ctrl, q_eq, names) -> dict:
 # --- the polynomial -------------------------------------------------------------------------------
 
 
-def force_loop_polynomial(m_s, k_u, K_prime, mu_z, alpha_z, kappa=0.0, tau_f=0.0, g_f=0.0) -> np.ndarray:
+def force_loop_polynomial(m_s, k_u, K_prime, mu_z, alpha_z, kappa=0.0, tau_f=0.0, g_f=0.0, filt=None,
+                          rate_filtered=True) -> np.ndarray:
     """Coefficients (highest power first) of the force loop's characteristic polynomial (module
     docstring); with ``g_f`` > 0 the adaptive law's linearised network (the polynomial then has
-    one degree more)."""
+    one degree more).
+
+    ``filt`` (docs/beyond-the-paper.md section 12): the force filter's transfer function
+    F = N_f/D_f as (N_f, D_f) coefficient arrays, in front of the proportional term, z, the
+    network and (``rate_filtered``, the differenced force) the force-rate term; the joint rates'
+    term (``rate_filtered`` False, τ_f = 0) reads the unfiltered rate. The loop
+    m_s s² + k_u(1 + g_P F) + k_u κ s R + α_z k_u F/(s + μ_z) + k_u g_f F/s = 0 (R = F/(τ_f s + 1)
+    or 1) is multiplied by D_f (τ_f s + 1)(s + μ_z) (and s with the network)."""
     P, add = np.polymul, np.polyadd
+    if filt is not None:
+        Nf, Df = (np.atleast_1d(np.asarray(c, dtype=float)) for c in filt)
+        Tf = [tau_f, 1.0]
+        base = P(add(P([m_s, 0.0, 0.0], Df), add(P([k_u], Df), P([k_u * (K_prime - 1.0)], Nf))), Tf)
+        rate = P([k_u * kappa, 0.0], Nf if rate_filtered else P(Df, Tf))
+        inner = add(base, rate)
+        z_part = P([alpha_z * k_u], P(Nf, Tf))
+        if g_f == 0.0:
+            return add(P(inner, [1.0, mu_z]), z_part)
+        inner = add(P(inner, [1.0, 0.0]), P([k_u * g_f], P(Nf, Tf)))
+        return add(P(inner, [1.0, mu_z]), P(z_part, [1.0, 0.0]))
     if g_f == 0.0:
         inner = add(add(P([m_s, 0, 0], [tau_f, 1]), P([k_u * K_prime], [tau_f, 1])), [k_u * kappa, 0])
         return add(P(inner, [1, mu_z]), P([alpha_z * k_u], [tau_f, 1]))
@@ -469,7 +488,12 @@ def _linearise(plant, ctrl, ref, q_eq, stiffness) -> dict:
     c = loop_constants(ctrl.arm, ctrl.surface, stiffness, q_eq)
     g = ctrl.gains
     g_f = network_gain(ctrl)
-    poly = force_loop_polynomial(c["m_s"], c["k_u"], k_prime(ctrl), float(g.mu_z), float(g.alpha_z), kappa, tau, g_f)
+    kappa_loop = kappa
+    velocity = fr is not None and fr.source == "velocity"
+    if velocity:  # ṡ = (k_s/k) λ̇ from the joint rates: no filter state
+        kappa_loop, tau = kappa * float(fr.stiffness) / float(stiffness), 0.0
+    poly = force_loop_polynomial(c["m_s"], c["k_u"], k_prime(ctrl), float(g.mu_z), float(g.alpha_z), kappa_loop, tau,
+                                 g_f, filt=_filter_transfer(ctrl), rate_filtered=not velocity)
     roots = np.roots(poly)
     force = sorted(parts["force"], key=lambda e: -e.real)
     matched = None
@@ -484,6 +508,20 @@ def _linearise(plant, ctrl, ref, q_eq, stiffness) -> dict:
                 coupling=parts["coupling"], neutral=neutral, roots=roots, polynomial_match=matched,
                 least_damped=Mode(least_damped(force)), constants=c, kappa=kappa, tau_f=tau, g_f=g_f,
                 stable=bool(np.all(eigs.real < 0)))
+
+
+def _filter_transfer(ctrl):
+    """(N_f, D_f) of the law's force filter as the continuous loop sees it (its state's rate
+    ((A − I)x + Bu)/h, output Cx + Du), or None without a filter."""
+    f = ctrl.force_filter
+    if f is None:
+        return None
+    from scipy import signal
+
+    A_, B, C, D = f.matrices()
+    h = float(np.asarray(f.period))
+    num, den = signal.ss2tf((A_ - np.eye(A_.shape[0])) / h, (B / h)[:, None], C[None, :], np.array([[D]]))
+    return np.asarray(num[0], dtype=float), np.asarray(den, dtype=float)
 
 
 def contact_modes(scenario, kind: str, stiffness: float, u1d=None, lam_d=None, ctrl=None) -> dict:
@@ -632,14 +670,19 @@ def sensed_sampled_loop(plant, ctrl, ref, q_eq, period: float, dt: float, delay:
     names = state_names(ctrl)[p:]
     neutral = np.zeros(N, bool)
     neutral[p:p + m] = [nm in ("theta_p", "theta_f") for nm in names]
-    return dict(Phi=Phi, Gamma=Gamma, C_tau=C_tau, D_tau=dtau, C_lam=C_lam, neutral=neutral, delay=d)
+    return dict(Phi=Phi, Gamma=Gamma, C_tau=C_tau, D_tau=dtau, C_lam=C_lam, neutral=neutral, delay=d, period=period)
 
 
 def noise_response(loop: dict) -> dict:
     """The stationary response of :func:`sensed_sampled_loop` to white force-sensor noise of 1 N
     per axis (the discrete Lyapunov equation Σ = ΦΣΦᵀ + ΓΓᵀ, the neutral network directions
     dropped): RMS commanded torque per joint (N·m per N of noise), RMS true λ error (λ units per
-    N), the spectral radius; the gains are inf when the loop is not stable."""
+    N), RMS torque rate per joint (``tau_rate_per_n``: the held torque's change from one sample to
+    the next over the period, N·m/s per N), the spectral radius; the gains are inf when the loop
+    is not stable.
+
+    The rate: with x_k = Φx_{k−1} + Γn_{k−1} and τ_k = Cx_k + Dn_k, τ_k − τ_{k−1} =
+    C(Φ − I)x_{k−1} + (CΓ − D)n_{k−1} + Dn_k, three independent parts."""
     from scipy.linalg import solve_discrete_lyapunov
 
     Phi, G = loop["Phi"], loop["Gamma"]
@@ -648,12 +691,18 @@ def noise_response(loop: dict) -> dict:
     radius = float(np.max(np.abs(np.linalg.eigvals(Pr))))
     if radius >= 1.0:
         n = loop["C_tau"].shape[0]
-        return dict(radius=radius, stable=False, tau_per_n=[math.inf] * n, lam_per_n=math.inf, neutral=dropped)
+        return dict(radius=radius, stable=False, tau_per_n=[math.inf] * n, lam_per_n=math.inf,
+                    tau_rate_per_n=[math.inf] * n, neutral=dropped)
     S = solve_discrete_lyapunov(Pr, Gr @ Gr.T)
     Ct, Cl = loop["C_tau"] @ Wb, loop["C_lam"] @ Wb
-    tau = np.sqrt(np.maximum(np.diag(Ct @ S @ Ct.T) + np.sum(loop["D_tau"] ** 2, axis=1), 0.0))
+    D = loop["D_tau"]
+    tau = np.sqrt(np.maximum(np.diag(Ct @ S @ Ct.T) + np.sum(D ** 2, axis=1), 0.0))
     lam = np.sqrt(np.maximum(np.diag(Cl @ S @ Cl.T), 0.0))
-    return dict(radius=radius, stable=True, tau_per_n=tau.tolist(), lam_per_n=float(lam.max()), neutral=dropped)
+    Cd, Gd = Ct @ (Pr - np.eye(Pr.shape[0])), Ct @ Gr - D
+    rate = np.sqrt(np.maximum(np.diag(Cd @ S @ Cd.T) + np.sum(Gd ** 2, axis=1) + np.sum(D ** 2, axis=1), 0.0))
+    period = float(loop.get("period", 1.0))
+    return dict(radius=radius, stable=True, tau_per_n=tau.tolist(), lam_per_n=float(lam.max()),
+                tau_rate_per_n=(rate / period).tolist(), neutral=dropped)
 
 
 def largest_noise(tau_per_n, limits, sigmas: float = 3.0) -> float:
@@ -890,7 +939,9 @@ def format_design_report(rep: dict) -> str:
                          f"{fr.get('path_points', 0)} poses of the path, k {fr['stiffness_min']:g}..{fr['stiffness_max']:g} "
                          f"N/m), tau_f {fr['tau_f']:g} s, zeta at the softest contact {fr.get('zeta_softest', math.nan):.3g}"
                          + (f", sampled window {fr['window'][0]:.3g}..{fr['window'][1]:.3g} s (at {fr['period']:g} s the "
-                            f"loop holds up to {fr['stiffness_limit']:.3g} N/m)" if fr.get("window") else ""))
+                            f"loop holds up to {fr['stiffness_limit']:.3g} N/m)" if fr.get("window") else "")
+                         + (f"; ds/dt from the joint rates (source \"velocity\", k_s {fr['stiffness_max']:g} N/m)"
+                            if fr.get("source") == "velocity" else ""))
             sd = fr.get("sensing")
             if sd:
                 filt = (f"Butterworth order {sd['order']} at {sd['cutoff_hz']:.4g} Hz" if sd["order"] else "none")
@@ -898,8 +949,9 @@ def format_design_report(rep: dict) -> str:
                              f"{sd['delay']} sample(s)): filter {filt}, kappa {sd['kappa']:.4g} s; least damping "
                              f"{sd['zeta']:.3g} over the range; worst RMS force error "
                              f"{sd['force_error_per_n']:.3g} per N "
-                             f"of noise, RMS force command {sd['command_per_n']:.3g} per N ({sd['candidates']} "
-                             "candidates held)")
+                             f"of noise, RMS force command {sd['command_per_n']:.3g} per N, its RMS rate "
+                             f"{sd.get('command_rate_per_n', math.nan):.3g} per s per N ({sd['candidates']} "
+                             f"candidates held; force-rate source \"{sd.get('source', 'force')}\")")
         if d["singularity_stop"] > 0:
             lines.append(f"  singularity guard: stop when sigma_min(J) < {d['singularity_stop']:g}")
         cm = d["contact_modes"]
@@ -923,7 +975,8 @@ def format_design_report(rep: dict) -> str:
                            f"; 3 sigma of torque within the limits up to sensor noise {m['largest_sigma']:.3g} N")
                     lines.append(f"    {label}, noise gains with {m['delay']} sample(s) of delay at "
                                  f"{m['stiffness']:g} N/m: "
-                                 f"RMS torque per N of sensor noise {_fmt_list(m['tau_per_n'], '.3g')} N m, RMS true "
+                                 f"RMS torque per N of sensor noise {_fmt_list(m['tau_per_n'], '.3g')} N m, RMS torque "
+                                 f"rate per N {_fmt_list(m.get('tau_rate_per_n', []), '.3g')} N m/s, RMS true "
                                  f"force error {m['lam_per_n']:.3g} per N{lim}"
                                  + (f" (declared noise {m['sigma']:g} N: force error "
                                     f"{m['sigma'] * m['lam_per_n']:.3g}, "

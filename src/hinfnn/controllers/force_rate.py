@@ -74,6 +74,7 @@ class ForceRateDesign:
     period_limit: float | None = None  # sampled: the longest control period that holds stiffness_max, s
     zeta_sampled: float | None = None  # sampled: the least damping of the sampled force loop at stiffness_max
     sensing: dict | None = None  # the force filter and κ designed for the declared sensor (controllers.sensing)
+    source: str = "force"  # the term's ṡ: "force" (differenced e_λ) or "velocity" (joint rates, ForceRate)
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -281,7 +282,7 @@ def _largest(ok, lo, hi, steps=60):
 def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_start, kappa="rule", tau_f="auto",
                       zeta: float = 0.7, stiffness_min: float = 1e4, stiffness_max: float = 1e6,
                       period: float | None = None, margin: float = 0.8, u1_range=None,
-                      sensing: dict | None = None) -> ForceRateDesign:
+                      sensing: dict | None = None, source: str = "force") -> ForceRateDesign:
     """κ and τ_f for the force-rate term from the NOMINAL model (the controller's knowledge) and
     the stated range of contact stiffness, for any arm and constraint (docs/beyond-the-paper.md,
     sections 3 and 7).
@@ -304,7 +305,21 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
     filter's ``order`` and ``cutoff_hz`` (numbers or "design"), the sensor's ``noise`` (N) and
     ``delay`` (samples) and the network's integral gain ``g_f``: κ ("rule") and the filter are then
     chosen together on the loop with the filter, the delay and the network (the ideal sensor's
-    Jury window does not apply), and the choice is kept in ``sensing``."""
+    Jury window does not apply), and the choice is kept in ``sensing``.
+
+    ``source`` (:class:`hinfnn.controllers.terms.ForceRate`): "force" (ṡ the differenced e_λ) or
+    "velocity" (ṡ = k_s D²ÂĴq̇ from the joint rates, k_s = ``stiffness_max``). With "velocity" the
+    term's damping is k_s/k times the force source's at a contact k, so the least damping of the
+    range is at its stiffest contact: the rule is κ = 2ζ*√(K' m_n,max/k_max) under continuous
+    control, and under sampled control κ and the filter always come from
+    :func:`~hinfnn.controllers.sensing.design_sensing` (``sensing`` None: no filter, an ideal
+    sensor)."""
+    if source not in ("force", "velocity"):
+        raise DesignError(f"must be \"force\" or \"velocity\", got {source!r}", key="force_rate.source",
+                          value=source)
+    velocity = source == "velocity"
+    if velocity and period is not None and sensing is None:
+        sensing = dict(order=0, cutoff_hz="design", noise=0.0, delay=0, g_f=0.0)
     from .._config import require_x64
 
     require_x64()
@@ -329,7 +344,7 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
     i_max = max(range(len(measures)), key=lambda i: measures[i][1])
     u1_heavy = poses[i_max][0]
     u1_heavy = u1_heavy if isinstance(u1_heavy, float) else tuple(float(v) for v in np.ravel(u1_heavy))
-    kappa_cont = 2.0 * zeta * math.sqrt(K_prime * mn_max / stiffness_min)
+    kappa_cont = 2.0 * zeta * math.sqrt(K_prime * mn_max / (stiffness_max if velocity else stiffness_min))
     rule = kappa == "rule"
     k_value = kappa_cont if rule else float(kappa)
     tf = (period if period is not None else 1e-3) if tau_f == "auto" else float(tau_f)
@@ -345,14 +360,14 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
                             delay=int(sensing.get("delay", 0)), stiffness_min=stiffness_min,
                             stiffness_max=stiffness_max, m_n_min=mn_min, m_n_max=mn_max,
                             order=sensing.get("order", "design"), cutoff_hz=sensing.get("cutoff_hz", "design"),
-                            kappa="rule" if rule else float(kappa), zeta_min=SAMPLED_ZETA_MIN)
+                            kappa="rule" if rule else float(kappa), zeta_min=SAMPLED_ZETA_MIN, source=source)
         k_value = sd.kappa
-        zeta_soft = 0.5 * k_value * math.sqrt(stiffness_min / (mn_max * K_prime))
+        zeta_soft = _zeta_softest(k_value, stiffness_min, stiffness_max, mn_max, K_prime, velocity)
         return ForceRateDesign(kappa=k_value, tau_f=tf, rule=rule, zeta=zeta, stiffness_min=stiffness_min,
                                stiffness_max=stiffness_max, m_n_max=mn_max, m_n_min=mn_min, K_prime=K_prime,
                                kappa_continuous=kappa_cont, period=period, constraints=int(surface.k),
                                path_points=len(poses), u1_m_n_max=u1_heavy, zeta_softest=zeta_soft,
-                               zeta_sampled=sd.zeta, sensing=sd.as_dict())
+                               zeta_sampled=sd.zeta, sensing=sd.as_dict(), source=source)
     if period is not None:
         g_P = K_prime - 1.0
         mu_z, alpha_z = float(gains.mu_z), float(gains.alpha_z)
@@ -398,9 +413,16 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
                 f"{stiffness_max:g} N/m contact needs simulation.control_period <= {period_limit:.3g} s",
                 key="force_rate.stiffness_max", value=stiffness_max, bound=stiffness_limit)
     # the damping ratio the chosen κ gives the contact mode at the softest contact and the heaviest pose
-    zeta_soft = 0.5 * k_value * math.sqrt(stiffness_min / (mn_max * K_prime))
+    zeta_soft = _zeta_softest(k_value, stiffness_min, stiffness_max, mn_max, K_prime, velocity)
     return ForceRateDesign(kappa=k_value, tau_f=tf, rule=rule, zeta=zeta, stiffness_min=stiffness_min,
                            stiffness_max=stiffness_max, m_n_max=mn_max, m_n_min=mn_min, K_prime=K_prime,
                            kappa_continuous=kappa_cont, period=period, window=window, constraints=int(surface.k),
                            path_points=len(poses), u1_m_n_max=u1_heavy, zeta_softest=zeta_soft,
-                           stiffness_limit=stiffness_limit, period_limit=period_limit, zeta_sampled=zeta_sampled)
+                           stiffness_limit=stiffness_limit, period_limit=period_limit, zeta_sampled=zeta_sampled,
+                           source=source)
+
+
+def _zeta_softest(kappa, k_min, k_max, mn_max, K_prime, velocity):
+    """ζ = (κ/2)√(k/(m_n K')) of the contact mode at the softest contact and the heaviest pose; with
+    the "velocity" source the term's damping is k_max/k_min times the force source's there."""
+    return 0.5 * kappa * (k_max / k_min if velocity else 1.0) * math.sqrt(k_min / (mn_max * K_prime))

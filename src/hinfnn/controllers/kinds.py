@@ -213,7 +213,8 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
     ``force_rate`` (not in the paper): the keyword arguments of
     :func:`~hinfnn.controllers.force_rate.design_force_rate` (``kappa`` "rule" or seconds,
     ``tau_f``, ``zeta``, ``stiffness_min``, ``stiffness_max``, ``u1_path``, ``q_start``,
-    ``period``); a κ of 0 leaves the law as the paper's. ``singularity_stop``: the law reports a
+    ``period``, ``source``: "force" or "velocity", :class:`~hinfnn.controllers.terms.ForceRate`);
+    a κ of 0 leaves the law as the paper's. ``singularity_stop``: the law reports a
     fault (the simulator stops, the sampled controller returns NaN) when σ_min(Ĵ) falls below it.
     ``block``: the largest array the controller keeps in the compiled loop
     (:data:`~hinfnn.controllers.law.BLOCK`; None: arrays whole). ``adaptation`` (not in the
@@ -259,13 +260,16 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
         from .force_rate import design_force_rate
 
         sensing = None
-        if filtering:
+        velocity = force_rate.get("source", "force") == "velocity"
+        if filtering or (velocity and force_rate.get("period") is not None):  # "velocity": the sampled loop's design
             force_net = next((t.network for t in terms if isinstance(t, T.ForceNetwork)), None)
-            sensing = dict(order=ff["order"], cutoff_hz=ff["cutoff_hz"], noise=float(ff.get("noise", 0.0)),
-                           delay=int(ff.get("delay", 0)), g_f=integral_gain(force_net, g.gamma_2))
+            sensing = dict(order=ff.get("order", 0), cutoff_hz=ff.get("cutoff_hz", "design"),
+                           noise=float(ff.get("noise", 0.0)), delay=int(ff.get("delay", 0)),
+                           g_f=integral_gain(force_net, g.gamma_2))
         d = design_force_rate(arm, surface, g, robust=comp.robust, sensing=sensing, **force_rate)
+        velocity_args = dict(stiffness=jnp.asarray(float(d.stiffness_max)), source="velocity") if velocity else {}
         terms = terms + (T.ForceRate(kappa=jnp.asarray(d.kappa), tau_f=jnp.asarray(d.tau_f),
-                                     design=Note(d.as_dict().items())),)
+                                     design=Note(d.as_dict().items()), **velocity_args),)
         if d.sensing is not None and d.sensing["order"]:
             ff = dict(ff, order=d.sensing["order"], cutoff_hz=d.sensing["cutoff_hz"])
     elif filtering and "design" in (ff["order"], ff["cutoff_hz"]):

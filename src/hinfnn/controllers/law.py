@@ -294,9 +294,12 @@ class ReducedOrderController(Controller, Dissipative):
             e_lam = self.force_filter.output(e_lam, x_f)
         x_p = jnp.concatenate([e_u1, e_u1_dot])
         s_p = _lower_times(self.P_p, self._blocks(self.P_p, self.P_blocks), x_p, m, kern)  # B_pᵀ P_p x_p
+        # the nominal constraint's rate per constraint, D²ÂĴq̇ (λ̇ per unit stiffness on a penalty contact;
+        # read by the force-rate term's "velocity" source only, so no other program computes it)
+        theta_rate = kern.mm(rm.A_hat, rm.x_dot) / jnp.sum(rm.A_hat * rm.A_hat, axis=1)
         ctx = T.Context(t=jnp.asarray(t, dtype=float), ref=r, u1=u1, u1_dot=u1_dot, lam=lam, e_u1=e_u1,
                         e_u1_dot=e_u1_dot, e_lam=e_lam, z=state.z, x_p=x_p, s_p=s_p, gains=g, P_p=self.P_p,
-                        augmented=self.augmented, kernels=kern)
+                        theta_rate=theta_rate, augmented=self.augmented, kernels=kern)
 
         mm = kern.mm
         a = r.u1_d_ddot - mm(g.K_v, e_u1_dot) - mm(g.K_p, e_u1)

@@ -121,7 +121,7 @@ def _none():
 
 
 def sensed_force_loop(omega0_h: float, g_P: float, kappa: float, h: float, mu_z: float = 0.0, alpha_z: float = 0.0,
-                      g_f: float = 0.0, delay: int = 0, filt=None):
+                      g_f: float = 0.0, delay: int = 0, filt=None, source: str = "force", rate_scale: float = 1.0):
     """(Φ, Γ, w, w_n): the force loop over one period of the zero-order hold, linearised on the
     contact mode ω0 = √(k/m_n), with the measurement path of a real sensor (module docstring).
 
@@ -132,7 +132,16 @@ def sensed_force_loop(omega0_h: float, g_P: float, kappa: float, h: float, mu_z:
     it into e_c and holds the force command w = z − ν − g_P e_c − κ(e_c − s)/h; between samples e
     is the undamped contact mode driven by w. Γ: the noise n_k's column; w, w_n: the held command's
     row and its noise coefficient. With no delay, filter or network it is
-    :func:`hinfnn.controllers.force_rate.sampled_force_loop` (the same matrix)."""
+    :func:`hinfnn.controllers.force_rate.sampled_force_loop` (the same matrix).
+
+    ``source`` "velocity" (the force-rate term's ṡ from the joint rates,
+    :class:`~hinfnn.controllers.terms.ForceRate`): the rate term reads the TRUE ė of ``delay``
+    samples before (the joint rates are delayed with the force), scaled by ``rate_scale`` = k_s/k
+    (the term's ṡ = k_s D²ÂĴq̇ is k_s/k times the contact's λ̇), and carries none of the force
+    noise; the s state is replaced by the delay line of ė/ω0 (after the acquisitions'), and
+    w = z − ν − g_P e_c − κ (k_s/k) ė_{k−d}."""
+    if source == "velocity":
+        return _velocity_force_loop(omega0_h, g_P, kappa, h, mu_z, alpha_z, g_f, delay, filt, rate_scale)
     Af, Bf, Cf, Df = _none() if filt is None else filt
     nf = Af.shape[0]
     d = int(delay)
@@ -183,6 +192,62 @@ def sensed_force_loop(omega0_h: float, g_P: float, kappa: float, h: float, mu_z:
     return Phi, G, w, wn
 
 
+def _velocity_force_loop(omega0_h, g_P, kappa, h, mu_z, alpha_z, g_f, delay, filt, rate_scale):
+    """:func:`sensed_force_loop` with the "velocity" source (its docstring): state (e, ė/ω0, the
+    ``delay`` acquisitions y, the ``delay`` past ė/ω0, the filter's, z, ν)."""
+    Af, Bf, Cf, Df = _none() if filt is None else filt
+    nf = Af.shape[0]
+    d = int(delay)
+    i_y, i_v = 2, 2 + d
+    i_f = 2 + 2 * d
+    i_z = i_f + nf
+    i_nu = i_z + 1
+    N = i_nu + (1 if g_f else 0)
+    ym, ymn = np.zeros(N), 0.0
+    vm = np.zeros(N)  # the ė/ω0 the rate term reads
+    if d == 0:
+        ym[0], ymn = 1.0, 1.0
+        vm[1] = 1.0
+    else:
+        ym[i_y + d - 1] = 1.0
+        vm[i_v + d - 1] = 1.0
+    ec, ecn = Df * ym, Df * ymn
+    ec[i_f:i_f + nf] += Cf
+    w, wn = -g_P * ec, -g_P * ecn
+    w = w - kappa * rate_scale * (omega0_h / h) * vm
+    w[i_z] += 1.0
+    if g_f:
+        w[i_nu] -= 1.0
+    c, sn = math.cos(omega0_h), math.sin(omega0_h)
+    Phi, G = np.zeros((N, N)), np.zeros(N)
+    Phi[0] = (1.0 - c) * w
+    Phi[0, 0] += c
+    Phi[0, 1] += sn
+    G[0] = (1.0 - c) * wn
+    Phi[1] = sn * w
+    Phi[1, 0] -= sn
+    Phi[1, 1] += c
+    G[1] = sn * wn
+    if d:
+        Phi[i_y, 0], G[i_y] = 1.0, 1.0
+        Phi[i_v, 1] = 1.0
+        for j in range(1, d):
+            Phi[i_y + j, i_y + j - 1] = 1.0
+            Phi[i_v + j, i_v + j - 1] = 1.0
+    if nf:
+        Phi[i_f:i_f + nf] = np.outer(Bf, ym)
+        Phi[i_f:i_f + nf, i_f:i_f + nf] += Af
+        G[i_f:i_f + nf] = Bf * ymn
+    Phi[i_z] = -h * alpha_z * ec
+    Phi[i_z, i_z] += 1.0 - h * mu_z
+    G[i_z] = -h * alpha_z * ecn
+    if g_f:
+        Phi[i_nu] = h * g_f * ec
+        Phi[i_nu, i_nu] += 1.0
+        G[i_nu] = h * g_f * ecn
+    return Phi, G, w, wn
+
+
 def loop_damping(Phi, h: float):
     """(spectral radius, least damping ratio) of a one-period map, each eigenvalue z read as
     s = ln(z)/h, ζ = −Re s/|s| (eigenvalues at 0, the delay line's, have none and are skipped)."""
@@ -206,6 +271,28 @@ def noise_gains(Phi, G, w, wn):
     return math.sqrt(max(S[0, 0], 0.0)), math.sqrt(max(float(w @ S @ w) + wn * wn, 0.0))
 
 
+def command_rate(Phi, G, w, wn) -> float:
+    """RMS change of the held force command from one sample to the next, w_k − w_{k−1}, per unit of
+    white measurement noise (the stationary covariance of the loop augmented with the previous
+    command; divide by h for a rate); inf when Φ is not stable."""
+    from scipy.linalg import solve_discrete_lyapunov
+
+    if np.max(np.abs(np.linalg.eigvals(Phi))) >= 1.0:
+        return math.inf
+    N = Phi.shape[0]
+    P2 = np.zeros((N + 1, N + 1))
+    P2[:N, :N] = Phi
+    P2[N, :N] = w
+    G2 = np.zeros(N + 1)
+    G2[:N] = G
+    G2[N] = wn
+    S = solve_discrete_lyapunov(P2, np.outer(G2, G2))
+    c = np.zeros(N + 1)
+    c[:N] = w
+    c[N] = -1.0
+    return math.sqrt(max(float(c @ S @ c) + wn * wn, 0.0))
+
+
 @dataclasses.dataclass(frozen=True)
 class SensingDesign:
     """What :func:`design_sensing` chose, and its predictions (per N of sensor noise)."""
@@ -219,6 +306,8 @@ class SensingDesign:
     command_per_n: float  # RMS held force command per N of noise, same corner
     zeta: float  # least damping ratio over the corners
     candidates: int  # designs that held
+    command_rate_per_n: float = math.nan  # RMS change of the held force command per second, per N, same corner
+    source: str = "force"  # the force-rate term's ṡ: "force" (differenced e_λ) or "velocity" (joint rates)
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -230,14 +319,18 @@ def corners(stiffness_min, stiffness_max, m_n_min, m_n_max):
             for m in sorted({float(m_n_min), float(m_n_max)})]
 
 
-def evaluate_design(order, cutoff_hz, kappa, *, h, g_P, mu_z, alpha_z, g_f, delay, pts, zeta_min=-math.inf):
+def evaluate_design(order, cutoff_hz, kappa, *, h, g_P, mu_z, alpha_z, g_f, delay, pts, zeta_min=-math.inf,
+                    source="force", stiffness_max=None, loop_out=None):
     """(least ζ, worst force error per N, its command per N) of one candidate over the corners
     ``pts``; ζ = −inf when a corner is unstable (the noise gains are inf then, and when the least ζ
-    is below ``zeta_min``: not computed)."""
+    is below ``zeta_min``: not computed). ``source`` "velocity": the rate term reads the joint
+    rates, scaled at each corner by ``stiffness_max``/k (:func:`sensed_force_loop`). ``loop_out``:
+    a list that receives the worst corner's loop (for :func:`command_rate`)."""
     filt = None if not order else butterworth_matrices(int(order), float(cutoff_hz), float(h))
     loops, zmin = [], math.inf
     for k, m in pts:
-        loop = sensed_force_loop(math.sqrt(k / m) * h, g_P, kappa, h, mu_z, alpha_z, g_f, delay, filt)
+        extra = {} if source == "force" else dict(source=source, rate_scale=float(stiffness_max) / k)
+        loop = sensed_force_loop(math.sqrt(k / m) * h, g_P, kappa, h, mu_z, alpha_z, g_f, delay, filt, **extra)
         radius, zeta = loop_damping(loop[0], h)
         if radius >= 1.0:
             return -math.inf, math.inf, math.inf
@@ -245,17 +338,24 @@ def evaluate_design(order, cutoff_hz, kappa, *, h, g_P, mu_z, alpha_z, g_f, dela
         loops.append(loop)
     if zmin < zeta_min:
         return zmin, math.inf, math.inf
-    e_w, w_w = 0.0, 0.0
+    e_w, w_w, worst = 0.0, 0.0, None
     for loop in loops:
         e, c = noise_gains(*loop)
         if e > e_w:
-            e_w, w_w = e, c
+            e_w, w_w, worst = e, c, loop
+    if loop_out is not None:
+        loop_out.append(worst)
     return zmin, e_w, w_w
+
+
+#: The "velocity" source's choice: among the candidates whose worst-corner force error is within
+#: this factor of the least, the one whose held command changes least from sample to sample.
+RATE_TOLERANCE = 1.10
 
 
 def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: float, noise: float, delay: int,
                    stiffness_min: float, stiffness_max: float, m_n_min: float, m_n_max: float, order="design",
-                   cutoff_hz="design", kappa="rule", zeta_min: float = 0.05,
+                   cutoff_hz="design", kappa="rule", zeta_min: float = 0.05, source: str = "force",
                    _search_ok: bool = True) -> SensingDesign:
     """The force filter (``order`` 0, 1 or 2, or "design": each tried; ``cutoff_hz`` a number or
     "design": a grid from 5 Hz to 0.4 of the sampling rate) and κ ("rule": a grid from h/20 to
@@ -263,25 +363,40 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
     docstring); ``zeta_min``: the least damping ratio accepted at every corner (the force-rate
     design passes :data:`hinfnn.controllers.force_rate.SAMPLED_ZETA_MIN`, the same 0.05). Raises
     DesignError naming ``sensor.delay`` when no candidate holds; its bound is the
-    softest contact the design holds with the same stiffest one (None: not even that one)."""
+    softest contact the design holds with the same stiffest one (None: not even that one).
+
+    ``source``: the force-rate term's ṡ, "force" (the differenced e_λ: the candidate of least
+    worst-corner force error, ties the least command) or "velocity" (the joint rates, scaled by
+    k_s/k with k_s = ``stiffness_max``: among the candidates within :data:`RATE_TOLERANCE` of the
+    least force error, the one of least RMS command change per sample, :func:`command_rate`)."""
+    if source not in ("force", "velocity"):
+        raise DesignError(f"must be \"force\" or \"velocity\", got {source!r}", key="force_rate.source",
+                          value=source)
     zeta_min = float(zeta_min)
     pts = corners(stiffness_min, stiffness_max, m_n_min, m_n_max)
     orders = (0, 1, 2) if order == "design" else (int(order),)
     kappas = np.geomspace(h / 20.0, 100.0 * h, 49) if kappa == "rule" else np.array([float(kappa)])
-    best, count = None, 0
+    best, count, held = None, 0, []
     for o in orders:
         cutoffs = [None] if o == 0 else (np.geomspace(5.0, 0.4 / h, 14) if cutoff_hz == "design"
                                            else [float(cutoff_hz)])
         for fc in cutoffs:
             for kap in kappas:
+                worst = []
                 zmin, e, c = evaluate_design(o, fc, float(kap), h=h, g_P=g_P, mu_z=mu_z, alpha_z=alpha_z, g_f=g_f,
-                                             delay=delay, pts=pts, zeta_min=zeta_min)
+                                             delay=delay, pts=pts, zeta_min=zeta_min, source=source,
+                                             stiffness_max=stiffness_max, loop_out=worst)
                 if not zmin >= zeta_min:
                     continue
                 count += 1
                 key = (round(e, 9), c)
+                entry = (key, o, fc, float(kap), e, c, zmin, worst[0])
+                held.append(entry)
                 if best is None or key < best[0]:
-                    best = (key, o, fc, float(kap), e, c, zmin)
+                    best = entry
+    if best is not None and source == "velocity":  # the least command change near the least error
+        near = [(command_rate(*b[7]), b[4], b) for b in held if b[4] <= RATE_TOLERANCE * best[4]]
+        best = min(near, key=lambda x: (x[0], x[1]))[2]
     if best is None:
         softest = None
         if _search_ok:  # the softest contact this delay and period hold with the stated stiffest one
@@ -290,7 +405,7 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
                     design_sensing(h=h, g_P=g_P, mu_z=mu_z, alpha_z=alpha_z, g_f=g_f, noise=noise, delay=delay,
                                    stiffness_min=k_min, stiffness_max=stiffness_max, m_n_min=m_n_min,
                                    m_n_max=m_n_max, order=order, cutoff_hz=cutoff_hz, kappa=kappa,
-                                   zeta_min=zeta_min, _search_ok=False)
+                                   zeta_min=zeta_min, source=source, _search_ok=False)
                     return True
                 except DesignError:
                     return False
@@ -313,10 +428,11 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
             + (f" (the adaptive law's force network adds an integral action of gain {g_f:.4g} 1/s: lowering gamma_2 "
                "slows it)" if g_f else "") + where,
             key="sensor.delay", value=delay, bound=softest)
-    _, o, fc, kap, e, c, zmin = best
+    _, o, fc, kap, e, c, zmin, loop = best
     return SensingDesign(order=o, cutoff_hz=None if fc is None else float(fc), kappa=kap, noise=float(noise),
-                         delay=int(delay), force_error_per_n=e, command_per_n=c, zeta=zmin, candidates=count)
+                         delay=int(delay), force_error_per_n=e, command_per_n=c, zeta=zmin, candidates=count,
+                         command_rate_per_n=command_rate(*loop) / h, source=source)
 
 
-__all__ = ["ForceFilter", "butterworth", "sensed_force_loop", "noise_gains", "loop_damping", "design_sensing",
-           "SensingDesign"]
+__all__ = ["ForceFilter", "butterworth", "sensed_force_loop", "noise_gains", "command_rate", "loop_damping",
+           "design_sensing", "SensingDesign"]

@@ -37,7 +37,10 @@ from .network import Adaptation, TanhNetwork, block_bounds, sq_norm
 class Context:
     """What every term may read at one instant: time, reference sample, the measured motion and
     force in the controller's coordinates, their errors, the z-filter state, x_p and
-    s_p = B_pᵀ P_p x_p (the drive of v_p and of F_p's update), the gains and P_p."""
+    s_p = B_pᵀ P_p x_p (the drive of v_p and of F_p's update), the gains and P_p, and
+    ``theta_rate``: the NOMINAL constraint's rate from the measured joint rates, per constraint
+    over its gradient's squared norm, D²Â Ĵ q̇ (D = diag(1/‖Â_i‖)): λ̇ per unit of contact
+    stiffness on a penalty contact (λ = k D²θ̂, docs/beyond-the-paper.md sections 1 and 7)."""
 
     t: jax.Array
     ref: RefSample
@@ -52,6 +55,7 @@ class Context:
     s_p: jax.Array
     gains: Gains
     P_p: jax.Array
+    theta_rate: jax.Array | None = None
     augmented: bool = static_field(default=False)
     kernels: la.Kernels = la.kernels_field()  # the controller's (hinfnn._linalg.Kernels): how terms write their algebra
 
@@ -291,46 +295,91 @@ class ForceNetwork(_NetworkTerm):
 class ForceRate(Term):
     """A force-rate term added to v_λ (not in the paper; docs/beyond-the-paper.md):
 
-        b = −κ ṡ,   τ_f ṡ = e_λ − s,
+        b = −κ ṡ,
 
-    ṡ a first-order filtered derivative of e_λ with time constant τ_f; the filter state s is part
-    of the controller state and starts at s(0) = e_λ(0) (no kick at the first sample). It damps the
-    contact mode that every law of the paper leaves unstable on a compliant surface (the loop
-    polynomial m_s s³ + m_s μ_z s² + k_u K's + k_u(K'μ_z + α_z) fails Routh's test by −α_z m_s k_u).
+    ṡ the force error's rate from one of two sources (``source``):
 
-    Storage: with c = α_λ/(1+β_λ), e_λ = s + τ_f ṡ makes the new cross term of (38) an exact
-    derivative, −cα_zκ e_λᵀṡ = −d/dt(cα_zκ/2 ‖s‖²) − cα_zκτ_f ‖ṡ‖², so V gains cα_zκ/2 ‖s‖² and
-    (39) keeps its form with the extra dissipation cα_zκτ_f ‖ṡ‖² (added to J_aug by the
-    bookkeeping: the stricter check)."""
+    * "force": τ_f ṡ = e_λ − s, a first-order filtered derivative of e_λ with time constant τ_f; the
+      filter state s is part of the controller state and starts at s(0) = e_λ(0) (no kick at the
+      first sample);
+    * "velocity": ṡ = k_s D²Â Ĵ q̇ (:attr:`Context.theta_rate`), the contact force's rate a penalty
+      contact of stiffness k_s would give from the measured joint rates (λ = k D²θ̂ on the nominal
+      constraint, sections 1 and 7; ``stiffness`` = k_s, the design's stiffest contact). The
+      encoders' rates carry almost none of the force sensor's noise; the rate is the measurement's
+      (λd's own rate is not differenced: no kick when λd moves); no state.
+
+    It damps the contact mode that every law of the paper leaves unstable on a compliant surface
+    (the loop polynomial m_s s³ + m_s μ_z s² + k_u K's + k_u(K'μ_z + α_z) fails Routh's test by
+    −α_z m_s k_u).
+
+    Storage, "force": with c = α_λ/(1+β_λ), e_λ = s + τ_f ṡ makes the new cross term of (38) an
+    exact derivative, −cα_zκ e_λᵀṡ = −d/dt(cα_zκ/2 ‖s‖²) − cα_zκτ_f ‖ṡ‖², so V gains cα_zκ/2 ‖s‖²
+    and (39) keeps its form with the extra dissipation cα_zκτ_f ‖ṡ‖² (added to J_aug by the
+    bookkeeping: the stricter check). "velocity": no such identity ties ṡ to e_λ; the cross term
+    x = cα_zκ e_λᵀṡ (the rate −x enters V̇) is carried as it is, its positive part as extra
+    dissipation and its negative part as extra supply (exact; the same inequality as a storage
+    cα_zκ/2 ‖e_λ‖² with the mismatch cα_zκ e_λᵀ(ė_λ − ṡ) as supply, docs/beyond-the-paper.md
+    section 12)."""
 
     kappa: jax.Array
     tau_f: jax.Array
     # the design step's record ((name, value), ...), a Note: it never decides a program
     design: tuple = static_field(default=Note())
+    stiffness: jax.Array | None = None  # k_s of the "velocity" source, N/m (None: "force")
+    source: str = static_field(default="force")
     side: ClassVar[str] = "force"
     fields: ClassVar[dict] = {
         "v_rate": ("λ units", "force-rate term −κ ṡ added to v_λ (not in the paper)"),
         "s_lam": ("λ units", "filtered e_λ, the force-rate term's state"),
+        "lam_rate": ("λ units/s", "the force-rate term's ṡ from the joint rates, k_s D²ÂĴq̇ (source \"velocity\")"),
     }
 
     def state_sizes(self, m, k):
-        return {"s_lam": k}
+        return {} if self.source == "velocity" else {"s_lam": k}
 
     def _s_dot(self, ctx, parts):
+        if self.source == "velocity":
+            return self.stiffness * ctx.theta_rate
         return (ctx.e_lam - parts["s_lam"]) / self.tau_f
 
     def evaluate(self, ctx, parts):
         s_dot = self._s_dot(ctx, parts)
         v = -self.kappa * s_dot
+        if self.source == "velocity":
+            return v, {}, {"v_rate": v, "lam_rate": s_dot}
         return v, {"s_lam": s_dot}, {"v_rate": v, "s_lam": parts["s_lam"]}
 
     def storage(self, ctx, parts):
+        if self.source == "velocity":
+            return None
         s = parts["s_lam"]
         return 0.5 * ctx.c * ctx.gains.alpha_z * self.kappa * ctx.kernels.mm(s, s)
 
+    def _cross(self, ctx, parts):
+        """x = cα_zκ e_λᵀṡ: the term's cross term in V̇ is −x."""
+        return ctx.c * ctx.gains.alpha_z * self.kappa * ctx.kernels.mm(ctx.e_lam, self._s_dot(ctx, parts))
+
     def extra_dissipation(self, ctx, parts):
+        if self.source == "velocity":
+            return jnp.maximum(self._cross(ctx, parts), 0.0)
         s_dot = self._s_dot(ctx, parts)
         return ctx.c * ctx.gains.alpha_z * self.kappa * self.tau_f * ctx.kernels.mm(s_dot, s_dot)
 
+    def extra_supply(self, ctx, parts):
+        """"velocity": the negative part of −x (:meth:`_cross`); None for "force"."""
+        if self.source == "velocity":
+            return jnp.maximum(-self._cross(ctx, parts), 0.0)
+        return None
+
     def start(self, ctx, parts):
-        return {"s_lam": ctx.e_lam}
+        return {} if self.source == "velocity" else {"s_lam": ctx.e_lam}
+
+    def check(self, m, k):
+        from ..errors import DesignError
+
+        if self.source not in ("force", "velocity"):
+            raise DesignError(f"must be \"force\" or \"velocity\", got {self.source!r}", key="force_rate.source",
+                              value=self.source)
+        if self.source == "velocity" and self.stiffness is None:
+            raise DesignError("the \"velocity\" source needs the design's stiffest contact k_s",
+                              key="force_rate.stiffness_max", value=None)

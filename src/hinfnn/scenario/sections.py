@@ -1198,6 +1198,18 @@ class ForceRateConfig:
     stiffness_min: float = param(1e4, doc="softest contact the design expects, N/m (the rule's)", gt=0.0, le=1e10)
     stiffness_max: float = param(1e6, doc="stiffest contact the design expects, N/m (sampled control: kappa must "
                                           "stabilise it)", gt=0.0, le=1e10)
+    source: Literal["auto", "force", "velocity"] = param(
+        "auto", doc="what ds/dt is: \"force\" (the filtered difference of the measured e_lam), \"velocity\" (the "
+                    "contact force's rate from the measured joint rates on the nominal constraint, scaled by "
+                    "stiffness_max), \"auto\" (\"velocity\" when controller.sensor assumes force noise, else "
+                    "\"force\")")
+
+    def resolved(self, noise: float) -> str:
+        """The source run: ``source``, with "auto" resolved by the force noise the design assumes
+        (``noise``, N: :meth:`SensorAssumptionConfig.resolved`): "velocity" when it is not 0."""
+        if self.source == "auto":
+            return "velocity" if noise > 0.0 else "force"
+        return self.source
 
     def validate(self, path):
         if self.stiffness_max < self.stiffness_min:
@@ -1336,9 +1348,12 @@ class ControllerConfig:
 
         fr = self.force_rate
         force_rate = None
+        noise, delay = self.sensor.resolved(declared)
+        source = fr.resolved(noise)
         if fr.kappa != 0.0:
             force_rate = dict(kappa=fr.kappa, tau_f=fr.tau_f, zeta=fr.zeta, stiffness_min=fr.stiffness_min,
-                              stiffness_max=fr.stiffness_max, u1_path=u1_path, q_start=q_start, period=period)
+                              stiffness_max=fr.stiffness_max, u1_path=u1_path, q_start=q_start, period=period,
+                              **({"source": source} if source != "force" else {}))
         ff = self.force_filter
         force_filter = None
         if ff.order != 0:
@@ -1346,8 +1361,9 @@ class ControllerConfig:
                 raise ConfigError("the force filter is discrete, designed at the control period: it needs sampled "
                                   "control (simulation.control = \"sampled\", or a plant that steps itself)",
                                   key="controller.force_filter.order")
-            noise, delay = self.sensor.resolved(declared)
             force_filter = dict(order=ff.order, cutoff_hz=ff.cutoff_hz, noise=noise, delay=delay, period=period)
+        elif force_rate is not None and source == "velocity" and period is not None:  # designed for the sensor
+            force_filter = dict(order=0, cutoff_hz="design", noise=noise, delay=delay, period=period)
         try:
             return design(kind, arm, surface, self.gains.build(), augmented=self.augmented,
                           network_p=self.network_p.build("controller.network_p", surface.m),

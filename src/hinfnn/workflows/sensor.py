@@ -65,6 +65,8 @@ def sensor_cases(arm: str, overrides=(), noises=SENSOR_NOISE, kinds=SENSOR_KINDS
                       "simulation.t_final": float(t_final)}
             for variant in ("paper", "designed"):
                 o = dict(common)
+                if variant == "paper":  # the law as designed for an ideal sensor: ṡ the differenced force
+                    o["controller.force_rate.source"] = "force"
                 if variant == "designed":
                     o["controller.force_filter.order"] = "design"
                     if fr.kappa == 0.0:
