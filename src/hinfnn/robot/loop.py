@@ -235,10 +235,10 @@ def trajectory(log: LoopLog, sampled, info):
             meas = Measurement(q=rows["q"][i], qd=rows["qd"][i], force=rows["force_measured"][i])
             t = float(rows["t_reading"][i])
             if not started:
-                state, started = sampled.start(t, state, meas), True
+                state, started = sampled._start(t, state, meas), True
             h = float(rows["control_h"][i])
-            _, sig = sampled.torque_and_signals(t, state, meas)
-            _, state = sampled.update(t, h, state, meas)
+            _, sig = sampled._torque_and_signals(t, state, meas)
+            _, state = sampled._update(t, h, state, meas)
             sig = jax.device_get(sig)
             if signals is None:
                 signals = {k: np.full((m,) + np.shape(v), np.nan) for k, v in sig.items()}

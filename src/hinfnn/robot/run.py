@@ -84,7 +84,7 @@ def prepared(sc):
     warm = sampled.loop()
     warm.update(0.0, limits.period, q, np.zeros(n), np.zeros(d))
     if controller.needs_start:
-        sampled.start(0.0, sampled.init(), Measurement(q=q, qd=np.zeros(n), force=np.zeros(d)))
+        sampled._start(0.0, sampled.init(), Measurement(q=q, qd=np.zeros(n), force=np.zeros(d)))
     return sampled, limits, gravity, point_jacobian
 
 
