@@ -122,7 +122,7 @@ def test_the_adapter_has_two_public_entry_points():
     and the signals that the robot layer replays a record with are private. The rest of the public
     names are sizes, the state's layout, ``init`` and the checks, none of which runs the law."""
     public = {n for n in dir(H.SampledController) if not n.startswith("_")}
-    assert public == {"step", "loop", "init", "check_sample", "is_valid", "controller", "reference", "kernels",
+    assert public == {"step", "loop", "init", "check_sample", "is_valid", "kernels",
                       "n_joints", "force_size", "state_size", "sample_size", "packed_size", "state_vector",
                       "state_from_vector"}
     assert {n for n in dir(H.SampledLoop) if not n.startswith("_")} == {
