@@ -87,7 +87,7 @@ from .._linalg import Kernels
 from .._loop import LoopOptions
 from .._pytree import all_finite, pytree_dataclass
 from ..errors import HinfnnError
-from ..protocols import Measurement
+from ..protocols import Measurement, needs_start
 from ..reference import check_references
 from .law import ControllerState, ReducedOrderController
 
@@ -347,7 +347,7 @@ class SampledController:
     def _start(self, t, state: ControllerState, measurement: Measurement) -> ControllerState:
         """The state at the first sample (:meth:`_start_fn`, compiled) when the controller has
         filter states (``controller.needs_start``; :class:`SampledLoop` does it by itself)."""
-        return self._jit_start(t, state, measurement) if self.controller.needs_start else state
+        return self._jit_start(t, state, measurement) if needs_start(self.controller) else state
 
     @functools.cached_property
     def _jit_signals(self):
@@ -517,7 +517,7 @@ class SampledLoop:
         self._set_state(state)
         self._fn = controller._jit_packed if self._packed else controller._jit_kept
         self.rejected = 0
-        self._pending_start = start and controller.controller.needs_start
+        self._pending_start = start and needs_start(controller.controller)
         #: Whether the controller is a job's (:class:`hinfnn.controllers.job.JobController`): its
         #: state's first array is the phase (:meth:`phase`).
         self.phased = hasattr(controller.controller, "job")
@@ -591,4 +591,4 @@ class SampledLoop:
         """Restart from ``state`` (default: :meth:`SampledController.init`)."""
         self._set_state(self.controller.init() if state is None else state)
         self.rejected = 0
-        self._pending_start = state is None and self.controller.controller.needs_start
+        self._pending_start = state is None and needs_start(self.controller.controller)

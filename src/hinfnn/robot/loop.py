@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 from ..controllers.job import PROCESS
-from ..protocols import Measurement
+from ..protocols import Measurement, needs_start
 from ..status import RunStatus
 from . import safety as S
 from .base import Robot
@@ -228,7 +228,7 @@ def trajectory(log: LoopLog, sampled, info):
     rows = log.rows
     m = len(rows["t"])
     state = sampled.init()
-    started = not sampled.controller.needs_start
+    started = not needs_start(sampled.controller)
     signals = None
     for i in range(m):
         if rows["accepted"][i]:
