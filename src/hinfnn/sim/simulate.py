@@ -1016,5 +1016,5 @@ def _group_progress(progress, i, n_groups, done, total, what=""):
     progress(i * total + done, n_groups * total, what)
 
 
-#: record_shapes' results by run structure (this process).
+#: RunProgram.record_shapes' results by run structure (this process).
 _RECORD_SHAPES: dict = {}
