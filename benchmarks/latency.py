@@ -14,10 +14,11 @@ Entry points timed (``--variants`` also times the alternatives that were tried, 
 see :func:`compare_variants`):
 
 * ``loop``: ``tau = loop.update(t, period, q, qd, force)`` of a :class:`hinfnn.controllers.SampledLoop`
-  (τ returned as NumPy): the fast path. For the paper's 2-joint arm ``SampledController.update_packed``
-  on one packed buffer; for arms of 3 joints or more ``SampledController.step_leaves_kept`` on the packed
+  (τ returned as NumPy): the fast path. For the paper's 2-joint arm its program on one packed
+  buffer (``SampledController._step_packed``); for arms of 3 joints or more ``_step_leaves_kept`` on the packed
   sample and the state's blocks kept on the device (no buffer above 512 bytes);
-* ``pytree``: ``tau, state = sc.update(t, period, state, Measurement(q, qd, force))`` followed by
+* ``pytree``: ``tau, state = sc._update(t, period, state, Measurement(q, qd, force))`` (the compiled
+  pytree update the robot layer replays a run with: ``step`` under ``jax.jit``) followed by
   ``np.asarray(tau)``.
 
 Two properties of XLA's CPU runtime decide much of the cost (JAX 0.10.2):
@@ -158,7 +159,7 @@ def _caller(sc, path: str, meas: dict):
             return tau
     elif path == "pytree":
         box = [sc.init()]
-        update = sc.update
+        update = sc._update
 
         def call(i):
             j = i % m
@@ -176,13 +177,13 @@ def program_flops(sc, path: str = "loop") -> float:
     """XLA's cost estimate (flops) of the compiled update. With async dispatch on, XLA's CPU
     client runs a program inline on the calling thread only below 1000 flops."""
     if path == "loop" and sc.n_joints >= ROLL_FROM_JOINTS:  # the programs SampledController compiles
-        lowered = sc._update_kept.lower(np.zeros(sc.sample_size), *jax.tree.leaves(sc.init()))
+        lowered = sc._jit_kept.lower(np.zeros(sc.sample_size), *jax.tree.leaves(sc.init()))
     elif path == "loop":
-        lowered = sc._update_packed.lower(np.zeros(sc.packed_size))
+        lowered = sc._jit_packed.lower(np.zeros(sc.packed_size))
     else:
         n = sc.n_joints
         m = Measurement(q=np.zeros(n), qd=np.zeros(n), force=np.zeros(sc.force_size))
-        lowered = sc._update.lower(0.0, PERIOD, sc.init(), m)
+        lowered = sc._jit_update.lower(0.0, PERIOD, sc.init(), m)
     cost = lowered.compile().cost_analysis()
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost
     return float(cost.get("flops", float("nan")))
@@ -195,7 +196,7 @@ def measure_latency(n_calls: int = 10_000, kind: str = "hinf_nn", *, units: int 
 
     ``kind``: ``"fl"``, ``"hinf"``, ``"hinf_nn"`` (or ``"hinf_nn60"``, the same with 60 F_f
     units; ``units`` sets any count). ``path``: ``"loop"`` (:class:`SampledLoop`, the fast
-    path) or ``"pytree"`` (``SampledController.update``). Returns median/p90/p99/max in µs, the
+    path) or ``"pytree"`` (``SampledController._update``). Returns median/p90/p99/max in µs, the
     number of calls, how many returned a NaN τ (none expected), the first call's compile time,
     XLA's flop estimate of the program, whether JAX's CPU async dispatch was on and the load
     average when done. ``scenario``: the paper's (default) or an arm's (``"ur5-table-stable"``).
@@ -263,7 +264,7 @@ def compare_variants(kind: str = "hinf_nn", units: int | None = None, *, n_calls
         return lambda i: loop.update(i * PERIOD, PERIOD, Q[i % m], QD[i % m], F[i % m])
 
     def packed_caller(fn, get=np.asarray):
-        x = sc.pack(0.0, PERIOD, Measurement(q=Q[0], qd=QD[0], force=F[0]), xf)
+        x = sc._pack(0.0, PERIOD, Measurement(q=Q[0], qd=QD[0], force=F[0]), xf)
 
         def call(i):
             out = get(fn(fill(i, x)))
@@ -273,13 +274,13 @@ def compare_variants(kind: str = "hinf_nn", units: int | None = None, *, n_calls
 
     @variant("update_packed, buffer by hand")
     def _():
-        return packed_caller(sc.update_packed)
+        return packed_caller(sc._update_packed)
 
     @variant("update_packed, jax.device_get")
     def _():
-        return packed_caller(sc.update_packed, get=jax.device_get)
+        return packed_caller(sc._update_packed, get=jax.device_get)
 
-    aot = jax.jit(sc.step_packed).lower(np.zeros(sc.packed_size)).compile()
+    aot = jax.jit(sc._step_packed).lower(np.zeros(sc.packed_size)).compile()
 
     @variant("update_packed, AOT .lower().compile()")
     def _():
@@ -287,7 +288,7 @@ def compare_variants(kind: str = "hinf_nn", units: int | None = None, *, n_calls
 
     @variant("update: pytree, flat state (default)")
     def _():
-        return pytree_caller(lambda s, t, p, mm: sc.update(t, p, s, mm), xf)
+        return pytree_caller(lambda s, t, p, mm: sc._update(t, p, s, mm), xf)
 
     with_args = jax.jit(lambda c, r, t, p, s, mm: H.SampledController(c, r).step(t, p, s, mm))
 
@@ -297,11 +298,11 @@ def compare_variants(kind: str = "hinf_nn", units: int | None = None, *, n_calls
 
     @variant("update: t, period as np.float64")
     def _():
-        return pytree_caller(lambda s, t, p, mm: sc.update(np.float64(t), np.float64(p), s, mm), xf)
+        return pytree_caller(lambda s, t, p, mm: sc._update(np.float64(t), np.float64(p), s, mm), xf)
 
     @variant("update: jax.device_get(tau)")
     def _():
-        return pytree_caller(lambda s, t, p, mm: sc.update(t, p, s, mm), xf, get=jax.device_get)
+        return pytree_caller(lambda s, t, p, mm: sc._update(t, p, s, mm), xf, get=jax.device_get)
 
     def state_y_step(state, y):
         meas_ = Measurement(q=y[2:2 + n], qd=y[2 + n:2 + 2 * n], force=y[2 + 2 * n:ns])

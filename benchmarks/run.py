@@ -144,7 +144,8 @@ def chunk_text(plant, ctrl, ref, q0, loop=None, sampled: bool = False) -> str:
     chunk, _, init = S._compiled(None, S.SINGLE_RECORDS, sampled, None, loop, plant.n, True)
     carry = init(ctrl, y0, plant.n)
     hold = 10 if sampled else 1
-    args = (plant, ctrl, ref, S.Limits(), carry, jnp.zeros((), jnp.int64), *S._chunk_scalars(10, DT, hold, 10, 1))
+    args = (plant, ctrl, ref, S.Limits(), carry, jnp.zeros((), jnp.int64),
+            *S.RunProgram.chunk_scalars(10, DT, hold, 10, 1))
     return chunk.jitted.lower(*args).compile().as_text()
 
 
@@ -689,7 +690,7 @@ def _plant_alone(sc, loop, args) -> dict:
 
     from hinfnn._linalg import Kernels
     from hinfnn._loop import LoopOptions
-    from hinfnn.sim.integrate import rk4_step
+    from hinfnn.sim.integrate import RK4
 
     built = sc.build_plant()
     n = built.n
@@ -707,8 +708,7 @@ def _plant_alone(sc, loop, args) -> dict:
             return plant.derivative(t, y, tau, w, cache)[0], ()
 
         def body(k, y):
-            return rk4_step(f, k * DT, y, DT, rolled=opts.rolled(n), rolled_stages=opts.rolled_stages,
-                            record_once=False)[0]
+            return RK4.of(opts.rolled(n), opts.rolled_stages, record_once=False).step(f, k * DT, y, DT)[0]
 
         return jax.lax.fori_loop(0, steps, body, y0)
 

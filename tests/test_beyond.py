@@ -170,9 +170,11 @@ def test_singularity_guard_stops_a_run_driven_into_q2_zero(paper):
     # the sampled controller refuses a torque there too (NaN: the robot's safe stop)
     x = jnp.array([1.755, float(surf.Omega(jnp.array([1.755]))[0])])
     q = arm.inverse_kinematics_closed(x, elbow_up=True)
-    tau, _ = SampledController(guarded, ref).update(0.0, 1e-3, guarded.init(),
-                                                     Measurement(q=q, qd=jnp.zeros(2), force=jnp.zeros(2)))
+    tau, _ = SampledController(guarded, ref).step(0.0, 1e-3, guarded.init(),
+                                                  Measurement(q=q, qd=jnp.zeros(2), force=jnp.zeros(2)))
     assert np.all(np.isnan(np.asarray(tau)))
+    loop = SampledController(guarded, ref).loop(guarded.init())
+    assert np.all(np.isnan(loop.update(0.0, 1e-3, np.asarray(q), np.zeros(2), np.zeros(2)))) and loop.rejected == 1
 
 
 def test_scenario_refuses_a_reference_into_the_singularity(paper):

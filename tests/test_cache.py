@@ -384,7 +384,7 @@ def test_a_kept_function_is_traced_once_across_instances(tmp_path, cache_state):
 
 @pytest.mark.parametrize("members", [1, 3])
 def test_a_program_compiled_ahead_leaves_the_run_nothing_to_compile(tmp_path, cache_state, members):
-    """hinfnn.sim.simulate.lower_ahead and lower_ahead_batch (what simulate_many compiles on its
+    """hinfnn.sim.RunProgram.lower_ahead and lower_ahead_batch (what simulate_many compiles on its
     threads while another group runs): its ``.compile()`` is the chunk program the run then calls.
     A run (one, or a batch of three plants) after it compiles one kept program (``jit(call)``)
     fewer than the same run from nothing, the same trajectories bit for bit; with the cache off
@@ -421,7 +421,7 @@ def test_a_program_compiled_ahead_leaves_the_run_nothing_to_compile(tmp_path, ca
         plain = simulate()
         from_nothing = compiled.count("jit(call)")
         fresh(tmp_path / "ahead")
-        lowered = S.lower_ahead_batch([x.plant for x in runs], [x.controller for x in runs],
+        lowered = S.RunProgram.lower_ahead_batch([x.plant for x in runs], [x.controller for x in runs],
                                       [x.reference for x in runs], q0=[x.q0 for x in runs],
                                       limits=[x.limits for x in runs], t_final=r.t_final, dt=r.dt,
                                       control_period=r.control_period, save_interval=r.save_interval,
@@ -431,7 +431,7 @@ def test_a_program_compiled_ahead_leaves_the_run_nothing_to_compile(tmp_path, ca
         ahead = simulate()
         assert from_nothing >= 1 and compiled.count("jit(call)") == from_nothing - 1, compiled
         fresh(None)
-        assert S.lower_ahead(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt) is None
+        assert S.RunProgram.lower_ahead(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt) is None
     finally:
         mon.unregister_event_duration_listener(on_duration)
         S._compiled.cache_clear()

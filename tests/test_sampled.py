@@ -65,7 +65,7 @@ def test_replay_matches_simulator(replay):
     tau_scale = float(np.max(np.abs(a["tau"])))
     state = sc.init()
     for k in samples:
-        tau, state = sc.update(float(a["t"][k]), PERIOD, state, _meas(a, k))
+        tau, state = sc._update(float(a["t"][k]), PERIOD, state, _meas(a, k))
         tau = np.asarray(tau)
         # the simulator holds τ_k over the whole period: every step of it recorded the same torque
         held = a["tau"][k:k + HOLD]
@@ -88,9 +88,9 @@ def test_packed_loop_and_checked_paths_equal_update(replay):
     x = np.empty(sc.packed_size)
     for k in range(0, 200, HOLD):
         t = float(a["t"][k])
-        tau1, s1 = sc.update(t, PERIOD, s1, _meas(a, k))
-        tau2, s2 = sc.unpack(np.asarray(sc.update_packed(sc.pack(t, PERIOD, _meas(a, k), s2, out=x))))
-        tau3, s3 = sc.update_checked(t, PERIOD, s3, _meas(a, k))
+        tau1, s1 = sc._update(t, PERIOD, s1, _meas(a, k))
+        tau2, s2 = sc._unpack(np.asarray(sc._update_packed(sc._pack(t, PERIOD, _meas(a, k), s2, out=x))))
+        tau3, s3 = sc._update_checked(t, PERIOD, s3, _meas(a, k))
         tau4 = loop.update(t, PERIOD, a["q"][k], a["qd"][k], a["F"][k])
         assert isinstance(tau4, np.ndarray) and tau4.shape == (2,)
         for tau in (tau2, tau3, tau4):
@@ -105,15 +105,28 @@ def test_update_compiles_once_and_never_sees_the_plant(replay):
     kind, sc, traj = replay
     a = traj.arrays
     state = sc.init()
-    _, state = sc.update(0.0, PERIOD, state, _meas(a, 0))
-    compiled = sc._update._cache_size()
+    _, state = sc._update(0.0, PERIOD, state, _meas(a, 0))
+    compiled = sc._jit_update._cache_size()
     for k in (10, 20, 30):
-        _, state = sc.update(float(a["t"][k]), PERIOD, state, _meas(a, k))
-    assert sc._update is sc._update  # one jitted function per wrapper ...
-    assert sc._update._cache_size() == compiled  # ... not compiled again for new values
+        _, state = sc._update(float(a["t"][k]), PERIOD, state, _meas(a, k))
+    assert sc._jit_update is sc._jit_update  # one jitted function per wrapper ...
+    assert sc._jit_update._cache_size() == compiled  # ... not compiled again for new values
     leaves, treedef = jax.tree.flatten(sc)  # a pytree: the controller and reference are its data
     assert leaves and isinstance(jax.tree.unflatten(treedef, leaves), H.SampledController)
     assert set(type(sc).__dataclass_fields__) == {"controller", "reference"}
+
+
+def test_the_adapter_has_two_public_entry_points():
+    """The robot-loop adapter's public surface (issue 53): the pure ``step`` (inside the user's own
+    jit) and ``loop()`` (``loop().update``); the compiled programs and the pytree update, the start
+    and the signals that the robot layer replays a record with are private. The rest of the public
+    names are sizes, the state's layout, ``init`` and the checks, none of which runs the law."""
+    public = {n for n in dir(H.SampledController) if not n.startswith("_")}
+    assert public == {"step", "loop", "init", "check_sample", "is_valid", "kernels",
+                      "n_joints", "force_size", "state_size", "sample_size", "packed_size", "state_vector",
+                      "state_from_vector"}
+    assert {n for n in dir(H.SampledLoop) if not n.startswith("_")} == {
+        "update", "state", "reset", "phase", "rejected", "controller", "phased"}
 
 
 def test_torque_and_signals_match_update():
@@ -121,8 +134,8 @@ def test_torque_and_signals_match_update():
     sampled = H.SampledController(sc.build_controller("hinf_nn"), sc.build_reference())
     meas = Measurement(q=np.asarray(sc.initial_q()), qd=np.array([0.01, -0.02]), force=np.array([30.0, -30.0]))
     state = sampled.init()
-    tau, sig = sampled.torque_and_signals(0.01, state, meas)
-    tau_u, _ = sampled.update(0.01, PERIOD, state, meas)
+    tau, sig = sampled._torque_and_signals(0.01, state, meas)
+    tau_u, _ = sampled._update(0.01, PERIOD, state, meas)
     np.testing.assert_allclose(np.asarray(tau), np.asarray(tau_u), rtol=1e-13)
     np.testing.assert_allclose(np.asarray(sig["tau"]), np.asarray(tau), rtol=1e-13)
     # λ = (Â Âᵀ)⁻¹ Â F with the nominal Â = [tan 45°, −1]: (30 + 30) / 2
@@ -139,23 +152,23 @@ def test_vmap_update_equals_single_calls(replay):
     for k in range(0, max(ks) + 1, HOLD):
         if k in ks:
             states.append(state)
-        _, state = sc.update(float(a["t"][k]), PERIOD, state, _meas(a, k))
+        _, state = sc._update(float(a["t"][k]), PERIOD, state, _meas(a, k))
     ts = jnp.asarray([a["t"][k] for k in ks])
     periods = jnp.asarray([PERIOD, 2e-3, 5e-4, PERIOD])
     meas = Measurement(q=jnp.asarray(a["q"][ks]), qd=jnp.asarray(a["qd"][ks]), force=jnp.asarray(a["F"][ks]))
     batch = jax.tree.map(lambda *xs: jnp.stack(xs), *states)
-    taus, news = jax.vmap(sc.update)(ts, periods, batch, meas)
+    taus, news = jax.vmap(sc._update)(ts, periods, batch, meas)
     assert taus.shape == (len(ks), 2)
     for i, k in enumerate(ks):
-        tau_i, new_i = sc.update(float(ts[i]), float(periods[i]), states[i], _meas(a, k))
+        tau_i, new_i = sc._update(float(ts[i]), float(periods[i]), states[i], _meas(a, k))
         np.testing.assert_allclose(np.asarray(taus[i]), np.asarray(tau_i), rtol=1e-12, atol=1e-12)
         for x, z in zip(jax.tree.leaves(news), jax.tree.leaves(new_i)):
             np.testing.assert_allclose(np.asarray(x[i]), np.asarray(z), rtol=1e-12, atol=1e-300)
     if kind != "hinf_nn":
         return
     # the packed entry point batches the same way
-    xs = np.stack([sc.pack(a["t"][k], p, _meas(a, k), st) for k, p, st in zip(ks, np.asarray(periods), states)])
-    taus_p, news_p = sc.unpack(np.asarray(jax.vmap(sc.update_packed)(xs)))
+    xs = np.stack([sc._pack(a["t"][k], p, _meas(a, k), st) for k, p, st in zip(ks, np.asarray(periods), states)])
+    taus_p, news_p = sc._unpack(np.asarray(jax.vmap(sc._update_packed)(xs)))
     np.testing.assert_allclose(taus_p, np.asarray(taus), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(news_p.theta_f, np.asarray(news.theta_f), rtol=1e-12, atol=1e-300)
 
@@ -179,7 +192,7 @@ def test_nonfinite_sample_gives_nan_torque(sampled_fl, bad):
     sc, q0 = sampled_fl
     good = Measurement(q=q0, qd=np.array([0.01, -0.02]), force=np.array([30.0, -30.0]))
     state = sc.init()
-    _, state = sc.update(0.0, PERIOD, state, good)  # a non-zero state to keep
+    _, state = sc._update(0.0, PERIOD, state, good)  # a non-zero state to keep
     kept = jax.tree.map(np.array, state)
     t, period, meas = 0.001, PERIOD, good
     if bad in ("q", "qd", "force"):
@@ -194,14 +207,14 @@ def test_nonfinite_sample_gives_nan_torque(sampled_fl, bad):
         period = float("nan")
     else:
         period = -PERIOD
-    tau, _ = sc.update(t, period, state, meas)
+    tau, _ = sc._update(t, period, state, meas)
     tau = np.asarray(tau)
     assert tau.shape == (2,) and np.all(np.isnan(tau))
     assert not sc.is_valid(tau)
     for x, z in zip(jax.tree.leaves(state), jax.tree.leaves(kept)):  # the input is untouched
         np.testing.assert_array_equal(np.asarray(x), z)
     # the packed path behaves the same
-    tau_p, _ = sc.unpack(np.asarray(sc.update_packed(sc.pack(t, period, meas, state))))
+    tau_p, _ = sc._unpack(np.asarray(sc._update_packed(sc._pack(t, period, meas, state))))
     assert np.all(np.isnan(tau_p))
     # the loop drops the sample: its state does not move, and it counts the rejection
     loop = sc.loop(state)
@@ -212,21 +225,21 @@ def test_nonfinite_sample_gives_nan_torque(sampled_fl, bad):
     key = {"inf_F": "measurement.force", "negative_period": "period", "t": "t", "period": "period"}.get(
         bad, f"measurement.{bad}")
     with pytest.raises(MeasurementError) as err:
-        sc.update_checked(t, period, state, meas)
+        sc._update_checked(t, period, state, meas)
     assert err.value.key == key
     # keeping the state passed in drops the bad sample: the next good one is unaffected
-    assert sc.is_valid(sc.update(0.002, PERIOD, state, good)[0])
+    assert sc.is_valid(sc._update(0.002, PERIOD, state, good)[0])
 
 
 def test_nan_state_kept_by_mistake_latches(sampled_fl):
     """Keeping the state returned with a NaN τ never yields a finite torque afterwards."""
     sc, q0 = sampled_fl
     good = Measurement(q=q0, qd=np.zeros(2), force=np.array([30.0, -30.0]))
-    tau, bad_state = sc.update(0.0, PERIOD, sc.init(), Measurement(q=q0, qd=np.zeros(2),
+    tau, bad_state = sc._update(0.0, PERIOD, sc.init(), Measurement(q=q0, qd=np.zeros(2),
                                                                     force=np.array([np.nan, 0.0])))
     assert not sc.is_valid(tau)
     for k in range(1, 4):
-        tau, bad_state = sc.update(k * PERIOD, PERIOD, bad_state, good)
+        tau, bad_state = sc._update(k * PERIOD, PERIOD, bad_state, good)
         assert np.all(np.isnan(np.asarray(tau)))
 
 
@@ -237,7 +250,7 @@ def test_nan_force_would_otherwise_pass_silently_through_fl(sampled_fl):
     meas = Measurement(q=q0, qd=np.zeros(2), force=np.array([np.nan, np.nan]))
     raw_tau, raw_dxc = _raw_law(sc, 0.0, sc.init(), meas)
     assert np.all(np.isfinite(np.asarray(raw_tau))) and not np.all(np.isfinite(np.asarray(raw_dxc.z)))
-    tau, _ = sc.update(0.0, PERIOD, sc.init(), meas)
+    tau, _ = sc._update(0.0, PERIOD, sc.init(), meas)
     assert np.all(np.isnan(np.asarray(tau)))
 
 
@@ -249,10 +262,10 @@ def test_overflowing_law_gives_nan_not_inf(sampled_fl):
     state = sc.init()
     raw_tau, _ = _raw_law(sc, 0.0, state, meas)
     assert not np.all(np.isfinite(np.asarray(raw_tau)))
-    tau, _ = sc.update(0.0, PERIOD, state, meas)
+    tau, _ = sc._update(0.0, PERIOD, state, meas)
     assert np.all(np.isnan(np.asarray(tau)))
     with pytest.raises(MeasurementError) as err:
-        sc.update_checked(0.0, PERIOD, state, meas)
+        sc._update_checked(0.0, PERIOD, state, meas)
     assert err.value.key == "tau"
 
 
@@ -260,9 +273,9 @@ def test_checked_rejects_wrong_shapes(sampled_fl):
     sc, q0 = sampled_fl
     state = sc.init()
     with pytest.raises(MeasurementError, match="measurement.qd"):
-        sc.update_checked(0.0, PERIOD, state, Measurement(q=q0, qd=np.zeros(3), force=np.zeros(2)))
+        sc._update_checked(0.0, PERIOD, state, Measurement(q=q0, qd=np.zeros(3), force=np.zeros(2)))
     with pytest.raises(MeasurementError, match="state.z"):
-        sc.update_checked(0.0, PERIOD, state.__class__(z=np.zeros(2), parts=state.parts),
+        sc._update_checked(0.0, PERIOD, state.__class__(z=np.zeros(2), parts=state.parts),
                           Measurement(q=q0, qd=np.zeros(2), force=np.zeros(2)))
     # the robot loop names a wrong shape instead of broadcasting it
     loop = sc.loop()
@@ -272,7 +285,7 @@ def test_checked_rejects_wrong_shapes(sampled_fl):
         loop.update(0.0, PERIOD, q0[:1], np.zeros(2), np.zeros(2))
     assert loop.rejected == 0 and np.all(loop.state.z == 0)
     with pytest.raises(MeasurementError, match="period"):
-        sc.update_checked(0.0, 0.0, state, Measurement(q=q0, qd=np.zeros(2), force=np.zeros(2)))
+        sc._update_checked(0.0, 0.0, state, Measurement(q=q0, qd=np.zeros(2), force=np.zeros(2)))
 
 
 @pytest.mark.parametrize("bad", ["q_strings", "q_complex", "q_list_of_strings", "t_one_element", "t_complex",
@@ -292,12 +305,12 @@ def test_both_updates_refuse_strings_complex_numbers_and_an_array_of_t(sampled_f
     assert err.value.key == key
     assert loop.rejected == 0 and np.all(loop.state.z == 0)
     with pytest.raises(MeasurementError) as err:
-        sc.update(args["t"], args["period"], sc.init(),
+        sc._update(args["t"], args["period"], sc.init(),
                   Measurement(q=args["q"], qd=args["qd"], force=args["force"]))
     assert err.value.key == key
     # a good sample still goes through both, to the same torque
     tau = loop.update(0.0, PERIOD, q0, np.zeros(2), np.zeros(2))
-    np.testing.assert_array_equal(tau, np.asarray(sc.update(0.0, PERIOD, sc.init(),
+    np.testing.assert_array_equal(tau, np.asarray(sc._update(0.0, PERIOD, sc.init(),
                                                             Measurement(q=q0, qd=np.zeros(2), force=np.zeros(2)))[0]))
 
 
@@ -343,7 +356,7 @@ def test_projection_keeps_weights_in_ball():
     state = sampled.init()
     norms_p, norms_f = [], []
     for k in range(300):
-        tau, state = sampled.update(k * PERIOD, PERIOD, state, meas)
+        tau, state = sampled._update(k * PERIOD, PERIOD, state, meas)
         assert sampled.is_valid(tau)
         norms_p.append(float(np.linalg.norm(np.asarray(state.theta_p))))
         norms_f.append(float(np.linalg.norm(np.asarray(state.theta_f))))
@@ -386,8 +399,8 @@ def test_an_arms_loop_keeps_its_state_in_blocks_and_equals_update():
         force = np.array([0.5 * k, -0.2, -20.0 + k])
         meas = Measurement(q=q, qd=qd, force=force)
         if k == 0:  # the force-rate filter starts at the first measurement (the loop does it itself)
-            state = sampled.start(0.0, state, meas)
-        tau, state = sampled.update(k * PERIOD, PERIOD, state, meas)
+            state = sampled._start(0.0, state, meas)
+        tau, state = sampled._update(k * PERIOD, PERIOD, state, meas)
         tau_l = loop.update(k * PERIOD, PERIOD, q, qd, force)
         assert isinstance(tau_l, np.ndarray) and tau_l.shape == (6,)
         np.testing.assert_allclose(tau_l, np.asarray(tau), rtol=1e-12, atol=1e-12)
@@ -400,7 +413,7 @@ def test_an_arms_loop_keeps_its_state_in_blocks_and_equals_update():
     loop.reset()
     np.testing.assert_array_equal(sampled.state_vector(loop.state), sampled.state_vector(sampled.init()))
     # the update donates the loop's state buffers: a state the caller passed in stays readable
-    mine = sampled.update(0.0, PERIOD, sampled.init(), Measurement(q=q0, qd=qd, force=force))[1]
+    mine = sampled._update(0.0, PERIOD, sampled.init(), Measurement(q=q0, qd=qd, force=force))[1]
     kept = sampled.state_vector(mine)
     other = sampled.loop(mine)
     for k in range(3):
@@ -417,8 +430,8 @@ def test_an_arms_loop_keeps_its_state_in_blocks_and_equals_update():
         return max(sizes)
 
     leaves = jax.tree.leaves(sampled.init())
-    assert largest_buffer(sampled._update_kept.lower(np.zeros(sampled.sample_size), *leaves).compile()) <= BLOCK
-    assert largest_buffer(sampled._update_packed.lower(np.zeros(sampled.packed_size)).compile()) >= 339
+    assert largest_buffer(sampled._jit_kept.lower(np.zeros(sampled.sample_size), *leaves).compile()) <= BLOCK
+    assert largest_buffer(sampled._jit_packed.lower(np.zeros(sampled.packed_size)).compile()) >= 339
 
 
 def test_configure_turns_async_dispatch_off_for_a_robot_process():
@@ -454,13 +467,13 @@ def test_sampled_runs_record_the_law_as_it_acted():
     scale = {n: max(float(np.max(np.abs(a[n]))), 1e-300) for n in names}
     assert scale["v_rate"] > 1e-3  # the term acted
     assert ctrl.needs_start  # the filter starts at the first e_λ, as the simulator starts it
-    state = sampled.start(0.0, sampled.init(), _meas(a, 0))
+    state = sampled._start(0.0, sampled.init(), _meas(a, 0))
     n_steps = round(0.05 / DT)
     for k in range(0, n_steps + 1):
         if k % HOLD == 0 and k < n_steps:
             acting = state
-            tau_k, state = sampled.update(float(a["t"][k]), PERIOD, state, _meas(a, k))
-        _, sig = sampled.torque_and_signals(float(a["t"][k]), acting, _meas(a, k))
+            tau_k, state = sampled._update(float(a["t"][k]), PERIOD, state, _meas(a, k))
+        _, sig = sampled._torque_and_signals(float(a["t"][k]), acting, _meas(a, k))
         sig = dict(sig, tau=tau_k)  # the held torque, the last row's too
         for n in names:
             np.testing.assert_allclose(np.asarray(a[n][k]).ravel(), np.asarray(sig[n]).ravel(), rtol=0,

@@ -203,6 +203,22 @@ def test_an_arm_batch_laid_out_member_minor_is_its_single_runs():
     assert count[True] > 3 * count[False] + 20, count
 
 
+def test_what_a_run_stores_is_one_option_object(paper_plant, nominal_arm, nominal_surface, reference):
+    """``save=H.Save(every, interval, fields)`` is the keywords ``save_every``, ``save_interval``,
+    ``fields`` as one value: the same run bit for bit; both at once is a ConfigError naming ``save``."""
+    ctrl = H.HinfController.design(nominal_arm, nominal_surface)
+    run = dict(u1_0=U1_0, t_final=0.02, dt=1e-4)
+    a = H.simulate(paper_plant, ctrl, reference, save=H.Save(every=20, fields=("q", "tau")), **run)
+    b = H.simulate(paper_plant, ctrl, reference, save_every=20, fields=("q", "tau"), **run)
+    assert set(a.arrays) == set(b.arrays) and a.arrays["t"].shape == (11,)
+    for name in a.arrays:
+        np.testing.assert_array_equal(a.arrays[name], b.arrays[name], err_msg=name)
+    with pytest.raises(H.ConfigError, match="save"):
+        H.simulate(paper_plant, ctrl, reference, save=H.Save(every=20), save_every=20, **run)
+    with pytest.raises(H.ConfigError, match="save"):
+        H.simulate_batch([paper_plant], ctrl, reference, save={"every": 20}, **run)
+
+
 def test_penetration_limit_stops_a_run(paper_plant, nominal_arm, nominal_surface, reference):
     ctrl = H.HinfController.design(nominal_arm, nominal_surface)
     tr = H.simulate(paper_plant, ctrl, reference, u1_0=U1_0, t_final=0.2, dt=1e-4,
@@ -341,7 +357,7 @@ def test_a_frozen_law_between_samples_is_integrated_as_before_bit_for_bit(rolled
         chunk, _, init = S._compiled(None, S.SINGLE_RECORDS, True, None,
                                      LoopOptions(rolled_rk4=rolled, frozen_law=frozen), plant.n, book)
         args = (plant, ctrl, reference, S.Limits(), init(ctrl, y0, plant.n), jnp.zeros((), jnp.int64),
-                *S._chunk_scalars(10, 1e-4, 10, 10, 1))
+                *S.RunProgram.chunk_scalars(10, 1e-4, 10, 10, 1))
         adds.append(chunk.jitted.lower(*args).as_text().count("stablehlo.add"))
     assert adds[0] < adds[1], adds
 
@@ -524,7 +540,7 @@ def test_rolled_rk4_stages_equal_the_unrolled_ones(stages, once):
     import jax
     import jax.numpy as jnp
 
-    from hinfnn.sim.integrate import rk4_step
+    from hinfnn.sim.integrate import RK4
 
     def f(t, y):
         q, v = y["q"], y["v"]
@@ -534,7 +550,7 @@ def test_rolled_rk4_stages_equal_the_unrolled_ones(stages, once):
     y0 = {"q": jnp.array([0.4, -1.2, 2.0]), "v": jnp.array([0.1, 0.0, -0.5])}
 
     def run(rolled, dt, n, aux=False):
-        step = jax.jit(lambda t, y: rk4_step(f, t, y, dt, rolled=rolled, rolled_stages=stages, record_once=once))
+        step = jax.jit(lambda t, y: RK4.of(rolled, stages, once).step(f, t, y, dt))
         y, sums = y0, []
         for k in range(n):
             y, s = step(k * dt, y)
@@ -599,19 +615,19 @@ def test_split_aux_cuts_the_aux_alone_out_of_the_derivative():
 
 
 def test_rk4_step_takes_the_whole_aux_only_when_asked():
-    """rk4_step's ``take`` (rolled stages, record_once): the state is the same whether the step
+    """RK4.step's ``take`` (rolled stages, record_once): the state is the same whether the step
     takes its aux or not, the entries in ``every`` are the first stage's either way, the others
     zeros when not taken."""
     import jax
     import jax.numpy as jnp
 
-    from hinfnn.sim.integrate import rk4_step
+    from hinfnn.sim.integrate import RK4
 
     def f(t, y):
         return {"y": -y["y"] + jnp.sin(t)}, {"every": 2.0 * y["y"], "rest": jnp.exp(y["y"])}
 
     y0 = {"y": jnp.array([0.3, -1.0])}
-    step = jax.jit(lambda y, take: rk4_step(f, 0.1, y, 0.01, rolled=True, take=take, every=("every",)))
+    step = jax.jit(lambda y, take: RK4("rolled").step(f, 0.1, y, 0.01, take=take, every=("every",)))
     (ya, aux_a), (yb, aux_b) = step(y0, True), step(y0, False)
     np.testing.assert_array_equal(ya["y"], yb["y"])
     np.testing.assert_array_equal(aux_a["every"], 2.0 * y0["y"])
@@ -698,12 +714,12 @@ def test_record_shapes_are_what_a_run_stores_and_are_traced_once_per_structure(p
     monkeypatch.setattr(S, "_RECORD_SHAPES", {})
     ctrl = H.HinfController.design(nominal_arm, nominal_surface, H.Gains())
     q0 = paper_plant.initial_q(U1_0)
-    shapes = S.record_shapes(paper_plant, ctrl, reference, q0=q0)
+    shapes = S.RunProgram.record_shapes(paper_plant, ctrl, reference, q0=q0)
     traj = H.simulate(paper_plant, ctrl, reference, q0=q0, t_final=0.002)
     assert shapes == {k: (v.shape[1:], v.dtype) for k, v in traj.arrays.items()}
     n = len(rhs_traces)
-    assert S.record_shapes(paper_plant, ctrl, reference, q0=q0) == shapes and len(rhs_traces) == n
-    metrics = S.record_shapes(paper_plant, ctrl, reference, q0=q0, fields="metrics")  # its own structure
+    assert S.RunProgram.record_shapes(paper_plant, ctrl, reference, q0=q0) == shapes and len(rhs_traces) == n
+    metrics = S.RunProgram.record_shapes(paper_plant, ctrl, reference, q0=q0, fields="metrics")  # its own structure
     assert len(rhs_traces) == n + 1 and metrics == {k: v for k, v in shapes.items() if k in S.select("metrics")} != shapes
 
 
@@ -724,12 +740,12 @@ def test_a_single_run_s_memory_plan_is_the_trace_its_run_uses(paper_plant, nomin
     monkeypatch.setattr(S, "_compiled", functools.lru_cache(maxsize=8)(S._compiled.__wrapped__))
     ctrl = H.HinfController.design(nominal_arm, nominal_surface, H.Gains())
     q0 = paper_plant.initial_q(U1_0)
-    shapes = S.record_shapes(paper_plant, ctrl, reference, q0=q0, single=True)
+    shapes = S.RunProgram.record_shapes(paper_plant, ctrl, reference, q0=q0, single=True)
     assert len(rhs_traces) == 4
     traj = H.simulate(paper_plant, ctrl, reference, q0=q0, t_final=0.002)
     assert len(rhs_traces) == 4
     assert shapes == {k: (v.shape[1:], v.dtype) for k, v in traj.arrays.items()}
-    metrics = S.record_shapes(paper_plant, ctrl, reference, q0=q0, fields="metrics", single=True)
+    metrics = S.RunProgram.record_shapes(paper_plant, ctrl, reference, q0=q0, fields="metrics", single=True)
     assert len(rhs_traces) == 4 and metrics == {k: v for k, v in shapes.items() if k in S.select("metrics")}
 
 
@@ -797,7 +813,7 @@ def test_the_step_loop_reads_no_array_larger_than_a_block(case, paper_plant, nom
     """XLA's CPU runtime runs a loop body's kernels one after the other only when none touches
     more than 512 bytes; otherwise every kernel of every step goes through its scheduler (the
     paper's adaptive run 2.5 times slower). The controller's constants are cut into the blocks
-    the law reads before the loop (``Controller.prepared``): no input of the step loop (the while
+    the law reads before the loop (``prepared``, the ``Prepared`` capability): no input of the step loop (the while
     loop inside the scan over records) holds more than 64 values, on the paper's arm and on the
     UR5 (P_p 10 × 10, F_p's centres 5 × 40). Without it F_f's 120 centres enter the loop whole
     (the check can fail)."""

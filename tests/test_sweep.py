@@ -637,10 +637,10 @@ def test_checking_draws_of_an_arm_traces_its_path_programs_once():
     """A sweep checks every draw (``Scenario.check``), and the check solves the nominal inverse
     kinematics along the path: one traced program per scenario structure, whatever the drawn values
     (it was defined inside the check and traced again for each draw, 1.3 s per UR5 draw)."""
-    from hinfnn.scenario import checks
+    from hinfnn import compiled
 
     base = H.load_scenario("ur5-table")
-    program = checks._path_joints_program().arm  # the KeptFunction of arms: one entry per argument structure
+    program = compiled.path_joints.arm  # the KeptFunction of arms: one entry per argument structure
     before = len(program._entries)
     for i, m in enumerate((0.85, 1.05, 1.15)):
         base.with_overrides({"plant.arm.mass_scale": m, "plant.contact.stiffness": 4e4 + 3e4 * i})

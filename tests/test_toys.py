@@ -166,10 +166,17 @@ t_final = 0.05
 def test_the_toy_family_and_plant_run_through_simulate(toys):
     """Through the protocols alone: the family's own state pytree is carried and integrated (the
     sampled-data path's forward Euler, since the plant steps itself), its signals recorded; the run
-    ends ok; no theorem bookkeeping (the family does not declare it)."""
+    ends ok; no theorem bookkeeping (the family does not declare it). The seam it is written
+    against: seven methods, two of them required, and none of the declared capabilities."""
+    from hinfnn import protocols as P
+
+    methods = {n for n, v in vars(P.Controller).items() if callable(v) and not n.startswith("_")}
+    assert methods == {"init", "evaluate", "sample", "start", "check_start", "summary", "state_arrays"}
+    assert P.Controller.__abstractmethods__ == {"init", "evaluate"}
     sc = H.load_scenario("paper", {"plant.contact.damping": 200.0, "simulation.t_final": 0.05})
     inner = sc.build_plant()
     ctrl = _build_pd_fi(sc.build().nominal_arm, sc.build_constraint(), None)
+    assert not any(isinstance(ctrl, c) for c in (P.Constrained, P.Starting, P.Prepared, P.PerSample, P.Dissipative))
     plant = EulerPlant(inner=inner)
     tr = H.simulate(plant, ctrl, sc.build_reference(), q0=sc.initial_q(), t_final=0.05, dt=1e-4, save_every=1)
     assert tr.run_status is RunStatus.OK, tr.reason

@@ -34,7 +34,8 @@ _LAZY = {
     "Measurement": ".protocols", "RunStatus": ".status",
     "CosineReference": ".reference",
     "Scenario": ".scenario", "load_scenario": ".scenario",
-    "Limits": ".sim", "Trajectory": ".sim", "simulate": ".sim", "simulate_batch": ".sim", "simulate_many": ".sim",
+    "Limits": ".sim", "Save": ".sim", "Trajectory": ".sim", "simulate": ".sim", "simulate_batch": ".sim",
+    "simulate_many": ".sim",
     "LoadError": ".io", "load": ".io",
     # the sweep table reader imports pandas and pyarrow when called; `import hinfnn` imports neither
     "load_sweep": ".sweep.store",
@@ -46,7 +47,7 @@ __all__ = [
     "TanhNetwork", "ConfigError", "DesignError", "SimulationError", "HinfnnError",
     "Measurement", "RunStatus", "TwoLinkArm", "PlanarPointMassArm", "InclinedLine", "ImplicitSurface", "reduced_model",
     "RigidBodyPlant", "PenaltyContact", "SquareWave", "CosineReference",
-    "simulate", "simulate_batch", "simulate_many", "Limits", "Trajectory", "compute_metrics", "Scenario",
+    "simulate", "simulate_batch", "simulate_many", "Limits", "Save", "Trajectory", "compute_metrics", "Scenario",
     "load_scenario", "load", "LoadError", "load_sweep", "__version__",
 ]
 

@@ -54,7 +54,7 @@ the controller and the reference hold while the program is traced
     rounding, not bit for bit, since XLA fuses the operations otherwise. At the steps that store
     no sample only the record's entries every step reads are computed
     (:data:`hinfnn.sim.simulate.EVERY_STEP`, the ``take`` of
-    :func:`~hinfnn.sim.integrate.rk4_step`). False: the record computed at every stage and the
+    :meth:`hinfnn.sim.integrate.RK4.step`). False: the record computed at every stage and the
     first kept.
 ``fusion_emitters``
     For arms of at least :data:`ROLL_FROM_JOINTS` joints (``None``, the default), the simulation's

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import typing
 from typing import Any, ClassVar
 
 import jax
@@ -151,8 +152,8 @@ class ControllerOutput:
     :data:`hinfnn.fields.FIELDS`); ``fault``: True when the law cannot be trusted at this sample
     (the simulator stops the run with :attr:`~hinfnn.status.RunStatus.CONTROLLER_FAULT`, the
     sampled controller returns NaN), with the measure that decided it (NaN: the measure is
-    computed once, where the run stopped, by :meth:`Controller.fault_measure`); ``deferred``:
-    what :meth:`Controller.deferred_fields` computes recorded fields from, once per stored sample
+    computed once, where the run stopped, by :meth:`PerSample.fault_measure`); ``deferred``:
+    what :meth:`PerSample.deferred_fields` computes recorded fields from, once per stored sample
     rather than at every stage (None: nothing); ``aux``: whatever the controller's own bookkeeping
     needs of this evaluation (opaque to the simulator).
     """
@@ -172,9 +173,12 @@ class Controller(abc.ABC):
     """A control law built from a NOMINAL model; it sees only :class:`Measurement` s.
 
     Subclasses set ``n`` (joints), ``m`` (size of e_u1) and ``k`` (size of e_λ) as ints, ``kind``
-    (the name results file it under), and implement :meth:`init` and :meth:`evaluate`. The state is
-    any pytree, in whatever layout the controller computes fastest with: the simulator carries it
-    opaquely and asks :meth:`state_arrays` for the named arrays a result keeps.
+    (the name results file it under), and implement :meth:`init` and :meth:`evaluate`; the other
+    five methods have defaults. The state is any pytree, in whatever layout the controller computes
+    fastest with: the simulator carries it opaquely and asks :meth:`state_arrays` for the named
+    arrays a result keeps. What a controller may add is declared as a capability, each checked in
+    one place (the functions below): :class:`Constrained`, :class:`Starting`, :class:`Prepared`,
+    :class:`PerSample` and :class:`Dissipative`.
     """
 
     kind: str = ""
@@ -190,45 +194,19 @@ class Controller(abc.ABC):
 
     def sample(self, t, period, state, measurement: Measurement, reference, out: ControllerOutput | None = None):
         """The zero-order-hold update of the sampled-data path: (τ at the sample, the state
-        advanced by forward Euler over ``period`` and :meth:`constrain` ed). One definition, used by
-        the simulator and by :class:`hinfnn.SampledController` (``out``: this sample's
-        :meth:`evaluate`, when the caller has it)."""
+        advanced by forward Euler over ``period`` and constrained, :func:`constrain`). One
+        definition, used by the simulator and by :class:`hinfnn.SampledController` (``out``: this
+        sample's :meth:`evaluate`, when the caller has it)."""
         out = self.evaluate(t, state, measurement, reference) if out is None else out
-        return out.tau, self.constrain(jax.tree.map(lambda x, d: x + period * d, state, out.dstate))
-
-    def constrain(self, state):
-        """The state put back where the theory keeps it after an integration step (identity)."""
-        return state
-
-    @property
-    def needs_start(self) -> bool:
-        """Whether :meth:`start` changes the state (a filter that starts at its first input)."""
-        return False
+        return out.tau, constrain(self, jax.tree.map(lambda x, d: x + period * d, state, out.dstate))
 
     def start(self, t, state, measurement: Measurement, reference):
-        """The state at the first sample, from the first measurement (identity)."""
+        """The state at the first sample, from the first measurement (identity; a controller whose
+        start changes the state declares it, :class:`Starting`)."""
         return state
 
     def check_start(self, q0) -> None:
         """Design-time check of the start pose (raise :class:`~hinfnn.errors.DesignError`)."""
-
-    def prepared(self):
-        """This controller as the compiled loop holds it, made once outside the loop (e.g. its
-        constant matrices also held by the blocks the law reads; the same numbers). Default:
-        itself."""
-        return self
-
-    def deferred_fields(self, deferred) -> dict:
-        """Recorded fields computed from :attr:`ControllerOutput.deferred`, once per stored sample
-        (what is cheap to carry and costly to compute at every RK4 stage). Default: none."""
-        return {}
-
-    def fault_measure(self, t, state, measurement: Measurement, reference, value):
-        """The measure of the fault that stopped a run, at the state where it stopped, given the
-        :attr:`ControllerOutput.fault_value` the loop recorded there (``value``). Default:
-        ``value``; a controller whose loop decides the fault by a cheaper test than its measure
-        computes the measure here, once."""
-        return value
 
     def summary(self) -> dict:
         """The designed controller as plain numbers (``metrics.json``, ``hinfnn show`` and
@@ -240,6 +218,76 @@ class Controller(abc.ABC):
         every leaf, named by its path in the pytree."""
         leaves = jax.tree_util.tree_flatten_with_path(state)[0]
         return {_path_name(path): leaf for path, leaf in leaves}
+
+
+@typing.runtime_checkable
+class Constrained(typing.Protocol):
+    """The capability of a controller whose state is put back where the theory keeps it after an
+    integration step (e.g. Remark 2's projection of the weights onto their ball)."""
+
+    def constrain(self, state):
+        """The state after the step, constrained."""
+
+
+@typing.runtime_checkable
+class Starting(typing.Protocol):
+    """The capability of a controller whose :meth:`Controller.start` changes the state (a filter
+    that starts at its first input): ``needs_start`` says whether it does, for this design."""
+
+    @property
+    def needs_start(self) -> bool:
+        """Whether :meth:`Controller.start` changes the state."""
+
+
+@typing.runtime_checkable
+class Prepared(typing.Protocol):
+    """The capability of a controller held by the compiled loop in another form, made once outside
+    the loop (its constant matrices also held by the blocks the law reads; the same numbers): the
+    only layout hook of the seam."""
+
+    def prepared(self):
+        """This controller as the compiled loop holds it."""
+
+
+@typing.runtime_checkable
+class PerSample(typing.Protocol):
+    """The capability of a controller that computes some recorded fields once per stored sample
+    rather than at every RK4 stage, and the measure of the fault that stopped a run once, where it
+    stopped (its loop deciding the fault by a cheaper test)."""
+
+    def deferred_fields(self, deferred) -> dict:
+        """Recorded fields from :attr:`ControllerOutput.deferred`, once per stored sample."""
+
+    def fault_measure(self, t, state, measurement: Measurement, reference, value):
+        """The measure of the fault at the state where the run stopped, given the
+        :attr:`ControllerOutput.fault_value` the loop recorded there (``value``)."""
+
+
+def constrain(controller, state):
+    """``controller.constrain(state)`` for a :class:`Constrained` controller; else ``state``."""
+    return controller.constrain(state) if isinstance(controller, Constrained) else state
+
+
+def needs_start(controller) -> bool:
+    """Whether ``controller``'s start changes its state (:class:`Starting`; else False)."""
+    return bool(controller.needs_start) if isinstance(controller, Starting) else False
+
+
+def prepared(controller):
+    """``controller`` as the compiled loop holds it (:class:`Prepared`; else itself)."""
+    return controller.prepared() if isinstance(controller, Prepared) else controller
+
+
+def deferred_fields(controller, deferred) -> dict:
+    """The fields ``controller`` computes once per stored sample (:class:`PerSample`; else none)."""
+    return controller.deferred_fields(deferred) if isinstance(controller, PerSample) else {}
+
+
+def fault_measure(controller, t, state, measurement: Measurement, reference, value):
+    """The measure of the fault that stopped a run (:class:`PerSample`; else the loop's ``value``)."""
+    if isinstance(controller, PerSample):
+        return controller.fault_measure(t, state, measurement, reference, value)
+    return value
 
 
 @pytree_dataclass
@@ -291,4 +339,5 @@ def check(plant, controller) -> None:
 
 
 __all__ = ["Measurement", "PlantRecord", "Plant", "ContinuousPlant", "DiscretePlant", "ControllerOutput",
-           "Controller", "Dissipation", "Dissipative", "check"]
+           "Controller", "Constrained", "Starting", "Prepared", "PerSample", "Dissipation", "Dissipative", "check",
+           "constrain", "needs_start", "prepared", "deferred_fields", "fault_measure"]

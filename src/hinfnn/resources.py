@@ -132,7 +132,7 @@ def plan(runs, *, fields=None, save_every: int | None = None, copies: float = 2.
     :func:`hinfnn.sim.simulate_many` would with ``fields`` and ``save_every``. ``copies``: how
     many times the stored samples are held at the peak (2: the arrays and the file being
     written)."""
-    from .sim.simulate import record_shapes
+    from .sim.simulate import RunProgram
 
     groups: dict = {}
     for r in runs:
@@ -146,7 +146,7 @@ def plan(runs, *, fields=None, save_every: int | None = None, copies: float = 2.
         r = items[0]
         step_plan = r.plan(save_every)
         n_steps, every = step_plan.n_steps, step_plan.save_every
-        shapes = record_shapes(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt,
+        shapes = RunProgram.record_shapes(r.plant, r.controller, r.reference, q0=r.q0, dt=r.dt,
                                control_period=r.control_period, fields=fields, limits=r.limits,
                                single=len(items) == 1,  # a group of one runs the single-run program
                                bookkeeping=r.bookkeeping)

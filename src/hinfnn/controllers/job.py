@@ -42,7 +42,6 @@ import jax
 import jax.numpy as jnp
 
 from .. import _linalg as la
-from .._programs import jit_by_joints
 from .._pytree import pytree_dataclass, static_field
 from ..fields import declare
 from ..protocols import Controller, ControllerOutput
@@ -338,12 +337,12 @@ class JobController(Controller):
         return tau, dataclasses.replace(moved, law=law, tau0=tau0)
 
 
-@jit_by_joints
 def approach_pose(arm, constraint, q_contact, height):
     """The joint angles with the NOMINAL tool ``height`` above the NOMINAL surface, along its normal,
     at the motion coordinates of ``q_contact`` (the start pose on the true surface): ĥ(q_contact)
     projected onto θ̂ = 0 (five Newton steps along Âᵀ), moved by −height · n̂, and solved for q by
-    Newton's method from q_contact. Returns (q, the task-space residual ‖ĥ(q) − x‖∞)."""
+    Newton's method from q_contact. Returns (q, the task-space residual ‖ĥ(q) − x‖∞). Plain:
+    its callers compile it (:data:`hinfnn.compiled.approach_pose`)."""
     x = arm.h(q_contact)
     for _ in range(5):
         A = constraint.A_hat(x)

@@ -29,31 +29,23 @@ update exactly as Remark 2 requires.
 
 This is exactly the simulator's sampled-data mode (``hinfnn.simulate(..., control_period=h)``):
 the same method on the same numbers, so replaying a simulated run's measurements through
-:meth:`SampledController.update` reproduces its held torques and final controller state
-(``tests/test_sampled.py``). The wrapper holds the controller and its reference only: it never
-sees a plant (docs/architecture.md, "the one rule").
+the wrapper reproduces its held torques and final controller state (``tests/test_sampled.py``).
+The wrapper holds the controller and its reference only: it never sees a plant
+(docs/architecture.md, "the one rule").
 
-Entry points:
+Two entry points:
 
-* :meth:`SampledController.step` — the law as a pure, traceable function, for use inside your
-  own ``jit``/``vmap``/``scan``.
-* :meth:`SampledController.update` — ``step`` jit-compiled once per wrapper (the controller
-  and the reference are compile-time constants). Pytrees in and out; pure.
-* :meth:`SampledController.update_packed` — the same law on one float64 vector
-  ``[t, h, q, q̇, force, state...]`` returning one vector ``[τ, state...]`` (the state's arrays in
-  the order of ``init().names()``: z, then Θ̂p, Θ̂f for the adaptive law): one buffer in and one
-  out per call. Pure.
-* :meth:`SampledController.step_leaves` — the same law on the packed sample ``[t, h, q, q̇, force]``
-  and the state's leaves (blocks of at most 64 values), returning ``(τ, *new leaves)``: no buffer of
-  the compiled program is larger than a block, so XLA runs its kernels inline. Pure.
-* :class:`SampledLoop` (``sc.loop()``) — the fast path for a robot loop: a small stateful
-  shell around ``step_leaves_kept`` (arms of 3 joints or more; the state kept inside, on the
-  device, as its leaves, whose buffers each call donates to its outputs) or ``update_packed``
-  (the paper's 2-joint arm; the state kept in the packed buffer) with
-  ``tau = loop.update(t, h, q, q̇, force)`` (NumPy τ).
-* :meth:`SampledController.update_checked` — validates its inputs in Python and raises
-  :class:`MeasurementError` instead of returning NaN.
-* :meth:`SampledController.torque_and_signals` — τ and every named signal, for logging.
+* :meth:`SampledController.step` — the law as a pure, traceable function ``(τ_k, x_c,k+1)`` of
+  (t, period, state, measurement), for use inside your own ``jit``/``vmap``/``scan``.
+* :meth:`SampledController.loop` — a :class:`SampledLoop`, the controller in a robot loop:
+  ``tau = loop.update(t, h, q, q̇, force)`` (NumPy τ), the state kept inside, compiled once per
+  wrapper. On arms of 3 joints or more it runs the law on the packed sample and the state's
+  leaves (blocks of at most 64 values, kept on the device, their buffers donated to the
+  outputs); on the paper's 2-joint arm on one packed buffer ``[t, h, q, q̇, force, state...]``.
+
+Everything else is private: the compiled programs behind the loop, and the pytree update, the
+start and the signals at one instant that hinfnn's robot layer replays a run's record with
+(:func:`hinfnn.robot.loop.trajectory`).
 
 The measurement's ``force`` is the contact force the tool exerts on the surface, at the tool point,
 in the base frame's Cartesian axes (:class:`~hinfnn.protocols.Measurement`): what a force/torque
@@ -64,12 +56,14 @@ its nominal kinematics. q and q̇ have shape (n,).
 
 Non-finite inputs. A NaN or ±inf anywhere in t, h or the measurement, a negative h, or a
 non-finite torque from finite inputs (e.g. overflow at an absurd q̇) never produces a usable
-torque: every entry point returns τ = [NaN, …, NaN] (``update_checked`` raises), so one
-``np.isfinite(tau).all()`` (:meth:`SampledController.is_valid`) tells the robot's driver to go
-to its safe stop. The state returned with a NaN τ is to be discarded (it may hold NaN): the pure
-entry points never modify the state passed in, so keep that one (the bad sample is then simply
-dropped) or re-initialise; :class:`SampledLoop` does exactly this by itself. A NaN state kept by
-mistake makes every later τ NaN too (a latched fault, never a silently wrong torque).
+torque: both entry points return τ = [NaN, …, NaN], so one ``np.isfinite(tau).all()``
+(:meth:`SampledController.is_valid`) tells the robot's driver to go to its safe stop. The state
+``step`` returns with a NaN τ is to be discarded (it may hold NaN): ``step`` never modifies the
+state passed in, so keep that one (the bad sample is then simply dropped) or re-initialise;
+:class:`SampledLoop` does exactly this by itself. A NaN state kept by mistake makes every later τ
+NaN too (a latched fault, never a silently wrong torque). A wrong shape, complex numbers or
+strings are refused before the compiled call: :class:`MeasurementError` names the input
+(:meth:`SampledController.check_sample`).
 
 Why the compiled guard covers τ only (the state is not also selected in the program): with JAX's
 CPU async dispatch on (the default), XLA's CPU client runs a program inline on the calling
@@ -93,7 +87,7 @@ from .._linalg import Kernels
 from .._loop import LoopOptions
 from .._pytree import all_finite, pytree_dataclass
 from ..errors import HinfnnError
-from ..protocols import Measurement
+from ..protocols import Measurement, needs_start
 from ..reference import check_references
 from .law import ControllerState, ReducedOrderController
 
@@ -107,7 +101,7 @@ _NOT_REAL = (complex, str, bytes)
 
 
 class MeasurementError(HinfnnError, ValueError):
-    """A sample given to :meth:`SampledController.update_checked` (or :class:`SampledLoop`) is
+    """A sample given to :meth:`SampledLoop.update` (or :meth:`SampledController.check_sample`) is
     unusable.
 
     ``key`` names the offending input (``measurement.force``, ``t``, ``period``, ``state.z``,
@@ -148,13 +142,14 @@ class SampledController:
     :class:`~hinfnn.controllers.law.ReducedOrderController` (``hinfnn.HinfNNController.design(...)``
     …) and ``reference`` any reference pytree callable on t (:class:`~hinfnn.CosineReference`).
     Both are pytree data of this wrapper, so a batch of wrappers can be ``vmap``-ed through
-    :meth:`step`; the compiled entry points close over them as compile-time constants (twice as
+    :meth:`step`; the programs of :meth:`loop` close over them as compile-time constants (twice as
     fast to call as passing them as arguments, see ``benchmarks/latency.py``) and are built once
     per wrapper, on first use.
 
     The state is the controller's :class:`~hinfnn.controllers.law.ControllerState` (its arrays
-    flat by name: :meth:`~hinfnn.controllers.law.ControllerState.arrays`). Packed layouts (n joints,
-    d = :attr:`force_size`; ``state_size`` = the total length of the state's arrays):
+    flat by name: :meth:`~hinfnn.controllers.law.ControllerState.arrays`). The loop's packed
+    layouts (n joints, d = :attr:`force_size`; ``state_size`` = the total length of the state's
+    arrays):
 
     * packed input (``packed_size``): ``[t, period, q (n), q̇ (n), force (d), state...]``
     * packed output (``n + state_size``): ``[τ (n), state...]`` (the new state)
@@ -189,12 +184,12 @@ class SampledController:
 
     @property
     def packed_size(self) -> int:
-        """Length of the packed input vector of :meth:`update_packed`."""
+        """Length of the packed input vector of the 2-joint arm's loop program."""
         return self.sample_size + self.state_size
 
-    def pack(self, t, period, measurement: Measurement, state: ControllerState,
+    def _pack(self, t, period, measurement: Measurement, state: ControllerState,
              out: np.ndarray | None = None) -> np.ndarray:
-        """(t, period, measurement, state) → the packed input of :meth:`update_packed` (NumPy).
+        """(t, period, measurement, state) → the packed input of the 2-joint arm's loop program (NumPy).
 
         ``out``: a float64 array of ``packed_size`` to fill in place.
         """
@@ -221,7 +216,7 @@ class SampledController:
             i += size
         return self.controller.state_from_arrays(arrays)
 
-    def unpack(self, out) -> tuple:
+    def _unpack(self, out) -> tuple:
         """Packed output → ``(τ, new state)``."""
         n = self.n_joints
         return out[..., :n], self.state_from_vector(out[..., n:])
@@ -250,12 +245,12 @@ class SampledController:
         ok = all_finite((t, period, meas.q, meas.qd, meas.force, tau)) & (period >= 0.0) & ~out.fault
         return jnp.where(ok, tau, jnp.nan), new
 
-    def start_fn(self, t, state: ControllerState, measurement: Measurement) -> ControllerState:
+    def _start_fn(self, t, state: ControllerState, measurement: Measurement) -> ControllerState:
         """The state at the first sample from the first measurement (the controller's ``start``:
         e.g. the force-rate filter starts at e_λ(0)). Pure; identity for the paper's laws."""
         return self.controller.start(jnp.asarray(t, dtype=float), state, _as_meas(measurement), self.reference)
 
-    def step_packed(self, x):
+    def _step_packed(self, x):
         """:meth:`step` on the packed layouts: ``[t, h, q, q̇, force, state...] → [τ, state...]``."""
         n, ns = self.n_joints, self.sample_size
         meas = Measurement(q=x[2:2 + n], qd=x[2 + n:2 + 2 * n], force=x[2 + 2 * n:ns])
@@ -267,7 +262,7 @@ class SampledController:
     def _treedef(self):
         return jax.tree.structure(self.controller.init())
 
-    def step_leaves(self, x, *leaves):
+    def _step_leaves(self, x, *leaves):
         """:meth:`step` on the sample packed (``x = [t, period, q, q̇, force]``, :attr:`sample_size`)
         and the state as its leaves (``jax.tree.leaves(state)``): ``(τ, *new leaves)``. What
         :class:`SampledLoop` calls: the state's leaves are the controller's blocks (at most 64 values
@@ -279,16 +274,16 @@ class SampledController:
         tau, new = self.step(x[0], x[1], jax.tree.unflatten(self._treedef, leaves), meas)
         return (tau, *jax.tree.leaves(new))
 
-    def step_leaves_kept(self, x, *leaves):
-        """:meth:`step_leaves` with the state kept: ``(τ, *leaves)`` where τ is all NaN (the sample
+    def _step_leaves_kept(self, x, *leaves):
+        """:meth:`_step_leaves` with the state kept: ``(τ, *leaves)`` where τ is all NaN (the sample
         unusable), ``(τ, *new leaves)`` otherwise. What :class:`SampledLoop` calls on arms, with the
         state's buffers donated: the outputs are written into the inputs' buffers, and the state
         the loop holds is always the program's output (no buffer of a rejected sample to keep)."""
-        tau, *new = self.step_leaves(x, *leaves)
+        tau, *new = self._step_leaves(x, *leaves)
         ok = tau[0] == tau[0]
         return (tau, *(jnp.where(ok, a, b) for a, b in zip(new, leaves)))
 
-    def torque_and_signals_fn(self, t, state: ControllerState, measurement: Measurement):
+    def _signals_fn(self, t, state: ControllerState, measurement: Measurement):
         """Traceable ``(τ, signals)`` at one instant (eqs. (24)–(33)); no state update."""
         out = self.controller.evaluate(jnp.asarray(t, dtype=float), state, _as_meas(measurement), self.reference)
         return out.tau, {**out.signals, "e_u1": out.e_u1, "e_lam": out.e_lam, "tau": out.tau}
@@ -334,31 +329,31 @@ class SampledController:
         return jax.jit(traced, compiler_options=LoopOptions().compiler_options(self.n_joints), **jit_kwargs)
 
     @functools.cached_property
-    def _update(self):
+    def _jit_update(self):
         return self._jit(self.step)
 
     @functools.cached_property
-    def _update_packed(self):
-        return self._jit(self.step_packed)
+    def _jit_packed(self):
+        return self._jit(self._step_packed)
 
     @functools.cached_property
-    def _update_kept(self):
-        return self._jit(self.step_leaves_kept, donate_argnums=tuple(range(1, 1 + self._treedef.num_leaves)))
+    def _jit_kept(self):
+        return self._jit(self._step_leaves_kept, donate_argnums=tuple(range(1, 1 + self._treedef.num_leaves)))
 
     @functools.cached_property
-    def _start(self):
-        return self._jit(self.start_fn)
+    def _jit_start(self):
+        return self._jit(self._start_fn)
 
-    def start(self, t, state: ControllerState, measurement: Measurement) -> ControllerState:
-        """Call once, at the first sample, before :meth:`update` when the controller has
+    def _start(self, t, state: ControllerState, measurement: Measurement) -> ControllerState:
+        """The state at the first sample (:meth:`_start_fn`, compiled) when the controller has
         filter states (``controller.needs_start``; :class:`SampledLoop` does it by itself)."""
-        return self._start(t, state, measurement) if self.controller.needs_start else state
+        return self._jit_start(t, state, measurement) if needs_start(self.controller) else state
 
     @functools.cached_property
-    def _signals(self):
-        return self._jit(self.torque_and_signals_fn)
+    def _jit_signals(self):
+        return self._jit(self._signals_fn)
 
-    def update(self, t, period, state: ControllerState, measurement: Measurement):
+    def _update(self, t, period, state: ControllerState, measurement: Measurement):
         """``(τ, new_state)`` of one sample (:meth:`step`), jit-compiled once per wrapper.
 
         τ of eq. (24) at time ``t`` (s) from ``measurement`` (q, q̇, force), to be held for
@@ -366,7 +361,7 @@ class SampledController:
         (31): forward Euler over the period. Pass t and period as floats and the measurement as
         float64 arrays (another dtype compiles a second program). Works under ``jax.vmap``. τ is
         all-NaN when a sample is unusable: check with :meth:`is_valid` (then keep your previous
-        state) or use :meth:`update_checked`. t and period must be numbers, q, q̇ and force real
+        state) or use :meth:`_update_checked`. t and period must be numbers, q, q̇ and force real
         vectors of shapes (n,), (n,), (d,): anything else raises :class:`MeasurementError`
         naming the input (a cheap test in Python before the compiled call).
         """
@@ -376,24 +371,25 @@ class SampledController:
                 and _plain((self.n_joints,), (self.force_size,), m.q, m.qd, m.force)):
             self.check_sample(t, period, m.q, m.qd, m.force)  # raises, naming the input
         try:
-            return self._update(t, period, state, measurement)
+            return self._jit_update(t, period, state, measurement)
         except (TypeError, ValueError):  # a list of strings ...: named, when the sample is at fault
             self.check_sample(t, period, m.q, m.qd, m.force)
             raise
 
-    def update_packed(self, x):
-        """One sample on the packed layouts (:meth:`step_packed`), jit-compiled once.
+    def _update_packed(self, x):
+        """One sample on the packed layouts (:meth:`_step_packed`), jit-compiled once.
 
-        ``x = [t, period, q, q̇, force, state...]`` (:meth:`pack`) → ``[τ, state...]``
-        (:meth:`unpack`). Same law and numbers as :meth:`update`; one buffer in and one out,
-        the cheapest call from Python. :class:`SampledLoop` wraps it for the paper's 2-joint arm
-        (:meth:`step_leaves` for larger arms).
+        ``x = [t, period, q, q̇, force, state...]`` (:meth:`_pack`) → ``[τ, state...]``
+        (:meth:`_unpack`). Same law and numbers as :meth:`_update`; one buffer in and one out,
+        the cheapest call from Python: :class:`SampledLoop`'s program for the paper's 2-joint arm
+        (:meth:`_step_leaves_kept` for larger arms).
         """
-        return self._update_packed(x)
+        return self._jit_packed(x)
 
     def loop(self, state: ControllerState | None = None) -> "SampledLoop":
-        """A :class:`SampledLoop` starting from ``state`` (default: :meth:`init`, then
-        :meth:`start` at the first sample)."""
+        """The controller in a robot loop: a :class:`SampledLoop` starting from ``state`` (default:
+        :meth:`init`, then the controller's ``start`` at the first sample); ``tau =
+        loop.update(t, h, q, q̇, force)``."""
         return SampledLoop(self, self.init() if state is None else state, start=state is None)
 
     def check_sample(self, t, period, q, qd, force) -> None:
@@ -431,8 +427,8 @@ class SampledController:
             if not np.all(np.isfinite(v)):
                 raise MeasurementError(f"is not finite: {v.tolist()}", key=f"measurement.{name}", value=v, t=t)
 
-    def update_checked(self, t, period, state: ControllerState, measurement: Measurement):
-        """:meth:`update` with its inputs validated in Python first (a few µs more per call).
+    def _update_checked(self, t, period, state: ControllerState, measurement: Measurement):
+        """:meth:`_update` with its inputs validated in Python first (a few µs more per call).
 
         Raises :class:`MeasurementError` naming the input when t, period or a measurement
         field is not finite, has the wrong shape, or period ≤ 0; and when the law itself
@@ -452,7 +448,7 @@ class SampledController:
                                        value=part, t=t)
             if not np.all(np.isfinite(v)):
                 raise MeasurementError("is not finite", key=f"state.{name}", value=v, t=t)
-        tau, new = self.update(float(t), float(period), state, measurement)
+        tau, new = self._update(float(t), float(period), state, measurement)
         tau = np.asarray(tau)
         if not np.all(np.isfinite(tau)):
             raise MeasurementError("the control law returned a non-finite torque from finite inputs "
@@ -460,11 +456,11 @@ class SampledController:
                                    key="tau", value=tau, t=t)
         return tau, new
 
-    def torque_and_signals(self, t, state: ControllerState, measurement: Measurement):
+    def _torque_and_signals(self, t, state: ControllerState, measurement: Measurement):
         """``(τ, signals)`` at time t (jit-compiled once): u1, u̇1, λ, errors, v_p, v_λ, network
         outputs Ξp Θ̂p, Ξf Θ̂f and τ of eqs. (24)–(33), for logging. No state update, no NaN
         guard (a non-finite measurement gives non-finite signals)."""
-        return self._signals(t, state, measurement)
+        return self._jit_signals(t, state, measurement)
 
     @staticmethod
     def is_valid(tau) -> bool:
@@ -478,18 +474,18 @@ class SampledLoop:
     A thin stateful shell (at the edge, like I/O) around a pure compiled update: it keeps the
     sample buffer ``[t, h, q, q̇, force]``, fills it in place, calls the update and returns τ as a
     NumPy array. Arms traced with the arm's kernels (:attr:`SampledController.kernels`, 3 joints or more) call
-    :meth:`SampledController.step_leaves_kept` with the controller state's leaves, kept on the
+    the law on the packed sample (``SampledController._step_leaves_kept``) with the controller state's leaves, kept on the
     device between calls, their
     buffers donated to the outputs and the program compiled as the simulator's; the
-    paper's 2-joint arm calls :meth:`SampledController.update_packed` with the state in the same
+    paper's 2-joint arm calls it on one packed buffer (``SampledController._step_packed``) with the state in the same
     packed buffer (one buffer in and one out: faster than the leaves for its small state). q, q̇
     are NumPy-convertible vectors of shape (n,), force of shape (d,): the contact force the tool
     exerts on the surface at the tool point, in the base frame's Cartesian axes (for the paper's
     planar arm: in N, in the plane's coordinates). A wrong shape, complex numbers or strings raise
     :class:`MeasurementError` (the state is not touched). The state is advanced only when τ is finite: after an unusable
     sample (NaN or inf in t, h, q, q̇, force; h < 0; non-finite τ) ``update`` returns
-    τ = [NaN, …], the state stays as it was, and ``rejected`` counts it. Same numbers as
-    :meth:`SampledController.update`.
+    τ = [NaN, …], the state stays as it was, and ``rejected`` counts it. The same law as
+    :meth:`SampledController.step` (to rounding: the arms' program is compiled as the simulator's).
 
     In a robot process, turn JAX's CPU async dispatch off at start-up
     (``hinfnn.configure(async_dispatch=False)``, before the first computation): each call then
@@ -519,9 +515,9 @@ class SampledLoop:
         self._buf = np.zeros(controller.packed_size if self._packed else self._ns)
         self._leaves = ()
         self._set_state(state)
-        self._fn = controller._update_packed if self._packed else controller._update_kept
+        self._fn = controller._jit_packed if self._packed else controller._jit_kept
         self.rejected = 0
-        self._pending_start = start and controller.controller.needs_start
+        self._pending_start = start and needs_start(controller.controller)
         #: Whether the controller is a job's (:class:`hinfnn.controllers.job.JobController`): its
         #: state's first array is the phase (:meth:`phase`).
         self.phased = hasattr(controller.controller, "job")
@@ -567,7 +563,7 @@ class SampledLoop:
         if self._pending_start:  # the controller's filters start at the first measurement
             meas = Measurement(q=b[self._i_q].copy(), qd=b[self._i_qd].copy(), force=b[self._i_F].copy())
             if np.all(np.isfinite(meas.q)) and np.all(np.isfinite(meas.qd)) and np.all(np.isfinite(meas.force)):
-                self._set_state(self.controller.start(float(b[0]), self.state, meas))
+                self._set_state(self.controller._start(float(b[0]), self.state, meas))
                 self._pending_start = False
         if self._packed:
             out = np.asarray(self._fn(b))
@@ -595,4 +591,4 @@ class SampledLoop:
         """Restart from ``state`` (default: :meth:`SampledController.init`)."""
         self._set_state(self.controller.init() if state is None else state)
         self.rejected = 0
-        self._pending_start = state is None and self.controller.controller.needs_start
+        self._pending_start = state is None and needs_start(self.controller.controller)

@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 from ..controllers.job import PROCESS
-from ..protocols import Measurement
+from ..protocols import Measurement, needs_start
 from ..status import RunStatus
 from . import safety as S
 from .base import Robot
@@ -255,17 +255,17 @@ def trajectory(log: LoopLog, sampled, info):
     rows = log.rows
     m = len(rows["t"])
     state = sampled.init()
-    started = not sampled.controller.needs_start
+    started = not needs_start(sampled.controller)
     signals = None
     for i in range(m):
         if rows["accepted"][i]:
             meas = Measurement(q=rows["q"][i], qd=rows["qd"][i], force=rows["force_measured"][i])
             t = float(rows["t_reading"][i])
             if not started:
-                state, started = sampled.start(t, state, meas), True
+                state, started = sampled._start(t, state, meas), True
             h = float(rows["control_h"][i])
-            _, sig = sampled.torque_and_signals(t, state, meas)
-            _, state = sampled.update(t, h, state, meas)
+            _, sig = sampled._torque_and_signals(t, state, meas)
+            _, state = sampled._update(t, h, state, meas)
             sig = jax.device_get(sig)
             if signals is None:
                 signals = {k: np.full((m,) + np.shape(v), np.nan) for k, v in sig.items()}

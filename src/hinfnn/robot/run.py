@@ -67,7 +67,7 @@ def prepared(sc):
     import jax
 
     from ..controllers.sampled import SampledController
-    from ..protocols import Measurement
+    from ..protocols import Measurement, needs_start
 
     kind = _single(sc)
     setup = sc.build()
@@ -83,8 +83,8 @@ def prepared(sc):
     gravity(q), point_jacobian(q)
     warm = sampled.loop()
     warm.update(0.0, limits.period, q, np.zeros(n), np.zeros(d))
-    if controller.needs_start:
-        sampled.start(0.0, sampled.init(), Measurement(q=q, qd=np.zeros(n), force=np.zeros(d)))
+    if needs_start(controller):
+        sampled._start(0.0, sampled.init(), Measurement(q=q, qd=np.zeros(n), force=np.zeros(d)))
     return sampled, limits, gravity, point_jacobian
 
 

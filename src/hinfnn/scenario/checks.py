@@ -230,38 +230,14 @@ def _check_path_joint_limits(sc, ctrl, plant, q0) -> None:
 
 def _path_joints(arm, surf, ref, t, q0):
     """Joint angles along x_d(t) (nominal inverse kinematics, 8 Newton steps of at most 0.2 rad per
-    sample, continued from the previous one) and each sample's residual ‖ĥ(q) − x_d‖∞."""
+    sample, continued from the previous one) and each sample's residual ‖ĥ(q) − x_d‖∞: the compiled
+    :func:`hinfnn.compiled.path_joints`, one program per scenario structure (a sweep checks every
+    draw)."""
     import jax.numpy as jnp
 
-    return _path_joints_program()(arm, surf, ref, jnp.asarray(t), jnp.asarray(q0))
+    from ..compiled import path_joints
 
-
-@functools.cache
-def _path_joints_program():
-    """The jitted program of :func:`_path_joints`, made once per process (JAX imported on first
-    use), so a scenario of a known structure is not traced again: a sweep checks every draw, and a
-    program defined inside the check was traced anew for each."""
-    import jax
-    import jax.numpy as jnp
-
-    from .._programs import kept
-
-    @kept("path_joints")
-    def run(arm, surf, ref, t, q0):
-        def one(q, ti):
-            u1 = ref(ti).u1_d
-            x = jnp.concatenate([u1, surf.Omega(u1)])
-
-            def newton(_, q):
-                step = jnp.linalg.solve(arm.J(q), arm.h(q) - x)
-                return q - step * jnp.minimum(1.0, 0.2 / jnp.maximum(jnp.max(jnp.abs(step)), 1e-300))
-
-            q = jax.lax.fori_loop(0, 8, newton, q)
-            return q, (q, jnp.max(jnp.abs(arm.h(q) - x)))
-
-        return jax.lax.scan(one, q0, t)[1]
-
-    return run
+    return path_joints(arm, surf, ref, jnp.asarray(t), jnp.asarray(q0))
 
 
 #: u1d(t) is sampled at least this often per period of its fastest cosine for the design's path ...
@@ -390,7 +366,7 @@ def _check_path(sc, ctrl, q0) -> None:
 
 def _path_quantities(task, surf, ref, t):
     """The task map's margin and det Π̂ at each x_d(t) (one program per structure, as
-    :func:`_path_joints_program`)."""
+    :func:`hinfnn.compiled.path_joints`)."""
     return _path_quantities_program()(task, surf, ref, t)
 
 

@@ -126,11 +126,11 @@ class Setup:
         """Where the truth starts: :attr:`q0` (on the true surface) for ``job.start = "contact"``;
         for ``"approach"`` the joint angles with the NOMINAL tool ``job.approach_height`` above the
         NOMINAL surface along its normal, at the motion coordinates of :attr:`q0`
-        (:func:`hinfnn.controllers.job.approach_pose`): where the robot believes the part is."""
+        (:func:`hinfnn.controllers.job.approach_pose`, compiled: :data:`hinfnn.compiled.approach_pose`): where the robot believes the part is."""
         job = self.scenario.job
         if not job.approach:
             return self.q0
-        from ..controllers.job import approach_pose
+        from ..compiled import approach_pose
 
         q, residual = approach_pose(self.nominal_arm, self.constraint, np.asarray(self.q0, dtype=float),
                                     float(job.approach_height))

@@ -12,7 +12,7 @@ from typing import Any
 from .._pytree import structure_key
 from ..errors import ConfigError, is_integer
 from .plan import DEFAULT_SAVE_INTERVAL, StepPlan
-from .simulate import Limits, lower_ahead_batch, simulate, simulate_batch
+from .simulate import Limits, RunProgram, simulate, simulate_batch
 from .trajectory import RunInfo, Trajectory
 
 
@@ -135,10 +135,11 @@ def _simulate_group(items: list[Run], save_every, fields, report) -> dict[str, T
 def _lower_group(items: list[Run], save_every, fields):
     """The chunk program :func:`_simulate_group` will call first, lowered (None: not kept)."""
     first = items[0]
-    return lower_ahead_batch([r.plant for r in items], [r.controller for r in items], [r.reference for r in items],
-                             q0=[r.q0 for r in items], limits=[r.limits for r in items], t_final=first.t_final,
-                             dt=first.dt, control_period=first.control_period, save_interval=first.save_interval,
-                             save_every=save_every, fields=fields, bookkeeping=first.bookkeeping)
+    return RunProgram.lower_ahead_batch([r.plant for r in items], [r.controller for r in items],
+                                        [r.reference for r in items], q0=[r.q0 for r in items],
+                                        limits=[r.limits for r in items], t_final=first.t_final, dt=first.dt,
+                                        control_period=first.control_period, save_interval=first.save_interval,
+                                        save_every=save_every, fields=fields, bookkeeping=first.bookkeeping)
 
 
 def _simulate_groups(jobs, total, n_workers, save_every, fields, progress) -> dict[str, Trajectory]:

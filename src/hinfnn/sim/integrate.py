@@ -1,6 +1,8 @@
-"""Classic fixed-step fourth-order Runge–Kutta on pytrees."""
+"""Classic fixed-step fourth-order Runge–Kutta on pytrees, :class:`RK4`, its looping a field."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -79,69 +81,106 @@ def _axpy(a, x, y):
     return jax.tree.map(lambda xi, yi: yi + a * xi, x, y)
 
 
-def rk4_step(f, t, y, dt, *, rolled: bool = False, rolled_stages: int = 4, record_once: bool = True,
-             take=None, every=()):
-    """One RK4 step of ẏ = f(t, y); ``f`` returns ``(dy, aux)``. Returns ``(y_next, aux_1)``,
-    aux_1 the auxiliary output of the first stage (the state at the start of the step).
+#: How :class:`RK4` loops over its four stages (:attr:`RK4.looping`).
+LOOPINGS = ("written", "rolled", "rolled3")
 
-    ``rolled``: stages as a loop, so a compiled program holds ``f`` fewer times (the same
-    operations in the same order, bit for bit; a loop option for arms with large dynamics,
-    :class:`hinfnn._loop.LoopOptions`). ``rolled_stages`` 4: the four stages a loop of four
-    iterations (``f`` once in the program; its aux computed at every stage, the first kept);
-    3: stage 1 written out with its aux, stages 2–4 a loop of three iterations whose aux is
-    unused and not computed (``f`` twice in the program, the record once per step).
-    ``record_once`` (with 4 rolled stages): ``f`` cut by :func:`split_aux`, the equations of its aux
-    alone under a ``lax.cond`` taken at stage 1 only, the others at every stage (``f``'s operations
-    once in the program, its aux once per step); False: the aux computed at every stage, the first
-    kept. ``take`` (with ``record_once``; a traced bool, or None: always): whether the whole aux is
-    wanted at this step; when not, only its entries named in ``every`` are computed and the others
-    are zeros (a simulation records every few steps, but checks τ and the contact at every step)."""
-    if rolled and rolled_stages == 3:
-        f = jax.jit(f, inline=True)  # traced once: for stage 1 and for the loop's body
-        k1, aux = f(t, y)  # stage 1 at (t, y), with the auxiliary output
 
-        def later(i, state):  # stages 2, 3 at t + dt/2 from k1, k2; stage 4 at t + dt from k3
-            acc, k = state
-            c = jnp.where(i == 3, 1.0, 0.5)
-            ki, _ = f(t + c * dt, jax.tree.map(lambda yi, kk: yi + c * dt * kk, y, k))
-            w = jnp.where(i == 3, 1.0, 2.0)
-            return jax.tree.map(lambda a, kk: a + w * kk, acc, ki), ki  # k1 + 2 k2 + 2 k3 + k4
+@dataclasses.dataclass(frozen=True)
+class RK4:
+    """Classic fixed-step fourth-order Runge–Kutta on pytrees: :meth:`step` of ẏ = f(t, y), ``f``
+    returning ``(dy, aux)``. How the four stages are looped is a field, as diffrax's
+    ``AbstractRungeKutta.scan_kind`` (the same operations in the same order in every form, bit
+    for bit; a loop option for arms with large dynamics, :class:`hinfnn._loop.LoopOptions`).
 
-        acc, _ = jax.lax.fori_loop(1, 4, later, (k1, k1))
-        return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
-    if rolled:
-        cut = split_aux(f, t, y, every=every) if record_once else None
-        if cut is not None:
-            f_dy, f_aux, aux0, f_part = cut
+    ``looping``: ``"written"``, the four stages written out (``f`` four times in a compiled
+    program); ``"rolled"``, the four stages a loop of four iterations (``f`` once in the program;
+    its aux computed at every stage, the first kept); ``"rolled3"``, stage 1 written out with its
+    aux, stages 2–4 a loop of three iterations whose aux is unused and not computed (``f`` twice
+    in the program, the record once per step). ``record_once`` (with ``"rolled"``): ``f`` cut by
+    :func:`split_aux`, the equations of its aux alone under a ``lax.cond`` taken at stage 1 only,
+    the others at every stage (``f``'s operations once in the program, its aux once per step);
+    False: the aux computed at every stage, the first kept."""
 
-            def keep(first, res, old):  # stage 1's record, computed at stage 1 only
-                if take is None:
-                    return jax.lax.cond(first, lambda r, o: f_aux(r), lambda r, o: o, res, old)
-                which = jnp.where(first, jnp.where(take, 2, 1), 0)
-                return jax.lax.switch(which, (lambda r, o: o, f_part, lambda r, o: f_aux(r)), res, old)
-        else:
-            f_dy = jax.jit(f, inline=True)  # traced once: for the shapes below and for the loop's body
-            aux0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(f_dy, t, y)[1])
+    looping: str = "written"
+    record_once: bool = True
 
-            def keep(first, new, old):  # every stage's aux computed, the first kept
-                return jax.tree.map(lambda a, b: jnp.where(first, a, b), new, old)
+    def __post_init__(self):
+        if self.looping not in LOOPINGS:
+            raise ValueError(f"looping must be one of {LOOPINGS}, got {self.looping!r}")
 
-        def stage(i, state):
-            # ys: this stage's state (stage 1 at (t, y); 2, 3 at t + dt/2 from k1, k2; 4 at t + dt
-            # from k3), made at the end of the stage before: the loop carries it, not k
-            acc, ys, aux = state
-            first = i == 0
-            c = jnp.where(i == 3, 1.0, 0.5)
-            ki, extra = f_dy(jnp.where(first, t, t + c * dt), ys)
-            w = jnp.where(i == 3, 1.0, 2.0)
-            acc = jax.tree.map(lambda a, kk: jnp.where(first, kk, a + w * kk), acc, ki)  # k1 + 2 k2 + 2 k3 + k4
-            c_next = jnp.where(i == 2, 1.0, 0.5)
-            ys = jax.tree.map(lambda yi, kk: yi + c_next * dt * kk, y, ki)
-            return acc, ys, keep(first, extra, aux)
+    @classmethod
+    def of(cls, rolled: bool, rolled_stages: int = 4, record_once: bool = True) -> "RK4":
+        """The RK4 of the loop options ``rolled_rk4`` (made for the arm), ``rolled_stages`` and
+        ``record_once`` (:class:`hinfnn._loop.LoopOptions`)."""
+        return cls("rolled3" if rolled and rolled_stages == 3 else "rolled" if rolled else "written", record_once)
 
-        k0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(f_dy, t, y)[0])
-        acc, _, aux = jax.lax.fori_loop(0, 4, stage, (k0, y, aux0))
-        return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
+    def step(self, f, t, y, dt, *, take=None, every=()):
+        """One step: ``(y_next, aux_1)``, aux_1 the auxiliary output of the first stage (the state
+        at the start of the step). ``take`` (with ``"rolled"`` and ``record_once``; a traced bool,
+        or None: always): whether the whole aux is wanted at this step; when not, only its
+        entries named in ``every`` are computed and the others are zeros (a simulation records
+        every few steps, but checks τ and the contact at every step)."""
+        if self.looping == "rolled3":
+            return _rolled3(f, t, y, dt)
+        if self.looping == "rolled":
+            return _rolled(f, t, y, dt, self.record_once, take, every)
+        return _written(f, t, y, dt)
+
+
+def _rolled3(f, t, y, dt):
+    """:class:`RK4` with ``looping="rolled3"``."""
+    f = jax.jit(f, inline=True)  # traced once: for stage 1 and for the loop's body
+    k1, aux = f(t, y)  # stage 1 at (t, y), with the auxiliary output
+
+    def later(i, state):  # stages 2, 3 at t + dt/2 from k1, k2; stage 4 at t + dt from k3
+        acc, k = state
+        c = jnp.where(i == 3, 1.0, 0.5)
+        ki, _ = f(t + c * dt, jax.tree.map(lambda yi, kk: yi + c * dt * kk, y, k))
+        w = jnp.where(i == 3, 1.0, 2.0)
+        return jax.tree.map(lambda a, kk: a + w * kk, acc, ki), ki  # k1 + 2 k2 + 2 k3 + k4
+
+    acc, _ = jax.lax.fori_loop(1, 4, later, (k1, k1))
+    return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
+
+
+def _rolled(f, t, y, dt, record_once, take, every):
+    """:class:`RK4` with ``looping="rolled"``."""
+    cut = split_aux(f, t, y, every=every) if record_once else None
+    if cut is not None:
+        f_dy, f_aux, aux0, f_part = cut
+
+        def keep(first, res, old):  # stage 1's record, computed at stage 1 only
+            if take is None:
+                return jax.lax.cond(first, lambda r, o: f_aux(r), lambda r, o: o, res, old)
+            which = jnp.where(first, jnp.where(take, 2, 1), 0)
+            return jax.lax.switch(which, (lambda r, o: o, f_part, lambda r, o: f_aux(r)), res, old)
+    else:
+        f_dy = jax.jit(f, inline=True)  # traced once: for the shapes below and for the loop's body
+        aux0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(f_dy, t, y)[1])
+
+        def keep(first, new, old):  # every stage's aux computed, the first kept
+            return jax.tree.map(lambda a, b: jnp.where(first, a, b), new, old)
+
+    def stage(i, state):
+        # ys: this stage's state (stage 1 at (t, y); 2, 3 at t + dt/2 from k1, k2; 4 at t + dt
+        # from k3), made at the end of the stage before: the loop carries it, not k
+        acc, ys, aux = state
+        first = i == 0
+        c = jnp.where(i == 3, 1.0, 0.5)
+        ki, extra = f_dy(jnp.where(first, t, t + c * dt), ys)
+        w = jnp.where(i == 3, 1.0, 2.0)
+        acc = jax.tree.map(lambda a, kk: jnp.where(first, kk, a + w * kk), acc, ki)  # k1 + 2 k2 + 2 k3 + k4
+        c_next = jnp.where(i == 2, 1.0, 0.5)
+        ys = jax.tree.map(lambda yi, kk: yi + c_next * dt * kk, y, ki)
+        return acc, ys, keep(first, extra, aux)
+
+    k0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(f_dy, t, y)[0])
+    acc, _, aux = jax.lax.fori_loop(0, 4, stage, (k0, y, aux0))
+    return jax.tree.map(lambda yi, a: yi + (dt / 6.0) * a, y, acc), aux
+
+
+def _written(f, t, y, dt):
+    """:class:`RK4` with ``looping="written"``."""
     k1, aux = f(t, y)
     k2, _ = f(t + 0.5 * dt, _axpy(0.5 * dt, k1, y))
     k3, _ = f(t + 0.5 * dt, _axpy(0.5 * dt, k2, y))

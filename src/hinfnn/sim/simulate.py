@@ -4,7 +4,7 @@ The simulator knows the plant and the controller only through :mod:`hinfnn.proto
 once, by :func:`hinfnn.protocols.check`, before anything is traced):
 
 * a *continuous* plant (:class:`~hinfnn.protocols.ContinuousPlant`) is integrated with the controller state and
-  the accumulators by fixed-step RK4 (:func:`~hinfnn.sim.integrate.rk4_step`), the controller
+  the accumulators by fixed-step RK4 (:class:`~hinfnn.sim.integrate.RK4`), the controller
   evaluated at every stage from that stage's measurement (the paper's continuous-time control),
   or held by a zero-order hold between samples (``control_period``: τ computed at each sample
   instant by the controller's ``sample`` method, its state advanced by forward Euler over the
@@ -51,10 +51,11 @@ from .._loop import SEQUENTIAL_VALUES, LoopOptions
 from .._programs import ExportedProgram, KeptFunction
 from .._pytree import all_finite, pytree_dataclass, structure_key
 from ..errors import ConfigError, SimulationError
+from .. import protocols
 from ..protocols import check as check_protocols
 from ..reference import check_references
 from ..status import RunStatus, status_of
-from .integrate import rk4_step
+from .integrate import RK4
 from .plan import SINGLE_RECORDS, StepPlan
 from .recorder import STEP_MAXES, STEP_SUMS, Accumulators, bookkeeping, pick, select
 from .trajectory import RunInfo, Trajectory
@@ -75,6 +76,34 @@ class Limits:
 
     torque: jax.Array = 1e5
     penetration: jax.Array = 0.05
+
+
+@dataclasses.dataclass(frozen=True)
+class Save:
+    """What a run stores (``simulate(..., save=Save(...))``, as diffrax's ``SaveAt``): a sample
+    every ``every`` steps, or every ``interval`` seconds (the largest divisor of the step count with
+    ``every · dt ≤ interval``; default 1 ms), of the ``fields`` (names of
+    :data:`hinfnn.fields.FIELDS` or ``"metrics"``; None: everything the run produces; ``t``
+    always). :class:`~hinfnn.sim.plan.StepPlan` makes the steps of it. The same as the keywords
+    ``save_every``, ``save_interval`` and ``fields``, which :func:`simulate` and
+    :func:`simulate_batch` still accept (one or the other, not both)."""
+
+    every: int | None = None
+    interval: float | None = None
+    fields: object = None
+
+    @staticmethod
+    def of(save: "Save | None", save_every, save_interval, fields) -> "Save":
+        """``save``, or the keywords as a :class:`Save` (a ConfigError naming ``save`` when both
+        are given)."""
+        if save is None:
+            return Save(save_every, save_interval, fields)
+        if not isinstance(save, Save):
+            raise ConfigError(f"must be a hinfnn.sim.Save, got {type(save).__name__}", key="save")
+        if (save_every, save_interval, fields) != (None, None, None):
+            raise ConfigError("give what to store once: save=Save(...) or the keywords save_every, save_interval "
+                              f"and fields, not both (save={save!r})", key="save")
+        return save
 
 
 def _evaluate(plant, ctrl, ref, t, y: SimState, w, held, sampled, applied=None, sensed=None):
@@ -231,8 +260,8 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
             rates, kept = bookkeeping(ctrl, y.xc, out, meas.qd, qdd, y.acc, enabled=book)
             acc = jax.tree.map(lambda a, r: a + dt * r, y.acc, rates)
             return SimState(plant=new_plant, xc=y.xc, acc=acc), {**record, **kept}
-        opts = dict(rolled=rolled, rolled_stages=loop.rolled_stages,
-                    record_once=loop.record_once, take=take, every=EVERY_STEP)
+        rk4 = RK4.of(rolled, loop.rolled_stages, loop.record_once)
+        opts = dict(take=take, every=EVERY_STEP)
         if sampled and loop.frozen_law:
             # the law's state is frozen between samples (its rate is zero): RK4 integrates the
             # plant and the accumulators, the law's state passes through unchanged (as it would
@@ -242,11 +271,11 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
                              applied, sensed)
                 return (d.plant, d.acc), aux
 
-            (p_new, acc_new), aux = rk4_step(f, t, (y.plant, y.acc), dt, **opts)
-            return SimState(plant=p_new, xc=ctrl.constrain(y.xc), acc=acc_new), aux
-        y_new, aux = rk4_step(lambda tt, yy: rhs(plant, ctrl, ref, tt, yy, w, held, sampled, book, applied, sensed),
+            (p_new, acc_new), aux = rk4.step(f, t, (y.plant, y.acc), dt, **opts)
+            return SimState(plant=p_new, xc=protocols.constrain(ctrl, y.xc), acc=acc_new), aux
+        y_new, aux = rk4.step(lambda tt, yy: rhs(plant, ctrl, ref, tt, yy, w, held, sampled, book, applied, sensed),
                               t, y, dt, **opts)
-        return SimState(plant=y_new.plant, xc=ctrl.constrain(y_new.xc), acc=y_new.acc), aux
+        return SimState(plant=y_new.plant, xc=protocols.constrain(ctrl, y_new.xc), acc=y_new.acc), aux
 
     def step(c: Carry, k, first):
         """Step k, and the record at step k (its start). ``first``: a record is taken at step k
@@ -311,7 +340,7 @@ def _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, rol
 
 def _stored(rec, fields):
     """The stored part of a step's record, and what the controller's deferred fields are computed
-    from (:meth:`~hinfnn.protocols.Controller.deferred_fields`), kept until the sample is taken."""
+    from (:meth:`~hinfnn.protocols.PerSample.deferred_fields`), kept until the sample is taken."""
     out = pick(rec, fields)
     if "_deferred" in rec:
         out["_deferred"] = rec["_deferred"]
@@ -325,7 +354,7 @@ def _derived(ctrl, rec, fields):
     if "_deferred" not in rec:
         return rec
     rec = dict(rec)
-    extra = ctrl.deferred_fields(rec.pop("_deferred"))
+    extra = protocols.deferred_fields(ctrl, rec.pop("_deferred"))
     return {**rec, **pick(extra, None if fields is None else tuple(f for f in fields if f in extra))}
 
 
@@ -351,7 +380,7 @@ def _chunk(plant, ctrl, ref, limits, carry, k0, n_steps, dt, n_hold, save_every,
     ``loop``: the loop options made for the plant (and the batch); ``kernels``: the kernels the
     plant, the controller and the reference hold (:meth:`hinfnn._linalg.Kernels.hold`), which lay
     out the chunk's outputs."""
-    ctrl = ctrl.prepared()  # its constants by the blocks the loop reads, cut once here
+    ctrl = protocols.prepared(ctrl)  # its constants by the blocks the loop reads, cut once here
     sample, step = _step_fn(plant, ctrl, ref, limits, n_steps, dt, n_hold, sampled, fields, book=book, loop=loop)
     step = jax.jit(step, inline=True)
 
@@ -398,19 +427,17 @@ def _record_scan(one_record, carry, n_records, blocks: bool = True):
 def _final(plant, ctrl, ref, carry, kernels: la.Kernels = la.DEFAULT):
     """The full final state (the controller's arrays by name) and why the run stopped, from the
     carry after the last chunk. A controller fault's measure is the controller's
-    (:meth:`~hinfnn.protocols.Controller.fault_measure`), at the frozen state: the state at the
+    (:meth:`~hinfnn.protocols.PerSample.fault_measure`), at the frozen state: the state at the
     start of the step that stopped the run, where the loop evaluated the fault."""
-    from ..protocols import Controller
-
     y_end = carry.y
     q, qd = plant.joints(y_end.plant)
     xc_end = y_end.xc if carry.xc_next is None else carry.xc_next  # sampled: the last sample's update
     final = dict(q=q, qd=qd, **ctrl.state_arrays(xc_end), J=y_end.acc.J, J_aug=y_end.acc.J_aug,
                  supply=y_end.acc.supply)
     fault_value = carry.bad_fault
-    if type(ctrl).fault_measure is not Controller.fault_measure:
+    if isinstance(ctrl, protocols.PerSample):
         meas, _ = plant.sense(carry.t_fail, y_end.plant)
-        measure = ctrl.fault_measure(carry.t_fail, y_end.xc, meas, ref, fault_value)
+        measure = protocols.fault_measure(ctrl, carry.t_fail, y_end.xc, meas, ref, fault_value)
         fault_value = jnp.where(carry.status == int(RunStatus.CONTROLLER_FAULT), measure, fault_value)
     details = dict(tau_peak=carry.bad_tau, penetration=carry.bad_pen, nonfinite_parts=carry.bad_parts,
                    fault_value=fault_value, fault_index=carry.bad_fault_index)
@@ -522,9 +549,11 @@ def release_programs() -> None:
 @dataclasses.dataclass(frozen=True)
 class RunProgram:
     """The compiled programs of one run structure, built once and used by every caller: a single
-    run (:func:`simulate`), a batch (:func:`simulate_batch`), the compile-ahead
-    (:func:`lower_ahead`, :func:`lower_ahead_batch`) and the memory plan (:func:`record_shapes`,
-    :meth:`shapes`).
+    run (:func:`simulate`) and a batch (:func:`simulate_batch`), the two public entry points of a
+    run, through :meth:`run`; the compile-ahead of :func:`~hinfnn.sim.simulate_many`
+    (:meth:`lower_ahead`, :meth:`lower_ahead_batch`, through :meth:`lower`) and the memory plan of
+    :mod:`hinfnn.resources` (:meth:`record_shapes`, through :meth:`shapes`). The chunk's traced
+    scalars are :meth:`chunk_scalars`.
 
     The structure: ``in_axes`` (None for a single run; else, for the plant, the controller, the
     reference and the limits, 0 when stacked along a batch axis and None when shared), the
@@ -565,14 +594,14 @@ class RunProgram:
     def scalars(self, plan: StepPlan) -> tuple:
         """(samples per chunk, the chunk's traced scalars) of a run of ``plan``."""
         _, per_chunk = plan.chunk(batched=self.in_axes is not None)
-        return per_chunk, _chunk_scalars(plan.n_steps, plan.dt, plan.n_hold, plan.save_every, per_chunk)
+        return per_chunk, RunProgram.chunk_scalars(plan.n_steps, plan.dt, plan.n_hold, plan.save_every, per_chunk)
 
     def _args(self, plant, ctrl, ref, limits, y0, plan: StepPlan | None, dt: float):
         """(chunk, the arguments a chunk call gets, the carry as its type): their values do not
         matter to :meth:`lower` and :meth:`shapes` (a plan of one step of ``dt`` without ``plan``)."""
         chunk, _, init = self.programs
         carry = init.eval_shape(ctrl, y0, self.n_joints, plant)
-        scalars = _chunk_scalars(1, dt, 1, 1, 1) if plan is None else self.scalars(plan)[1]
+        scalars = RunProgram.chunk_scalars(1, dt, 1, 1, 1) if plan is None else self.scalars(plan)[1]
         return chunk, (plant, ctrl, ref, limits, carry, jnp.zeros((), jnp.int64), *scalars)
 
     def lower(self, plant, ctrl, ref, limits, y0, *, plan: StepPlan | None = None, dt: float = 1e-4):
@@ -622,7 +651,7 @@ class RunProgram:
 
         pending = None  # the previous chunk's records, copied while the next chunk runs
         for c in range(n_chunks):
-            k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)  # typed as _chunk_scalars
+            k0 = jnp.asarray(c * per_chunk * save_every, dtype=jnp.int64)  # typed as chunk_scalars
             carry, rec = chunk(plant, ctrl, ref, limits, carry, k0, *scalars)
             if pending is not None:
                 store(*pending)
@@ -631,20 +660,101 @@ class RunProgram:
         del pending
         return (out, *final(plant, ctrl, ref, carry))
 
+    @staticmethod
+    def chunk_scalars(n_steps, dt, n_hold, save_every, per_chunk):
+        """The chunk program's traced scalars as :meth:`run` passes them (their types are part of
+        the program's signature: :meth:`RunProgram.shapes` traces the same one)."""
+        i64 = functools.partial(jnp.asarray, dtype=jnp.int64)
+        return (i64(n_steps), jnp.asarray(dt, dtype=jnp.float64), i64(max(n_hold, 1)), i64(save_every),
+                i64(per_chunk))
+
+    @classmethod
+    def lower_ahead(cls, plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
+                    limits: Limits | None = None, loop: LoopOptions | None = None, bookkeeping: bool = True):
+        """The chunk program a single run of these objects calls (:func:`simulate`; a group of one in
+        :func:`~hinfnn.sim.simulate_many`) lowered for its arguments' types, or None when the program
+        is not kept between processes (:meth:`hinfnn._programs.KeptFunction.lower_ahead`). Nothing is
+        compiled or run; its ``.compile()`` (XLA's work, without Python's lock) done before the run
+        leaves the run's first chunk nothing to compile: :func:`~hinfnn.sim.simulate_many` compiles its
+        groups' programs so, at once."""
+        sampled = control_period is not None or plant.discrete
+        y0 = initial_state(plant, controller, q0=q0)
+        program = cls.single(plant.n, sampled, loop or LoopOptions(), _flag(bookkeeping, "bookkeeping"))
+        return program.lower(plant, controller, reference, limits or Limits(), y0, dt=dt)
+
+    @classmethod
+    def lower_ahead_batch(cls, plants: list, controllers: list, references: list, *, q0: list, limits: list,
+                          t_final: float, dt: float = 1e-4, control_period: float | None = None,
+                          save_interval: float | None = None, save_every: int | None = None, fields=None,
+                          loop: LoopOptions | None = None, bookkeeping: bool = True):
+        """:meth:`lower_ahead` for :func:`simulate_batch` of these lists of B members (q0 and limits
+        one per member: a group of :func:`~hinfnn.sim.simulate_many`): the batch's chunk program
+        lowered for its first group of members, or None when it is not kept. The members are stacked
+        as the run stacks them (their start, which changes values and not types, is not run); nothing
+        is compiled or run."""
+        loop = loop or LoopOptions()
+        B, plant0 = len(plants), plants[0]
+        if B == 1:  # simulate_batch runs one member unbatched
+            return cls.lower_ahead(plant0, controllers[0], references[0], q0=q0[0], dt=dt,
+                                   control_period=control_period, limits=limits[0], loop=loop, bookkeeping=bookkeeping)
+        plan = StepPlan.make(t_final, dt, control_period=control_period, save_interval=save_interval,
+                             save_every=save_every, discrete=plant0.discrete)
+        program = cls.of(plan, (0, 0, 0, 0), select(fields), loop, plant0.n, _flag(bookkeeping, "bookkeeping"))
+        idx = loop.groups(B, plant0.n)[0]
+        take = functools.partial(_take, idx=idx) if idx.size != B else (lambda x: x)
+        args = [take(stack(list(x))) for x in (plants, controllers, references, limits)]
+        y0 = take(stack([initial_state(p, c, q0=q) for p, c, q in zip(plants, controllers, q0)]))
+        return program.lower(*args, y0, plan=plan)
+
+    @classmethod
+    def record_shapes(cls, plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
+                      fields=None, limits: Limits | None = None, single: bool = False,
+                      loop: LoopOptions | None = None, bookkeeping: bool = True) -> dict:
+        """``{field: (shape, dtype)}`` of one stored sample of a run, found by tracing (``eval_shape``:
+        nothing is compiled or run). What a run stores is this times its number of samples;
+        :mod:`hinfnn.resources` uses it to estimate memory before a run.
+
+        ``single``: the run is simulated alone (:func:`simulate`, or a group of one in
+        :func:`~hinfnn.sim.simulate_many`), and its own chunk program is what is traced: ``jax.jit``
+        keeps that trace, so the run's first chunk does not trace it again (the memory plan costs no
+        trace of its own). Otherwise
+        (members of a batch, whose program is another) it is one step with RK4's stages rolled (plant
+        and controller traced once, not four times: the shapes are the same). Either way the result is
+        kept for the process's later runs of the same structure (the same pytree structure and array
+        types)."""
+        fields = select(fields)
+        loop = loop or LoopOptions()
+        sampled = control_period is not None or plant.discrete
+        y0 = initial_state(plant, controller, q0=q0)
+        args = (plant, controller, reference, limits or Limits(), y0)
+        book = _flag(bookkeeping, "bookkeeping")
+        key = (*structure_key(args), float(dt), sampled, fields, loop, book)
+        if key in _RECORD_SHAPES:
+            return dict(_RECORD_SHAPES[key])
+
+        def one(opts, kernels):
+            def run(plant, ctrl, ref, lim, y0):
+                carry = _init_carry(ctrl, y0, plant.n, plant, sampled)
+                _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True, book=book, loop=opts)
+                return _derived(ctrl, step(carry, jnp.zeros((), jnp.int64), True)[1], fields)
+
+            return run
+
+        if single:  # the single-run program as a run calls it
+            out = pick(cls.single(plant.n, sampled, loop, book).shapes(*args, dt=dt), fields)
+        else:
+            out = jax.eval_shape(_with_options(one, loop.for_joints(plant.n), name="one"), *args)
+        shapes = {k: (tuple(v.shape), np.dtype(v.dtype)) for k, v in out.items()}
+        if len(_RECORD_SHAPES) < 256:
+            _RECORD_SHAPES[key] = shapes
+        return dict(shapes)
+
 
 def _drive(plant, ctrl, ref, limits, y0, in_axes, *, plan: StepPlan, n_joints, fields, loop: LoopOptions,
            book: bool = True, progress=None, what: str = ""):
     """:meth:`RunProgram.run` of the program of this structure."""
     program = RunProgram.of(plan, in_axes, fields, loop, n_joints, book)
     return program.run(plant, ctrl, ref, limits, y0, plan, fields=fields, progress=progress, what=what)
-
-
-def _chunk_scalars(n_steps, dt, n_hold, save_every, per_chunk):
-    """The chunk program's traced scalars as :func:`_drive` passes them (their types are part of
-    the program's signature: :meth:`RunProgram.shapes` traces the same one)."""
-    i64 = functools.partial(jnp.asarray, dtype=jnp.int64)
-    return (i64(n_steps), jnp.asarray(dt, dtype=jnp.float64), i64(max(n_hold, 1)), i64(save_every),
-            i64(per_chunk))
 
 
 def initial_state(plant, ctrl, *, q0=None, u1_0=None, qd0=None, xc0=None) -> SimState:
@@ -676,7 +786,7 @@ def _started(plant, ctrl, ref, y0: SimState) -> SimState:
 
 def start(plant, ctrl, ref, y0: SimState) -> SimState:
     """:func:`_started` when the controller needs it (one compiled program), else ``y0``."""
-    return _started(plant, ctrl, ref, y0) if ctrl.needs_start else y0
+    return _started(plant, ctrl, ref, y0) if protocols.needs_start(ctrl) else y0
 
 
 def _to_numpy(rec, status, t_fail, details, final, *, info, plan: StepPlan, plant, ctrl,
@@ -695,17 +805,18 @@ def _to_numpy(rec, status, t_fail, details, final, *, info, plan: StepPlan, plan
 
 
 def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float = 1e-4,
-             q0=None, u1_0=None, qd0=None, xc0=None, save_every: int | None = None,
-             save_interval: float | None = None, fields=None,
+             q0=None, u1_0=None, qd0=None, xc0=None, save: Save | None = None,
              control_period: float | None = None, limits: Limits | None = None,
              info: RunInfo | None = None, raise_on_failure: bool = True, progress=None,
-             loop: LoopOptions | None = None, bookkeeping: bool = True) -> Trajectory:
+             loop: LoopOptions | None = None, bookkeeping: bool = True, save_every: int | None = None,
+             save_interval: float | None = None, fields=None) -> Trajectory:
     """Simulate one closed-loop run; returns a :class:`Trajectory` sampled every ``save_every``
     steps (t = 0, …, t_final).
 
     Start: ``q0`` (joint angles), or ``u1_0`` (the end-effector's motion coordinate on the true
-    surface; the plant's ``initial_q`` finds the pose). Storage: a sample every ``save_every``
-    steps; by default the largest divisor of the step count with ``save_every · dt ≤
+    surface; the plant's ``initial_q`` finds the pose). Storage (``save``, a :class:`Save`; or the
+    keywords ``save_every``, ``save_interval``, ``fields`` of the same meaning): a sample every
+    ``save_every`` steps; by default the largest divisor of the step count with ``save_every · dt ≤
     save_interval`` (default 1 ms: every 10th step at dt = 1e-4; :class:`~hinfnn.sim.plan.StepPlan`).
     The step summaries (``tau_abs_max``,
     ``tau_variation``, ``tau_sq``, ``e_u1_sq``, ...) still cover every step, so
@@ -731,6 +842,8 @@ def simulate(plant, controller, reference, *, t_final: float = 10.0, dt: float =
     from .._config import require_x64
 
     require_x64()
+    save = Save.of(save, save_every, save_interval, fields)
+    save_every, save_interval, fields = save.every, save.interval, save.fields
     check_protocols(plant, controller)
     check_references([(reference, controller.m, controller.k)])
     plan = StepPlan.make(t_final, dt, control_period=control_period, save_interval=save_interval,
@@ -802,10 +915,10 @@ def _stack_leaves(*xs):
 
 
 def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt: float = 1e-4,
-                   q0=None, u1_0=None, save_every: int | None = None,
-                   save_interval: float | None = None, fields=None,
+                   q0=None, u1_0=None, save: Save | None = None,
                    control_period: float | None = None, limits=None, infos: list | None = None,
-                   progress=None, loop: LoopOptions | None = None, bookkeeping: bool = True) -> Trajectory:
+                   progress=None, loop: LoopOptions | None = None, bookkeeping: bool = True,
+                   save_every: int | None = None, save_interval: float | None = None, fields=None) -> Trajectory:
     """Simulate B runs as ONE program (``jax.vmap`` of :func:`simulate`'s run).
 
     ``plants``, ``controllers``, ``references`` (and ``limits``): each either a list of B objects
@@ -813,8 +926,8 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     sensor gives member i the noise stream ``sensor.stream(i)``: independent members; a list keeps
     each plant's own). ``q0``/``u1_0`` may be
     lists too. Members that fail are marked in ``status``/``t_fail`` and do not stop the others;
-    nothing is raised for them. ``save_every``, ``save_interval``, ``fields``, ``progress`` and
-    ``bookkeeping`` as for :func:`simulate`; a batch of B runs stores B times what one run stores.
+    nothing is raised for them. ``save`` (or ``save_every``, ``save_interval``, ``fields``),
+    ``progress`` and ``bookkeeping`` as for :func:`simulate`; a batch of B runs stores B times what one run stores.
     More than ``loop.batch_group`` members (by default 100 for the two-link arm, 4,096 for larger arms) run
     as equal groups, one after the other, through the same compiled program
     (:class:`~hinfnn._loop.LoopOptions`: faster; the numbers to rounding, as any other batch size).
@@ -822,6 +935,8 @@ def simulate_batch(plants, controllers, references, *, t_final: float = 10.0, dt
     from .._config import require_x64
 
     require_x64()
+    save = Save.of(save, save_every, save_interval, fields)
+    save_every, save_interval, fields = save.every, save.interval, save.fields
     loop = loop or LoopOptions()
     listed = [x for x in (plants, controllers, references, limits) if isinstance(x, (list, tuple))]
     if not listed:
@@ -901,86 +1016,5 @@ def _group_progress(progress, i, n_groups, done, total, what=""):
     progress(i * total + done, n_groups * total, what)
 
 
-def lower_ahead(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
-                limits: Limits | None = None, loop: LoopOptions | None = None, bookkeeping: bool = True):
-    """The chunk program a single run of these objects calls (:func:`simulate`; a group of one in
-    :func:`~hinfnn.sim.simulate_many`) lowered for its arguments' types, or None when the program
-    is not kept between processes (:meth:`hinfnn._programs.KeptFunction.lower_ahead`). Nothing is
-    compiled or run; its ``.compile()`` (XLA's work, without Python's lock) done before the run
-    leaves the run's first chunk nothing to compile: :func:`~hinfnn.sim.simulate_many` compiles its
-    groups' programs so, at once."""
-    sampled = control_period is not None or plant.discrete
-    y0 = initial_state(plant, controller, q0=q0)
-    program = RunProgram.single(plant.n, sampled, loop or LoopOptions(), _flag(bookkeeping, "bookkeeping"))
-    return program.lower(plant, controller, reference, limits or Limits(), y0, dt=dt)
-
-
-def lower_ahead_batch(plants: list, controllers: list, references: list, *, q0: list, limits: list, t_final: float,
-                      dt: float = 1e-4, control_period: float | None = None, save_interval: float | None = None,
-                      save_every: int | None = None, fields=None, loop: LoopOptions | None = None,
-                      bookkeeping: bool = True):
-    """:func:`lower_ahead` for :func:`simulate_batch` of these lists of B members (q0 and limits
-    one per member: a group of :func:`~hinfnn.sim.simulate_many`): the batch's chunk program
-    lowered for its first group of members, or None when it is not kept. The members are stacked
-    as the run stacks them (their start, which changes values and not types, is not run); nothing
-    is compiled or run."""
-    loop = loop or LoopOptions()
-    B, plant0 = len(plants), plants[0]
-    if B == 1:  # simulate_batch runs one member unbatched
-        return lower_ahead(plant0, controllers[0], references[0], q0=q0[0], dt=dt, control_period=control_period,
-                           limits=limits[0], loop=loop, bookkeeping=bookkeeping)
-    plan = StepPlan.make(t_final, dt, control_period=control_period, save_interval=save_interval,
-                         save_every=save_every, discrete=plant0.discrete)
-    program = RunProgram.of(plan, (0, 0, 0, 0), select(fields), loop, plant0.n, _flag(bookkeeping, "bookkeeping"))
-    idx = loop.groups(B, plant0.n)[0]
-    take = functools.partial(_take, idx=idx) if idx.size != B else (lambda x: x)
-    args = [take(stack(list(x))) for x in (plants, controllers, references, limits)]
-    y0 = take(stack([initial_state(p, c, q0=q) for p, c, q in zip(plants, controllers, q0)]))
-    return program.lower(*args, y0, plan=plan)
-
-
-def record_shapes(plant, controller, reference, *, q0, dt: float = 1e-4, control_period: float | None = None,
-                  fields=None, limits: Limits | None = None, single: bool = False,
-                  loop: LoopOptions | None = None, bookkeeping: bool = True) -> dict:
-    """``{field: (shape, dtype)}`` of one stored sample of a run, found by tracing (``eval_shape``:
-    nothing is compiled or run). What a run stores is this times its number of samples;
-    :mod:`hinfnn.resources` uses it to estimate memory before a run.
-
-    ``single``: the run is simulated alone (:func:`simulate`, or a group of one in
-    :func:`~hinfnn.sim.simulate_many`), and its own chunk program is what is traced: ``jax.jit``
-    keeps that trace, so the run's first chunk does not trace it again (the memory plan costs no
-    trace of its own). Otherwise
-    (members of a batch, whose program is another) it is one step with RK4's stages rolled (plant
-    and controller traced once, not four times: the shapes are the same). Either way the result is
-    kept for the process's later runs of the same structure (the same pytree structure and array
-    types)."""
-    fields = select(fields)
-    loop = loop or LoopOptions()
-    sampled = control_period is not None or plant.discrete
-    y0 = initial_state(plant, controller, q0=q0)
-    args = (plant, controller, reference, limits or Limits(), y0)
-    book = _flag(bookkeeping, "bookkeeping")
-    key = (*structure_key(args), float(dt), sampled, fields, loop, book)
-    if key in _RECORD_SHAPES:
-        return dict(_RECORD_SHAPES[key])
-
-    def one(opts, kernels):
-        def run(plant, ctrl, ref, lim, y0):
-            carry = _init_carry(ctrl, y0, plant.n, plant, sampled)
-            _, step = _step_fn(plant, ctrl, ref, lim, 1, dt, 1, sampled, fields, rolled=True, book=book, loop=opts)
-            return _derived(ctrl, step(carry, jnp.zeros((), jnp.int64), True)[1], fields)
-
-        return run
-
-    if single:  # the single-run program as a run calls it
-        out = pick(RunProgram.single(plant.n, sampled, loop, book).shapes(*args, dt=dt), fields)
-    else:
-        out = jax.eval_shape(_with_options(one, loop.for_joints(plant.n), name="one"), *args)
-    shapes = {k: (tuple(v.shape), np.dtype(v.dtype)) for k, v in out.items()}
-    if len(_RECORD_SHAPES) < 256:
-        _RECORD_SHAPES[key] = shapes
-    return dict(shapes)
-
-
-#: record_shapes' results by run structure (this process).
+#: RunProgram.record_shapes' results by run structure (this process).
 _RECORD_SHAPES: dict = {}
