@@ -56,7 +56,8 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 
 # Where the suite's time goes (opt-in): HINFNN_COMPILE_REPORT=FILE appends one JSON line per test
 # with the JAX programs it compiled in this process, and the seconds spent tracing, lowering and
-# compiling them (subprocesses a test starts are not counted). Summarise with
+# compiling them, and the test's wall and CPU seconds (CPU: all this process's threads; a loaded
+# machine stretches the wall time, hardly the CPU time; subprocesses a test starts are not counted). Summarise with
 # `python tests/compile_report.py FILE`.
 _COMPILE_REPORT = os.environ.get("HINFNN_COMPILE_REPORT")
 if _COMPILE_REPORT:
@@ -89,11 +90,12 @@ if _COMPILE_REPORT:
     @pytest.hookimpl(hookwrapper=True)
     def pytest_runtest_protocol(item, nextitem):
         _now.clear()
-        _now["t0"] = time.perf_counter()
+        _now["t0"], _now["c0"] = time.perf_counter(), time.process_time()
         yield
         wall = time.perf_counter() - _now.pop("t0")
+        cpu = time.process_time() - _now.pop("c0")
         with open(_COMPILE_REPORT, "a", encoding="utf-8") as f:
-            f.write(json.dumps({"test": item.nodeid, "wall": round(wall, 3), "pid": os.getpid(),
+            f.write(json.dumps({"test": item.nodeid, "wall": round(wall, 3), "cpu": round(cpu, 3), "pid": os.getpid(),
                                 **{k: v if k == "named" else round(v, 3) for k, v in _now.items()}}) + "\n")
         _now.clear()
 
