@@ -111,6 +111,40 @@ LONGEST_FIRST = ("test_readme.py",  # 158 s: the README's arm commands alone 98 
                  "test_sim.py", "test_results.py", "test_sweep.py", "test_cli.py")
 
 
+def _module_fixtures(item) -> list[str]:
+    """The module-scoped fixtures defined in ``item``'s own module that it uses."""
+    module = getattr(getattr(item, "module", None), "__name__", None)
+    names = []
+    for name, defs in item._fixtureinfo.name2fixturedefs.items():
+        fd = defs[-1]  # the one this test gets
+        if fd.scope == "module" and getattr(fd.func, "__module__", None) == module:
+            names.append(name)
+    return sorted(names)
+
+
+class _FixtureGroups:
+    """A test in a module with no xdist_group mark that uses a module-scoped fixture of its module
+    joins the group ``<module>::<fixture>``: pytest-xdist would otherwise hand the fixture's tests
+    to both workers, and each would build the fixture (a run, a sweep, a written result). A plugin
+    of its own, so that it runs before pytest-xdist names the groups (tryfirst) while the hook
+    below runs after it."""
+
+    @pytest.hookimpl(tryfirst=True)
+    def pytest_collection_modifyitems(self, config, items):
+        if not config.getoption("loadgroup", default=False):
+            return
+        for item in items:
+            if any(True for _ in item.iter_markers("xdist_group")):
+                continue
+            shared = _module_fixtures(item)
+            if shared:
+                item.add_marker(pytest.mark.xdist_group(f"{item.path.name}::{shared[0]}"))
+
+
+def pytest_configure(config):
+    config.pluginmanager.register(_FixtureGroups(), "hinfnn-fixture-groups")
+
+
 @pytest.hookimpl(trylast=True)
 def pytest_collection_modifyitems(config, items):
     """The modules of :data:`LONGEST_FIRST` first (a stable sort: the others keep their order).
