@@ -100,15 +100,18 @@ if _COMPILE_REPORT:
         _now.clear()
 
 
-#: Modules whose tests take longest, in descending total time (seconds on this project's 2-core
-#: machines, one suite run): collected first, so that pytest-xdist hands the longest tests out
-#: first and both workers finish together. The xdist groups (``xdist_group`` marks) are scheduled
-#: before any of these whatever the order (pytest-xdist's --loadscope-reorder: the scopes with
-#: most tests first); within a module the order is the file's.
-LONGEST_FIRST = ("test_readme.py",  # 158 s: the README's arm commands alone 98 s (nine UR5 and 3-link programs)
-                 "test_arms.py",  # 76 s
-                 "test_robustness.py",  # 64 s
-                 "test_sim.py", "test_results.py", "test_sweep.py", "test_cli.py")
+#: Modules whose tests take longest, in descending total time of their ungrouped tests: collected
+#: first, so that pytest-xdist hands the longest tests out first and both workers finish together.
+#: The order is that of one suite run on a busy 2-core host (27 min; the seconds of its 80 slowest
+#: tests, about twice an idle run's: test_instruments 250, test_arms 227, test_sim 173, test_robot
+#: 100, test_readme 96, test_cache 92, test_sensing 75, test_sweep 51, test_results 48,
+#: test_robustness 31). The xdist groups (``xdist_group`` marks) are scheduled before any of these
+#: whatever the order (pytest-xdist's --loadscope-reorder: the scopes with most tests first); within
+#: a module the order is the file's.
+LONGEST_FIRST = ("test_instruments.py", "test_arms.py", "test_sim.py", "test_robot.py",
+                 "test_readme.py",  # the README's arm commands: nine UR5 and 3-link programs
+                 "test_cache.py", "test_sensing.py", "test_sweep.py", "test_results.py", "test_robustness.py",
+                 "test_cli.py")
 
 
 def _module_fixtures(item) -> list[str]:
