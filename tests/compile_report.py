@@ -16,22 +16,23 @@ def main() -> None:
     ap.add_argument("--top", type=int, default=30)
     args = ap.parse_args()
     rows = [json.loads(line) for line in open(args.file, encoding="utf-8") if line.strip()]
-    keys = ("wall", "trace", "lower", "compile", "programs", "cache_hits")
+    keys = ("wall", "cpu", "trace", "lower", "compile", "programs", "cache_hits")
     by_file = collections.defaultdict(lambda: collections.Counter())
     for r in rows:
         f = r["test"].split("::")[0]
         for k in keys:
             by_file[f][k] += r.get(k, 0)
-    head = f"{'wall s':>8} {'trace':>7} {'lower':>7} {'compile':>8} {'progs':>6} {'hits':>5}  "
+    head = f"{'wall s':>8} {'cpu s':>7} {'trace':>7} {'lower':>7} {'compile':>8} {'progs':>6} {'hits':>5}  "
     print(head + "file")
     for f, c in sorted(by_file.items(), key=lambda kv: -kv[1]["wall"]):
-        print(f"{c['wall']:8.1f} {c['trace']:7.1f} {c['lower']:7.1f} {c['compile']:8.1f} "
+        print(f"{c['wall']:8.1f} {c['cpu']:7.1f} {c['trace']:7.1f} {c['lower']:7.1f} {c['compile']:8.1f} "
               f"{c['programs']:6d} {c['cache_hits']:5d}  {f}")
-    total = sum(r["wall"] for r in rows)
-    print(f"{total:8.1f} s in {len(rows)} tests (sum over workers)\n")
+    total, cpu = sum(r["wall"] for r in rows), sum(r.get("cpu", 0) for r in rows)
+    print(f"{total:8.1f} s ({cpu:.1f} s of CPU) in {len(rows)} tests (sum over workers)\n")
     print(head + "test")
     for r in sorted(rows, key=lambda r: -r["wall"])[:args.top]:
-        print(f"{r['wall']:8.1f} {r.get('trace', 0):7.1f} {r.get('lower', 0):7.1f} {r.get('compile', 0):8.1f} "
+        print(f"{r['wall']:8.1f} {r.get('cpu', 0):7.1f} {r.get('trace', 0):7.1f} {r.get('lower', 0):7.1f} "
+              f"{r.get('compile', 0):8.1f} "
               f"{r.get('programs', 0):6d} {r.get('cache_hits', 0):5d}  {r['test']}")
     named = collections.defaultdict(lambda: [0, 0.0, collections.Counter()])
     for r in rows:

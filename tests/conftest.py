@@ -56,7 +56,8 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 
 # Where the suite's time goes (opt-in): HINFNN_COMPILE_REPORT=FILE appends one JSON line per test
 # with the JAX programs it compiled in this process, and the seconds spent tracing, lowering and
-# compiling them (subprocesses a test starts are not counted). Summarise with
+# compiling them, and the test's wall and CPU seconds (CPU: all this process's threads; a loaded
+# machine stretches the wall time, hardly the CPU time; subprocesses a test starts are not counted). Summarise with
 # `python tests/compile_report.py FILE`.
 _COMPILE_REPORT = os.environ.get("HINFNN_COMPILE_REPORT")
 if _COMPILE_REPORT:
@@ -89,24 +90,62 @@ if _COMPILE_REPORT:
     @pytest.hookimpl(hookwrapper=True)
     def pytest_runtest_protocol(item, nextitem):
         _now.clear()
-        _now["t0"] = time.perf_counter()
+        _now["t0"], _now["c0"] = time.perf_counter(), time.process_time()
         yield
         wall = time.perf_counter() - _now.pop("t0")
+        cpu = time.process_time() - _now.pop("c0")
         with open(_COMPILE_REPORT, "a", encoding="utf-8") as f:
-            f.write(json.dumps({"test": item.nodeid, "wall": round(wall, 3), "pid": os.getpid(),
+            f.write(json.dumps({"test": item.nodeid, "wall": round(wall, 3), "cpu": round(cpu, 3), "pid": os.getpid(),
                                 **{k: v if k == "named" else round(v, 3) for k, v in _now.items()}}) + "\n")
         _now.clear()
 
 
-#: Modules whose tests take longest, in descending total time (seconds on this project's 2-core
-#: machines, one suite run): collected first, so that pytest-xdist hands the longest tests out
-#: first and both workers finish together. The xdist groups (``xdist_group`` marks) are scheduled
-#: before any of these whatever the order (pytest-xdist's --loadscope-reorder: the scopes with
-#: most tests first); within a module the order is the file's.
-LONGEST_FIRST = ("test_readme.py",  # 158 s: the README's arm commands alone 98 s (nine UR5 and 3-link programs)
-                 "test_arms.py",  # 76 s
-                 "test_robustness.py",  # 64 s
-                 "test_sim.py", "test_results.py", "test_sweep.py", "test_cli.py")
+#: Modules whose tests take longest, in descending total time of their ungrouped tests: collected
+#: first, so that pytest-xdist hands the longest tests out first and both workers finish together.
+#: The order is that of one suite run on a busy 2-core host (27 min; the seconds of its 80 slowest
+#: tests, about twice an idle run's: test_instruments 250, test_arms 227, test_sim 173, test_robot
+#: 100, test_readme 96, test_cache 92, test_sensing 75, test_sweep 51, test_results 48,
+#: test_robustness 31). The xdist groups (``xdist_group`` marks) are scheduled before any of these
+#: whatever the order (pytest-xdist's --loadscope-reorder: the scopes with most tests first); within
+#: a module the order is the file's.
+LONGEST_FIRST = ("test_instruments.py", "test_arms.py", "test_sim.py", "test_robot.py",
+                 "test_readme.py",  # the README's arm commands: nine UR5 and 3-link programs
+                 "test_cache.py", "test_sensing.py", "test_sweep.py", "test_results.py", "test_robustness.py",
+                 "test_cli.py")
+
+
+def _module_fixtures(item) -> list[str]:
+    """The module-scoped fixtures defined in ``item``'s own module that it uses."""
+    module = getattr(getattr(item, "module", None), "__name__", None)
+    names = []
+    for name, defs in item._fixtureinfo.name2fixturedefs.items():
+        fd = defs[-1]  # the one this test gets
+        if fd.scope == "module" and getattr(fd.func, "__module__", None) == module:
+            names.append(name)
+    return sorted(names)
+
+
+class _FixtureGroups:
+    """A test in a module with no xdist_group mark that uses a module-scoped fixture of its module
+    joins the group ``<module>::<fixture>``: pytest-xdist would otherwise hand the fixture's tests
+    to both workers, and each would build the fixture (a run, a sweep, a written result). A plugin
+    of its own, so that it runs before pytest-xdist names the groups (tryfirst) while the hook
+    below runs after it."""
+
+    @pytest.hookimpl(tryfirst=True)
+    def pytest_collection_modifyitems(self, config, items):
+        if not config.getoption("loadgroup", default=False):
+            return
+        for item in items:
+            if any(True for _ in item.iter_markers("xdist_group")):
+                continue
+            shared = _module_fixtures(item)
+            if shared:
+                item.add_marker(pytest.mark.xdist_group(f"{item.path.name}::{shared[0]}"))
+
+
+def pytest_configure(config):
+    config.pluginmanager.register(_FixtureGroups(), "hinfnn-fixture-groups")
 
 
 @pytest.hookimpl(trylast=True)

@@ -478,9 +478,15 @@ def _short_run(name, overrides=()):
     return sc
 
 
-@pytest.mark.xdist_group("every_scenario")
+def _scenario_group(name):
+    """The xdist group of one shipped scenario's tests here: its two engines share the scenario's
+    design in one process, and the scenarios spread over both workers (one group for all of them
+    was the suite's longest stretch on one worker)."""
+    return pytest.mark.xdist_group(f"scenario-{name}")
+
+
 @pytest.mark.parametrize("engine", ["hinfnn", "mujoco"])
-@pytest.mark.parametrize("name", scenario_names())
+@pytest.mark.parametrize("name", [pytest.param(n, marks=_scenario_group(n)) for n in scenario_names()])
 def test_every_shipped_scenario_runs_on_both_engines_or_says_why_not(name, engine):
     """Each shipped scenario runs briefly on the built-in plant and on MuJoCo (status ok), or the
     engine is refused with the typed error naming why (:data:`REFUSED`: none is now); the
@@ -509,7 +515,7 @@ def test_every_shipped_scenario_runs_on_both_engines_or_says_why_not(name, engin
     assert err.value.key == key and words in str(err.value), err.value
 
 
-@pytest.mark.xdist_group("every_scenario")
+@_scenario_group("panda-table")  # panda-table's program on MuJoCo, with the panda-table tests above
 def test_a_users_seven_joint_mjcf_runs_with_no_joint_locked(tmp_path):
     """panda-table's Panda as a user's MJCF file (the generated one, written out): seven joints,
     none locked, the arm angle a task coordinate; the MuJoCo sensing forms ψ from MuJoCo's joint
