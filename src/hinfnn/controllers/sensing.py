@@ -310,6 +310,7 @@ class SensingDesign:
     source: str = "force"  # the force-rate term's ṡ: "force" (differenced e_λ) or "velocity" (joint rates)
     # the torque-rate limit the design was told (None: none), N·m/s per joint, and what it predicts
     torque_rate_limit: tuple | None = None
+    torque_rate_share: float | None = None  # the share of the limit the noise's predicted p99 may use
     lever: tuple | None = None  # per joint: the largest joint torque per N of normal force on the path, N·m/N
     command_rate_max_per_n: float | None = None  # RMS command change per second per N, largest over the corners
     torque_rate_p99: tuple | None = None  # predicted 99th percentile of |Δτ_j|/h at the declared noise, N·m/s
@@ -388,7 +389,8 @@ def predicted_torque_rate(rate_per_n: float, noise: float, lever) -> np.ndarray:
 def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: float, noise: float, delay: int,
                    stiffness_min: float, stiffness_max: float, m_n_min: float, m_n_max: float, order="design",
                    cutoff_hz="design", kappa="rule", zeta_min: float = 0.05, source: str = "force",
-                   torque_rate_limit=None, lever=None, _search_ok: bool = True) -> SensingDesign:
+                   torque_rate_limit=None, lever=None, torque_rate_share: float = 1.0,
+                   _search_ok: bool = True) -> SensingDesign:
     """The force filter (``order`` 0, 1 or 2, or "design": each tried; ``cutoff_hz`` a number or
     "design": a grid from 5 Hz to 0.4 of the sampling rate) and κ ("rule": a grid from h/20 to
     100h; or a number) chosen together for a sensor of ``noise`` N and ``delay`` samples (module
@@ -405,8 +407,9 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
     ``torque_rate_limit`` (N·m/s, one per joint; None: no limit, the choice above unchanged) and
     ``lever`` (per joint, the largest joint torque per N of normal force on the path, N·m/N): a
     candidate is within the limit when its predicted 99th percentile of |Δτ_j|/h,
-    :func:`predicted_torque_rate` of its :func:`max_command_rate` at the ``noise``, is at most the
-    limit on every joint; the choice above is then made among those within it, and when none is,
+    :func:`predicted_torque_rate` of its :func:`max_command_rate` at the ``noise``, is at most
+    ``torque_rate_share`` (0 < share <= 1) of the limit on every joint (the rest is left to the
+    motion and the contact's own torque changes, which the noise loop does not see); the choice above is then made among those within it, and when none is,
     the candidate of least predicted rate is taken (ties: the least force error) and the record
     says so (``within_rate_limit`` False, ``rate_warning``): the robot's clamp still acts."""
     if source not in ("force", "velocity"):
@@ -436,7 +439,8 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
                     best = entry
     rate = None
     if best is not None and torque_rate_limit is not None:  # the choice among those within the limit
-        best, held, rate = _within_rate(held, torque_rate_limit, lever, noise, h=h, g_P=g_P, mu_z=mu_z,
+        best, held, rate = _within_rate(held, torque_rate_limit, lever, noise, torque_rate_share, h=h, g_P=g_P,
+                                        mu_z=mu_z,
                                         alpha_z=alpha_z, g_f=g_f, delay=delay, pts=pts, source=source,
                                         stiffness_max=stiffness_max)
     if best is not None and source == "velocity":  # the least command change near the least error
@@ -479,15 +483,18 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
         r = rate[id(best)]
         p99 = predicted_torque_rate(r, noise, lever)
         limit = np.asarray(torque_rate_limit, dtype=float)
-        within = bool(np.all(p99 <= limit))
+        within = bool(np.all(p99 <= torque_rate_share * limit))
         warning = None
         if not within:
             j = int(np.argmax(p99 / limit))
-            warning = (f"no force filter and kappa keep the torque rate within controller.actuator.torque_rate_limit "
-                       f"at the declared sensor noise {noise:g} N: the least predicted 99th percentile of |dtau|/h is "
-                       f"{p99[j]:.4g} N m/s on joint {j + 1} against the limit {limit[j]:.4g} N m/s (the robot's "
-                       "clamp still acts)")
-        extra = dict(torque_rate_limit=tuple(float(v) for v in limit), lever=tuple(float(v) for v in lever),
+            warning = (f"no force filter and kappa keep the sensor noise's torque rate within "
+                       f"controller.actuator.torque_rate_share = {torque_rate_share:g} of "
+                       f"controller.actuator.torque_rate_limit at the declared noise {noise:g} N: the least predicted "
+                       f"99th percentile of |dtau|/h is {p99[j]:.4g} N m/s on joint {j + 1} against "
+                       f"{torque_rate_share * limit[j]:.4g} of the limit {limit[j]:.4g} N m/s (the robot's clamp "
+                       "still acts)")
+        extra = dict(torque_rate_limit=tuple(float(v) for v in limit), torque_rate_share=float(torque_rate_share),
+                     lever=tuple(float(v) for v in lever),
                      command_rate_max_per_n=float(r), torque_rate_p99=tuple(float(v) for v in p99),
                      within_rate_limit=within, rate_warning=warning)
     return SensingDesign(order=o, cutoff_hz=None if fc is None else float(fc), kappa=kap, noise=float(noise),
@@ -495,7 +502,7 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
                          command_rate_per_n=command_rate(*loop) / h, source=source, **extra)
 
 
-def _within_rate(held, torque_rate_limit, lever, noise, **loop_args):
+def _within_rate(held, torque_rate_limit, lever, noise, share, **loop_args):
     """(the least-error candidate within the torque-rate limit, the candidates the choice is made
     among, {id(candidate): its :func:`max_command_rate`}): :func:`design_sensing`'s choice within
     a rate limit. None within: the candidate of least rate (ties: least error) alone."""
@@ -507,8 +514,10 @@ def _within_rate(held, torque_rate_limit, lever, noise, **loop_args):
     if limit.shape != lev.shape or not np.all(limit > 0):
         raise DesignError(f"must be positive, one per joint ({lev.size}), got {limit.tolist()}",
                           key="actuator.torque_rate_limit", value=limit.tolist())
+    if not 0.0 < float(share) <= 1.0:
+        raise DesignError(f"must be in (0, 1], got {share}", key="actuator.torque_rate_share", value=share)
     rate = {id(b): max_command_rate(b[1], b[2], b[3], **loop_args) for b in held}
-    within = [b for b in held if np.all(predicted_torque_rate(rate[id(b)], noise, lev) <= limit)]
+    within = [b for b in held if np.all(predicted_torque_rate(rate[id(b)], noise, lev) <= share * limit)]
     if within:
         return min(within, key=lambda b: b[0]), within, rate
     least = min(held, key=lambda b: (rate[id(b)], b[4]))

@@ -1298,6 +1298,13 @@ class SensorAssumptionConfig:
         return float(noise), int(delay)
 
 
+#: The share of the torque-rate limit the sensor noise may use by default (docs/beyond-the-paper.md,
+#: section 12): on ur5-polish-sensor the drum's contact alone, with no noise, drives the shoulder's
+#: 99th percentile of |Δτ|/h to about 780 N·m/s, and a design whose noise was predicted at 0.9 of
+#: the 1,000 N·m/s clamp lost contact at the start.
+TORQUE_RATE_SHARE = 0.5
+
+
 @section
 class ActuatorAssumptionConfig:
     """The motors the controller's design assumes (the controller never reads the plant: by default
@@ -1307,6 +1314,9 @@ class ActuatorAssumptionConfig:
         "declared", doc="largest change of each joint's torque the design keeps the force path's noise within, N m/s "
         "(a number or one per joint; \"declared\": plant.actuator.torque_rate_limit; \"none\": no constraint)",
         gt=0.0, le=1e12)
+    torque_rate_share: float = param(
+        TORQUE_RATE_SHARE, doc="share of the torque-rate limit the design lets the sensor noise's predicted 99th "
+        "percentile of |dtau|/h use (the rest is the motion's and the contact's own torque changes)", gt=0.0, le=1.0)
 
     def resolved(self, declared, n: int, path: str = "controller.actuator"):
         """The torque-rate limit per joint (N·m/s, an (n,) array) the design keeps within, or None:
@@ -1392,6 +1402,7 @@ class ControllerConfig:
         rate_limit = self.actuator.resolved(declared_rate, int(arm.n))
         if rate_limit is not None and force_filter is not None:  # the design keeps within the motors' rate
             force_filter["torque_rate_limit"] = tuple(float(v) for v in rate_limit)
+            force_filter["torque_rate_share"] = float(self.actuator.torque_rate_share)
         try:
             return design(kind, arm, surface, self.gains.build(), augmented=self.augmented,
                           network_p=self.network_p.build("controller.network_p", surface.m),
