@@ -432,6 +432,10 @@ def test_design_within_a_torque_rate_limit():
     assert "controller.actuator.torque_rate_limit" in tight.rate_warning and "100 N m/s" in tight.rate_warning
     half = S.design_sensing(**kw, torque_rate_limit=[1000.0], lever=lever, torque_rate_share=0.5)
     assert half.within_rate_limit and half.torque_rate_p99[0] <= 500.0 < held.torque_rate_p99[0]
+    floor = S.design_sensing(**dict(kw, noise=0.25), torque_rate_limit=[1000.0], lever=lever, torque_rate_share=0.5,
+                             rate_noise_floor=1.0)  # the rate judged at 1 N: the choice at 1 N
+    assert (floor.order, floor.cutoff_hz, floor.kappa) == (half.order, half.cutoff_hz, half.kappa)
+    assert floor.rate_noise == 1.0 and floor.torque_rate_p99 == half.torque_rate_p99
     with pytest.raises(DesignError) as err:
         S.design_sensing(**kw, torque_rate_limit=[1000.0], lever=lever, torque_rate_share=1.5)
     assert err.value.key == "actuator.torque_rate_share"
@@ -446,6 +450,7 @@ def test_torque_rate_limit_key_declared_number_none_and_bad_values():
 
     c = ActuatorAssumptionConfig()
     assert c.torque_rate_limit == "declared" and c.resolved(None, 2) is None and c.torque_rate_share == 0.5
+    assert c.rate_noise_floor == 1.0
     assert c.resolved(1000.0, 2).tolist() == [1000.0, 1000.0] and c.resolved((10.0, 20.0), 2).tolist() == [10.0, 20.0]
     assert ActuatorAssumptionConfig(torque_rate_limit=500.0).resolved(1000.0, 2).tolist() == [500.0, 500.0]
     assert ActuatorAssumptionConfig(torque_rate_limit="none").resolved(1000.0, 2) is None
@@ -456,14 +461,15 @@ def test_torque_rate_limit_key_declared_number_none_and_bad_values():
         c.resolved((1.0, 2.0, 3.0), 2)
     assert err.value.key == "plant.actuator.torque_rate_limit"
     for key, bad in (("torque_rate_limit", -5), ("torque_rate_limit", 0), ("torque_rate_limit", "fast"),
-                     ("torque_rate_share", 1.5), ("torque_rate_share", 0)):
+                     ("torque_rate_share", 1.5), ("torque_rate_share", 0), ("rate_noise_floor", -1)):
         with pytest.raises(ConfigError) as err:
             H.load_scenario("paper-stable", {f"controller.actuator.{key}": bad})
         assert err.value.key == f"controller.actuator.{key}" and str(bad) in str(err.value)
-    sd = dict(_paper({"plant.sensor.force_noise": 0.1, "plant.actuator.torque_rate_limit": 5000.0})
+    sd = dict(_paper({"plant.sensor.force_noise": 0.1, "plant.actuator.torque_rate_limit": 2e4})
               .build_controller().term(H.controllers.ForceRate).design)["sensing"]
-    assert sd["torque_rate_limit"] == (5000.0, 5000.0) and len(sd["lever"]) == 2 and sd["within_rate_limit"]
-    assert sd["torque_rate_share"] == 0.5 and max(sd["torque_rate_p99"]) <= 2500.0
+    assert sd["torque_rate_limit"] == (2e4, 2e4) and len(sd["lever"]) == 2 and sd["within_rate_limit"]
+    assert sd["torque_rate_share"] == 0.5 and sd["rate_noise"] == 1.0  # the declared 0.1 N, at least the floor
+    assert max(sd["torque_rate_p99"]) <= 1e4
     none = dict(_paper({"plant.sensor.force_noise": 0.1, "plant.actuator.torque_rate_limit": 5000.0,
                         "controller.actuator.torque_rate_limit": "none"})
                 .build_controller().term(H.controllers.ForceRate).design)["sensing"]

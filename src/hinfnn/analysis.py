@@ -956,7 +956,8 @@ def format_design_report(rep: dict) -> str:
                     lines.append(f"  within {sd.get('torque_rate_share', 1.0):g} of the torque-rate limit "
                                  f"{_fmt_list(list(sd['torque_rate_limit']))} N m/s "
                                  f"(controller.actuator): the sensor noise's predicted p99 of |dtau|/h "
-                                 f"{_fmt_list(list(sd['torque_rate_p99']))} N m/s at noise {sd['noise']:g} N (RMS command "
+                                 f"{_fmt_list(list(sd['torque_rate_p99']))} N m/s at noise "
+                                 f"{sd.get('rate_noise', sd['noise']):g} N (RMS command "
                                  f"change {sd['command_rate_max_per_n']:.4g} per s per N at its worst corner, levers "
                                  f"{_fmt_list(list(sd['lever']), '.3g')} N m per N)"
                                  + ("" if sd.get("within_rate_limit") else " -- NOT within"))

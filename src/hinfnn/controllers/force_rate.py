@@ -315,7 +315,8 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
     ``sensing`` (sampled control; :func:`hinfnn.controllers.sensing.design_sensing`): the force
     filter's ``order`` and ``cutoff_hz`` (numbers or "design"), the sensor's ``noise`` (N) and
     ``delay`` (samples), the network's integral gain ``g_f`` and optionally ``torque_rate_limit``
-    (N·m/s, a number or one per joint; the choice is made within ``torque_rate_share`` of it, with
+    (N·m/s, a number or one per joint; the choice is made within ``torque_rate_share`` of it at a
+    noise of at least ``rate_noise_floor``, with
     each joint's largest :func:`normal_lever` over the path's poses): κ ("rule") and the filter are then
     chosen together on the loop with the filter, the delay and the network (the ideal sensor's
     Jury window does not apply), and the choice is kept in ``sensing``.
@@ -379,7 +380,8 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
                             order=sensing.get("order", "design"), cutoff_hz=sensing.get("cutoff_hz", "design"),
                             kappa="rule" if rule else float(kappa), zeta_min=SAMPLED_ZETA_MIN, source=source,
                             torque_rate_limit=rate_limit, lever=lever,
-                            torque_rate_share=float(sensing.get("torque_rate_share", 1.0)))
+                            torque_rate_share=float(sensing.get("torque_rate_share", 1.0)),
+                            rate_noise_floor=float(sensing.get("rate_noise_floor", 0.0)))
         k_value = sd.kappa
         zeta_soft = _zeta_softest(k_value, stiffness_min, stiffness_max, mn_max, K_prime, velocity)
         return ForceRateDesign(kappa=k_value, tau_f=tf, rule=rule, zeta=zeta, stiffness_min=stiffness_min,

@@ -225,7 +225,8 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
     2 or "design"), ``cutoff_hz`` (Hz or "design"), the sensor the design assumes (``noise``, N;
     ``delay``, samples), ``period`` (the control period: the filter is discrete) and optionally
     ``torque_rate_limit`` (N·m/s per joint, the robot's rate clamp) and ``torque_rate_share`` (the
-    share of it the noise's predicted 99th percentile may use). With a
+    share of it the noise's predicted 99th percentile may use, at a noise of at least
+    ``rate_noise_floor`` N). With a
     force-rate term whose κ is "rule", κ is chosen with the filter for that sensor
     (:func:`~hinfnn.controllers.sensing.design_sensing`); order 0 leaves today's law unchanged.
 
@@ -271,6 +272,7 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
             if ff.get("torque_rate_limit") is not None:
                 sensing["torque_rate_limit"] = ff["torque_rate_limit"]
                 sensing["torque_rate_share"] = float(ff.get("torque_rate_share", 1.0))
+                sensing["rate_noise_floor"] = float(ff.get("rate_noise_floor", 0.0))
         d = design_force_rate(arm, surface, g, robust=comp.robust, sensing=sensing, **force_rate)
         velocity_args = dict(stiffness=jnp.asarray(float(d.stiffness_max)), source="velocity") if velocity else {}
         terms = terms + (T.ForceRate(kappa=jnp.asarray(d.kappa), tau_f=jnp.asarray(d.tau_f),

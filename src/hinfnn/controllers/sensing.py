@@ -311,6 +311,7 @@ class SensingDesign:
     # the torque-rate limit the design was told (None: none), N·m/s per joint, and what it predicts
     torque_rate_limit: tuple | None = None
     torque_rate_share: float | None = None  # the share of the limit the noise's predicted p99 may use
+    rate_noise: float | None = None  # the noise the rate is predicted at: max(noise, rate_noise_floor), N
     lever: tuple | None = None  # per joint: the largest joint torque per N of normal force on the path, N·m/N
     command_rate_max_per_n: float | None = None  # RMS command change per second per N, largest over the corners
     torque_rate_p99: tuple | None = None  # predicted 99th percentile of |Δτ_j|/h at the declared noise, N·m/s
@@ -390,6 +391,7 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
                    stiffness_min: float, stiffness_max: float, m_n_min: float, m_n_max: float, order="design",
                    cutoff_hz="design", kappa="rule", zeta_min: float = 0.05, source: str = "force",
                    torque_rate_limit=None, lever=None, torque_rate_share: float = 1.0,
+                   rate_noise_floor: float = 0.0,
                    _search_ok: bool = True) -> SensingDesign:
     """The force filter (``order`` 0, 1 or 2, or "design": each tried; ``cutoff_hz`` a number or
     "design": a grid from 5 Hz to 0.4 of the sampling rate) and κ ("rule": a grid from h/20 to
@@ -409,7 +411,8 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
     candidate is within the limit when its predicted 99th percentile of |Δτ_j|/h,
     :func:`predicted_torque_rate` of its :func:`max_command_rate` at the ``noise``, is at most
     ``torque_rate_share`` (0 < share <= 1) of the limit on every joint (the rest is left to the
-    motion and the contact's own torque changes, which the noise loop does not see); the choice above is then made among those within it, and when none is,
+    motion and the contact's own torque changes, which the noise loop does not see), the noise
+    taken as at least ``rate_noise_floor`` N (the contact's own force changes pass the same path); the choice above is then made among those within it, and when none is,
     the candidate of least predicted rate is taken (ties: the least force error) and the record
     says so (``within_rate_limit`` False, ``rate_warning``): the robot's clamp still acts."""
     if source not in ("force", "velocity"):
@@ -439,7 +442,8 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
                     best = entry
     rate = None
     if best is not None and torque_rate_limit is not None:  # the choice among those within the limit
-        best, held, rate = _within_rate(held, torque_rate_limit, lever, noise, torque_rate_share, h=h, g_P=g_P,
+        rate_noise = max(float(noise), float(rate_noise_floor))
+        best, held, rate = _within_rate(held, torque_rate_limit, lever, rate_noise, torque_rate_share, h=h, g_P=g_P,
                                         mu_z=mu_z,
                                         alpha_z=alpha_z, g_f=g_f, delay=delay, pts=pts, source=source,
                                         stiffness_max=stiffness_max)
@@ -481,7 +485,7 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
     extra = {}
     if rate is not None:
         r = rate[id(best)]
-        p99 = predicted_torque_rate(r, noise, lever)
+        p99 = predicted_torque_rate(r, rate_noise, lever)
         limit = np.asarray(torque_rate_limit, dtype=float)
         within = bool(np.all(p99 <= torque_rate_share * limit))
         warning = None
@@ -489,11 +493,13 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
             j = int(np.argmax(p99 / limit))
             warning = (f"no force filter and kappa keep the sensor noise's torque rate within "
                        f"controller.actuator.torque_rate_share = {torque_rate_share:g} of "
-                       f"controller.actuator.torque_rate_limit at the declared noise {noise:g} N: the least predicted "
+                       f"controller.actuator.torque_rate_limit at the noise {rate_noise:g} N (the declared "
+                       f"{noise:g} N, at least controller.actuator.rate_noise_floor): the least predicted "
                        f"99th percentile of |dtau|/h is {p99[j]:.4g} N m/s on joint {j + 1} against "
                        f"{torque_rate_share * limit[j]:.4g} of the limit {limit[j]:.4g} N m/s (the robot's clamp "
                        "still acts)")
         extra = dict(torque_rate_limit=tuple(float(v) for v in limit), torque_rate_share=float(torque_rate_share),
+                     rate_noise=rate_noise,
                      lever=tuple(float(v) for v in lever),
                      command_rate_max_per_n=float(r), torque_rate_p99=tuple(float(v) for v in p99),
                      within_rate_limit=within, rate_warning=warning)

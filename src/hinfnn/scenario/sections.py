@@ -1304,6 +1304,12 @@ class SensorAssumptionConfig:
 #: the 1,000 N·m/s clamp lost contact at the start.
 TORQUE_RATE_SHARE = 0.5
 
+#: The least noise the torque-rate criterion assumes by default, N (section 12): with no noise the
+#: drum's contact alone makes the first-order filters above 50 Hz that a small declared noise
+#: admits stop behind the 1,000 N·m/s clamp (σ = 0.25 N: at 1.12 s), while the choice at 1 N holds
+#: from σ = 0 to 1 N.
+RATE_NOISE_FLOOR = 1.0
+
 
 @section
 class ActuatorAssumptionConfig:
@@ -1317,6 +1323,9 @@ class ActuatorAssumptionConfig:
     torque_rate_share: float = param(
         TORQUE_RATE_SHARE, doc="share of the torque-rate limit the design lets the sensor noise's predicted 99th "
         "percentile of |dtau|/h use (the rest is the motion's and the contact's own torque changes)", gt=0.0, le=1.0)
+    rate_noise_floor: float = param(
+        RATE_NOISE_FLOOR, doc="least force noise the torque-rate criterion assumes, N (the contact's own force "
+        "changes pass the same path as the sensor's noise; the declared noise where larger)", ge=0.0, le=1e6)
 
     def resolved(self, declared, n: int, path: str = "controller.actuator"):
         """The torque-rate limit per joint (N·m/s, an (n,) array) the design keeps within, or None:
@@ -1403,6 +1412,7 @@ class ControllerConfig:
         if rate_limit is not None and force_filter is not None:  # the design keeps within the motors' rate
             force_filter["torque_rate_limit"] = tuple(float(v) for v in rate_limit)
             force_filter["torque_rate_share"] = float(self.actuator.torque_rate_share)
+            force_filter["rate_noise_floor"] = float(self.actuator.rate_noise_floor)
         try:
             return design(kind, arm, surface, self.gains.build(), augmented=self.augmented,
                           network_p=self.network_p.build("controller.network_p", surface.m),
