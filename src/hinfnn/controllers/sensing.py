@@ -25,7 +25,10 @@ period h (gain κ/h on the noise). This module gives the controller
   :data:`~hinfnn.controllers.force_rate.SAMPLED_ZETA_MIN` at each corner of the design's range
   (softest and stiffest contact, lightest and heaviest pose of the path), and among those the one
   with the least worst-corner RMS force error per N of noise is taken (ties: the least force
-  command). None holding is a DesignError naming ``controller.sensor.delay``.
+  command). None holding is a DesignError naming ``controller.sensor.delay``. Told the robot's
+  torque-rate limit, it chooses among the candidates whose predicted 99th percentile of each
+  joint's |Δτ|/h from the noise (:func:`predicted_torque_rate`) is within a share of it, and
+  reports plainly when none is.
 
 Nothing here imports :mod:`hinfnn.plant`: the sensor the design assumes is the controller's own
 statement (``controller.sensor``), copied from the scenario's declared sensor by default.
