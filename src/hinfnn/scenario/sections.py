@@ -1300,8 +1300,9 @@ class SensorAssumptionConfig:
 
 #: The share of the torque-rate limit the sensor noise may use by default (docs/beyond-the-paper.md,
 #: section 12): on ur5-polish-sensor the drum's contact alone, with no noise, drives the shoulder's
-#: 99th percentile of |Δτ|/h to about 780 N·m/s, and a design whose noise was predicted at 0.9 of
-#: the 1,000 N·m/s clamp lost contact at the start.
+#: commanded 99th percentile of |Δτ|/h to 290 N·m/s with ideal motors and 780–970 N·m/s behind the
+#: 1,000 N·m/s clamp, and with the whole limit for the noise the design's choice at σ = 0.5 N (its
+#: noise predicted at 0.66 of the limit) lost contact at the start.
 TORQUE_RATE_SHARE = 0.5
 
 #: The least noise the torque-rate criterion assumes by default, N (section 12): with no noise the
