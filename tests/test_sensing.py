@@ -350,6 +350,16 @@ def test_velocity_noise_gains_against_simulation():
     tau = np.asarray(a["tau"])[keep]
     rate_std = np.std(np.diff(tau, axis=0), axis=0) / 1e-3 / sigma
     assert rate_std == pytest.approx(np.asarray(nr["tau_rate_per_n"]), rel=0.2)
+    # the design's torque-rate prediction: the 1-D loop's command rate times each joint's lever
+    sd = dict(term.design)["sensing"]
+    filt = None if not sd["order"] else S.butterworth_matrices(sd["order"], sd["cutoff_hz"], 1e-3)
+    loop = S.sensed_force_loop(math.sqrt(1e5 / m_n) * 1e-3, g_P, float(term.kappa), 1e-3, float(ctrl.gains.mu_z),
+                               float(ctrl.gains.alpha_z), 0.0, 1, filt, source="velocity", rate_scale=1.0)
+    lever = np.asarray(fr.normal_lever(ctrl.arm, ctrl.surface, jnp.asarray(q_eq)))
+    rate_1d = S.command_rate(*loop) / 1e-3
+    assert rate_1d * lever == pytest.approx(np.asarray(nr["tau_rate_per_n"]), rel=0.05)
+    p99 = np.percentile(np.abs(np.diff(tau, axis=0)) / 1e-3, 99, axis=0)
+    assert S.predicted_torque_rate(rate_1d, sigma, lever) == pytest.approx(p99, rel=0.2)
 
 
 def _height_and_slanted_angle(x, p):
@@ -390,3 +400,77 @@ def test_velocity_rate_per_constraint_on_two_slanted_constraints():
     A_hat = np.asarray(surface.A_hat(x))
     other = k * np.linalg.solve(A_hat @ A_hat.T, A_hat @ np.asarray(arm.J(q)) @ np.asarray(qd))
     assert np.max(np.abs(other - rate)) > 0.1 * np.max(np.abs(rate))
+
+
+def test_design_within_a_torque_rate_limit():
+    """ur5-polish-sensor's one-dimensional loop (the velocity source, order 1) with one joint of lever
+    0.55 N·m per N: without a limit the choice is today's (the same candidate with a limit no
+    candidate reaches); with 1,000 N·m/s the least-error choice predicts a 99th percentile of
+    |Δτ|/h above it, so the design takes another, within it, at a larger force error; with
+    100 N·m/s none is within and the least predicted rate is taken, with a warning naming the key.
+    The prediction is 2.5758 σ × the largest corner's command rate × the lever, recomputed here."""
+    kw = dict(h=1e-3, g_P=2.0, mu_z=100.0, alpha_z=2.0, g_f=232.0, noise=1.0, delay=1, stiffness_min=3.5e4,
+              stiffness_max=1e5, m_n_min=3.077, m_n_max=4.947, source="velocity", order=1)
+    lever = np.array([0.55])
+    free = S.design_sensing(**kw)
+    assert free.torque_rate_limit is None and free.within_rate_limit is None and free.rate_warning is None
+    loose = S.design_sensing(**kw, torque_rate_limit=[1e9], lever=lever)
+    assert (loose.order, loose.cutoff_hz, loose.kappa) == (free.order, free.cutoff_hz, free.kappa)
+    pts = S.corners(3.5e4, 1e5, 3.077, 4.947)
+    args = dict(h=1e-3, g_P=2.0, mu_z=100.0, alpha_z=2.0, g_f=232.0, delay=1, pts=pts, source="velocity",
+                stiffness_max=1e5)
+    free_p99 = 2.5758 * 1.0 * S.max_command_rate(free.order, free.cutoff_hz, free.kappa, **args) * 0.55
+    assert free_p99 > 1000.0 and loose.torque_rate_p99[0] == pytest.approx(free_p99, rel=1e-12)
+    held = S.design_sensing(**kw, torque_rate_limit=[1000.0], lever=lever)
+    p99 = 2.5758 * S.max_command_rate(held.order, held.cutoff_hz, held.kappa, **args) * 0.55
+    assert held.within_rate_limit and held.rate_warning is None
+    assert held.torque_rate_p99[0] == pytest.approx(p99, rel=1e-12) and p99 <= 1000.0
+    assert held.force_error_per_n > free.force_error_per_n and held.cutoff_hz < free.cutoff_hz
+    tight = S.design_sensing(**kw, torque_rate_limit=[100.0], lever=lever)
+    assert tight.within_rate_limit is False and tight.torque_rate_p99[0] > 100.0
+    assert tight.torque_rate_p99[0] < p99  # the least rate: below the 1,000 N·m/s choice's
+    assert "controller.actuator.torque_rate_limit" in tight.rate_warning and "100 N m/s" in tight.rate_warning
+    half = S.design_sensing(**kw, torque_rate_limit=[1000.0], lever=lever, torque_rate_share=0.5)
+    assert half.within_rate_limit and half.torque_rate_p99[0] <= 500.0 < held.torque_rate_p99[0]
+    floor = S.design_sensing(**dict(kw, noise=0.25), torque_rate_limit=[1000.0], lever=lever, torque_rate_share=0.5,
+                             rate_noise_floor=1.0)  # the rate judged at 1 N: the choice at 1 N
+    assert (floor.order, floor.cutoff_hz, floor.kappa) == (half.order, half.cutoff_hz, half.kappa)
+    assert floor.rate_noise == 1.0 and floor.torque_rate_p99 == half.torque_rate_p99
+    with pytest.raises(DesignError) as err:
+        S.design_sensing(**kw, torque_rate_limit=[1000.0], lever=lever, torque_rate_share=1.5)
+    assert err.value.key == "actuator.torque_rate_share"
+
+
+def test_torque_rate_limit_key_declared_number_none_and_bad_values():
+    """controller.actuator.torque_rate_limit: "declared" (the default) is plant.actuator's (none
+    there: no constraint), a number or one per joint is taken as given, "none" is none; a wrong
+    count or a value out of range is a ConfigError naming the key; the scenario's declared limit
+    reaches the design record with the joints' levers."""
+    from hinfnn.scenario.sections import ActuatorAssumptionConfig
+
+    c = ActuatorAssumptionConfig()
+    assert c.torque_rate_limit == "declared" and c.resolved(None, 2) is None and c.torque_rate_share == 0.5
+    assert c.rate_noise_floor == 1.0
+    assert c.resolved(1000.0, 2).tolist() == [1000.0, 1000.0] and c.resolved((10.0, 20.0), 2).tolist() == [10.0, 20.0]
+    assert ActuatorAssumptionConfig(torque_rate_limit=500.0).resolved(1000.0, 2).tolist() == [500.0, 500.0]
+    assert ActuatorAssumptionConfig(torque_rate_limit="none").resolved(1000.0, 2) is None
+    with pytest.raises(ConfigError) as err:
+        ActuatorAssumptionConfig(torque_rate_limit=(1.0, 2.0, 3.0)).resolved(None, 2)
+    assert err.value.key == "controller.actuator.torque_rate_limit"
+    with pytest.raises(ConfigError) as err:
+        c.resolved((1.0, 2.0, 3.0), 2)
+    assert err.value.key == "plant.actuator.torque_rate_limit"
+    for key, bad in (("torque_rate_limit", -5), ("torque_rate_limit", 0), ("torque_rate_limit", "fast"),
+                     ("torque_rate_share", 1.5), ("torque_rate_share", 0), ("rate_noise_floor", -1)):
+        with pytest.raises(ConfigError) as err:
+            H.load_scenario("paper-stable", {f"controller.actuator.{key}": bad})
+        assert err.value.key == f"controller.actuator.{key}" and str(bad) in str(err.value)
+    sd = dict(_paper({"plant.sensor.force_noise": 0.1, "plant.actuator.torque_rate_limit": 2e4})
+              .build_controller().term(H.controllers.ForceRate).design)["sensing"]
+    assert sd["torque_rate_limit"] == (2e4, 2e4) and len(sd["lever"]) == 2 and sd["within_rate_limit"]
+    assert sd["torque_rate_share"] == 0.5 and sd["rate_noise"] == 1.0  # the declared 0.1 N, at least the floor
+    assert max(sd["torque_rate_p99"]) <= 1e4
+    none = dict(_paper({"plant.sensor.force_noise": 0.1, "plant.actuator.torque_rate_limit": 5000.0,
+                        "controller.actuator.torque_rate_limit": "none"})
+                .build_controller().term(H.controllers.ForceRate).design)["sensing"]
+    assert none["torque_rate_limit"] is None

@@ -952,6 +952,17 @@ def format_design_report(rep: dict) -> str:
                              f"of noise, RMS force command {sd['command_per_n']:.3g} per N, its RMS rate "
                              f"{sd.get('command_rate_per_n', math.nan):.3g} per s per N ({sd['candidates']} "
                              f"candidates held; force-rate source \"{sd.get('source', 'force')}\")")
+                if sd.get("torque_rate_limit") is not None:
+                    lines.append(f"  torque-rate limit {_fmt_list(list(sd['torque_rate_limit']))} N m/s, "
+                                 f"{sd.get('torque_rate_share', 1.0):g} of it for the noise (controller.actuator): "
+                                 f"the sensor noise's predicted p99 of |dtau|/h "
+                                 f"{_fmt_list(list(sd['torque_rate_p99']))} N m/s at noise "
+                                 f"{sd.get('rate_noise', sd['noise']):g} N (RMS command "
+                                 f"change {sd['command_rate_max_per_n']:.4g} per s per N at its worst corner, levers "
+                                 f"{_fmt_list(list(sd['lever']), '.3g')} N m per N)"
+                                 + (": within" if sd.get("within_rate_limit") else ": NOT within"))
+                if sd.get("rate_warning"):
+                    lines.append(f"  WARNING: {sd['rate_warning']}")
         if d["singularity_stop"] > 0:
             lines.append(f"  singularity guard: stop when sigma_min(J) < {d['singularity_stop']:g}")
         cm = d["contact_modes"]

@@ -106,6 +106,17 @@ def normal_mass_matrix(arm, surface, q):
     return jnp.linalg.inv(NJ @ jnp.linalg.solve(arm.M(q), NJ.T))
 
 
+@jax.jit
+def normal_lever(arm, surface, q):
+    """Per joint, the joint torque per N of force along the constraints' unit normals at q:
+    |(Ĵᵀn̂)_j| for one constraint (n̂ = Âᵀ/‖Â‖), and for several the root sum of squares over
+    them, ‖(NĴ)_{:,j}‖ (N = DÂ, independent noise on each normal). What turns the force path's
+    command rate into joint torque rates (docs/beyond-the-paper.md, section 12)."""
+    A = surface.A_hat(arm.h(q))
+    N = A / jnp.linalg.norm(A, axis=1, keepdims=True)
+    return jnp.sqrt(jnp.sum((N @ arm.J(q)) ** 2, axis=0))
+
+
 @jit_by_joints
 def pose_measures(arm, surface, q):
     """(smallest, largest normal mass, σ_min(Ĵ)) at the pose q: m_n twice for one constraint, the
@@ -303,7 +314,10 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
 
     ``sensing`` (sampled control; :func:`hinfnn.controllers.sensing.design_sensing`): the force
     filter's ``order`` and ``cutoff_hz`` (numbers or "design"), the sensor's ``noise`` (N) and
-    ``delay`` (samples) and the network's integral gain ``g_f``: κ ("rule") and the filter are then
+    ``delay`` (samples), the network's integral gain ``g_f`` and optionally ``torque_rate_limit``
+    (N·m/s, a number or one per joint; the choice is made within ``torque_rate_share`` of it at a
+    noise of at least ``rate_noise_floor``, with
+    each joint's largest :func:`normal_lever` over the path's poses): κ ("rule") and the filter are then
     chosen together on the loop with the filter, the delay and the network (the ideal sensor's
     Jury window does not apply), and the choice is kept in ``sensing``.
 
@@ -355,12 +369,19 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
         if period is None:
             raise DesignError("the force filter and the sensor's delay are designed for sampled control",
                               key="force_filter.order", value=sensing.get("order"))
+        rate_limit, lever = sensing.get("torque_rate_limit"), None
+        if rate_limit is not None:  # the largest lever of each joint over the path's poses
+            lever = np.max([np.asarray(normal_lever(arm, surface, jnp.asarray(q)), float) for _, q in poses], axis=0)
+            rate_limit = np.broadcast_to(np.asarray(rate_limit, dtype=float), lever.shape)
         sd = design_sensing(h=float(period), g_P=K_prime - 1.0, mu_z=float(gains.mu_z), alpha_z=float(gains.alpha_z),
                             g_f=float(sensing.get("g_f", 0.0)), noise=float(sensing.get("noise", 0.0)),
                             delay=int(sensing.get("delay", 0)), stiffness_min=stiffness_min,
                             stiffness_max=stiffness_max, m_n_min=mn_min, m_n_max=mn_max,
                             order=sensing.get("order", "design"), cutoff_hz=sensing.get("cutoff_hz", "design"),
-                            kappa="rule" if rule else float(kappa), zeta_min=SAMPLED_ZETA_MIN, source=source)
+                            kappa="rule" if rule else float(kappa), zeta_min=SAMPLED_ZETA_MIN, source=source,
+                            torque_rate_limit=rate_limit, lever=lever,
+                            torque_rate_share=float(sensing.get("torque_rate_share", 1.0)),
+                            rate_noise_floor=float(sensing.get("rate_noise_floor", 0.0)))
         k_value = sd.kappa
         zeta_soft = _zeta_softest(k_value, stiffness_min, stiffness_max, mn_max, K_prime, velocity)
         return ForceRateDesign(kappa=k_value, tau_f=tf, rule=rule, zeta=zeta, stiffness_min=stiffness_min,

@@ -223,7 +223,10 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
 
     ``force_filter`` (not in the paper; :mod:`hinfnn.controllers.sensing`): ``order`` (0: none, 1,
     2 or "design"), ``cutoff_hz`` (Hz or "design"), the sensor the design assumes (``noise``, N;
-    ``delay``, samples) and ``period`` (the control period: the filter is discrete). With a
+    ``delay``, samples), ``period`` (the control period: the filter is discrete) and optionally
+    ``torque_rate_limit`` (N·m/s per joint, the robot's rate clamp) and ``torque_rate_share`` (the
+    share of it the noise's predicted 99th percentile may use, at a noise of at least
+    ``rate_noise_floor`` N). With a
     force-rate term whose κ is "rule", κ is chosen with the filter for that sensor
     (:func:`~hinfnn.controllers.sensing.design_sensing`); order 0 leaves today's law unchanged.
 
@@ -266,6 +269,10 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
             sensing = dict(order=ff.get("order", 0), cutoff_hz=ff.get("cutoff_hz", "design"),
                            noise=float(ff.get("noise", 0.0)), delay=int(ff.get("delay", 0)),
                            g_f=integral_gain(force_net, g.gamma_2))
+            if ff.get("torque_rate_limit") is not None:
+                sensing["torque_rate_limit"] = ff["torque_rate_limit"]
+                sensing["torque_rate_share"] = float(ff.get("torque_rate_share", 1.0))
+                sensing["rate_noise_floor"] = float(ff.get("rate_noise_floor", 0.0))
         d = design_force_rate(arm, surface, g, robust=comp.robust, sensing=sensing, **force_rate)
         velocity_args = dict(stiffness=jnp.asarray(float(d.stiffness_max)), source="velocity") if velocity else {}
         terms = terms + (T.ForceRate(kappa=jnp.asarray(d.kappa), tau_f=jnp.asarray(d.tau_f),

@@ -25,7 +25,10 @@ period h (gain κ/h on the noise). This module gives the controller
   :data:`~hinfnn.controllers.force_rate.SAMPLED_ZETA_MIN` at each corner of the design's range
   (softest and stiffest contact, lightest and heaviest pose of the path), and among those the one
   with the least worst-corner RMS force error per N of noise is taken (ties: the least force
-  command). None holding is a DesignError naming ``controller.sensor.delay``.
+  command). None holding is a DesignError naming ``controller.sensor.delay``. Told the robot's
+  torque-rate limit, it chooses among the candidates whose predicted 99th percentile of each
+  joint's |Δτ|/h from the noise (:func:`predicted_torque_rate`) is within a share of it, and
+  reports plainly when none is.
 
 Nothing here imports :mod:`hinfnn.plant`: the sensor the design assumes is the controller's own
 statement (``controller.sensor``), copied from the scenario's declared sensor by default.
@@ -308,6 +311,15 @@ class SensingDesign:
     candidates: int  # designs that held
     command_rate_per_n: float = math.nan  # RMS change of the held force command per second, per N, same corner
     source: str = "force"  # the force-rate term's ṡ: "force" (differenced e_λ) or "velocity" (joint rates)
+    # the torque-rate limit the design was told (None: none), N·m/s per joint, and what it predicts
+    torque_rate_limit: tuple | None = None
+    torque_rate_share: float | None = None  # the share of the limit the noise's predicted p99 may use
+    rate_noise: float | None = None  # the noise the rate is predicted at: max(noise, rate_noise_floor), N
+    lever: tuple | None = None  # per joint: the largest joint torque per N of normal force on the path, N·m/N
+    command_rate_max_per_n: float | None = None  # RMS command change per second per N, largest over the corners
+    torque_rate_p99: tuple | None = None  # predicted 99th percentile of |Δτ_j|/h at the declared noise, N·m/s
+    within_rate_limit: bool | None = None  # False: no candidate was within, the least rate was taken
+    rate_warning: str | None = None  # the plain statement when no candidate is within the limit
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -352,10 +364,37 @@ def evaluate_design(order, cutoff_hz, kappa, *, h, g_P, mu_z, alpha_z, g_f, dela
 #: this factor of the least, the one whose held command changes least from sample to sample.
 RATE_TOLERANCE = 1.10
 
+#: The 99th percentile of |x|/σ for a zero-mean Gaussian x: the predicted 99th percentile of a
+#: joint's |Δτ|/h is this times its RMS (the loop is linear and its input Gaussian).
+P99_GAUSS = 2.5758
+
+
+def max_command_rate(order, cutoff_hz, kappa, *, h, g_P, mu_z, alpha_z, g_f, delay, pts, source="force",
+                     stiffness_max=None) -> float:
+    """The RMS change of the held force command per second per unit of white measurement noise
+    (:func:`command_rate` over h), largest over the corners ``pts`` of the design's range (the
+    force error's worst corner need not be the rate's: the lightest pose moves fastest)."""
+    filt = None if not order else butterworth_matrices(int(order), float(cutoff_hz), float(h))
+    worst = 0.0
+    for k, m in pts:
+        extra = {} if source == "force" else dict(source=source, rate_scale=float(stiffness_max) / k)
+        loop = sensed_force_loop(math.sqrt(k / m) * h, g_P, kappa, h, mu_z, alpha_z, g_f, delay, filt, **extra)
+        worst = max(worst, command_rate(*loop) / h)
+    return worst
+
+
+def predicted_torque_rate(rate_per_n: float, noise: float, lever) -> np.ndarray:
+    """The predicted 99th percentile of each joint's |Δτ_j|/h (N·m/s) from the force path: the
+    held force command's RMS change per second per N (``rate_per_n``) times the noise σ (N)
+    times the joint's lever (N·m per N of normal force), times :data:`P99_GAUSS`."""
+    return P99_GAUSS * float(noise) * float(rate_per_n) * np.asarray(lever, dtype=float)
+
 
 def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: float, noise: float, delay: int,
                    stiffness_min: float, stiffness_max: float, m_n_min: float, m_n_max: float, order="design",
                    cutoff_hz="design", kappa="rule", zeta_min: float = 0.05, source: str = "force",
+                   torque_rate_limit=None, lever=None, torque_rate_share: float = 1.0,
+                   rate_noise_floor: float = 0.0,
                    _search_ok: bool = True) -> SensingDesign:
     """The force filter (``order`` 0, 1 or 2, or "design": each tried; ``cutoff_hz`` a number or
     "design": a grid from 5 Hz to 0.4 of the sampling rate) and κ ("rule": a grid from h/20 to
@@ -368,7 +407,17 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
     ``source``: the force-rate term's ṡ, "force" (the differenced e_λ: the candidate of least
     worst-corner force error, ties the least command) or "velocity" (the joint rates, scaled by
     k_s/k with k_s = ``stiffness_max``: among the candidates within :data:`RATE_TOLERANCE` of the
-    least force error, the one of least RMS command change per sample, :func:`command_rate`)."""
+    least force error, the one of least RMS command change per sample, :func:`command_rate`).
+
+    ``torque_rate_limit`` (N·m/s, one per joint; None: no limit, the choice above unchanged) and
+    ``lever`` (per joint, the largest joint torque per N of normal force on the path, N·m/N): a
+    candidate is within the limit when its predicted 99th percentile of |Δτ_j|/h,
+    :func:`predicted_torque_rate` of its :func:`max_command_rate` at the ``noise``, is at most
+    ``torque_rate_share`` (0 < share <= 1) of the limit on every joint (the rest is left to the
+    motion and the contact's own torque changes, which the noise loop does not see), the noise
+    taken as at least ``rate_noise_floor`` N (the contact's own force changes pass the same path); the choice above is then made among those within it, and when none is,
+    the candidate of least predicted rate is taken (ties: the least force error) and the record
+    says so (``within_rate_limit`` False, ``rate_warning``): the robot's clamp still acts."""
     if source not in ("force", "velocity"):
         raise DesignError(f"must be \"force\" or \"velocity\", got {source!r}", key="force_rate.source",
                           value=source)
@@ -394,6 +443,13 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
                 held.append(entry)
                 if best is None or key < best[0]:
                     best = entry
+    rate = None
+    if best is not None and torque_rate_limit is not None:  # the choice among those within the limit
+        rate_noise = max(float(noise), float(rate_noise_floor))
+        best, held, rate = _within_rate(held, torque_rate_limit, lever, rate_noise, torque_rate_share, h=h, g_P=g_P,
+                                        mu_z=mu_z,
+                                        alpha_z=alpha_z, g_f=g_f, delay=delay, pts=pts, source=source,
+                                        stiffness_max=stiffness_max)
     if best is not None and source == "velocity":  # the least command change near the least error
         near = [(command_rate(*b[7]), b[4], b) for b in held if b[4] <= RATE_TOLERANCE * best[4]]
         best = min(near, key=lambda x: (x[0], x[1]))[2]
@@ -429,10 +485,53 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
                "slows it)" if g_f else "") + where,
             key="sensor.delay", value=delay, bound=softest)
     _, o, fc, kap, e, c, zmin, loop = best
+    extra = {}
+    if rate is not None:
+        r = rate[id(best)]
+        p99 = predicted_torque_rate(r, rate_noise, lever)
+        limit = np.asarray(torque_rate_limit, dtype=float)
+        within = bool(np.all(p99 <= torque_rate_share * limit))
+        warning = None
+        if not within:
+            j = int(np.argmax(p99 / limit))
+            warning = (f"no force filter and kappa keep the sensor noise's torque rate within "
+                       f"controller.actuator.torque_rate_share = {torque_rate_share:g} of "
+                       f"controller.actuator.torque_rate_limit at the noise {rate_noise:g} N (the declared "
+                       f"{noise:g} N, at least controller.actuator.rate_noise_floor): the least predicted "
+                       f"99th percentile of |dtau|/h is {p99[j]:.4g} N m/s on joint {j + 1} against "
+                       f"{torque_rate_share * limit[j]:.4g} of the limit {limit[j]:.4g} N m/s (the robot's clamp "
+                       "still acts)")
+        extra = dict(torque_rate_limit=tuple(float(v) for v in limit), torque_rate_share=float(torque_rate_share),
+                     rate_noise=rate_noise,
+                     lever=tuple(float(v) for v in lever),
+                     command_rate_max_per_n=float(r), torque_rate_p99=tuple(float(v) for v in p99),
+                     within_rate_limit=within, rate_warning=warning)
     return SensingDesign(order=o, cutoff_hz=None if fc is None else float(fc), kappa=kap, noise=float(noise),
                          delay=int(delay), force_error_per_n=e, command_per_n=c, zeta=zmin, candidates=count,
-                         command_rate_per_n=command_rate(*loop) / h, source=source)
+                         command_rate_per_n=command_rate(*loop) / h, source=source, **extra)
+
+
+def _within_rate(held, torque_rate_limit, lever, noise, share, **loop_args):
+    """(the least-error candidate within the torque-rate limit, the candidates the choice is made
+    among, {id(candidate): its :func:`max_command_rate`}): :func:`design_sensing`'s choice within
+    a rate limit. None within: the candidate of least rate (ties: least error) alone."""
+    if lever is None:
+        raise DesignError("a torque-rate limit needs the joints' levers (joint torque per N of normal force)",
+                          key="actuator.torque_rate_limit", value=torque_rate_limit)
+    limit = np.asarray(torque_rate_limit, dtype=float)
+    lev = np.asarray(lever, dtype=float)
+    if limit.shape != lev.shape or not np.all(limit > 0):
+        raise DesignError(f"must be positive, one per joint ({lev.size}), got {limit.tolist()}",
+                          key="actuator.torque_rate_limit", value=limit.tolist())
+    if not 0.0 < float(share) <= 1.0:
+        raise DesignError(f"must be in (0, 1], got {share}", key="actuator.torque_rate_share", value=share)
+    rate = {id(b): max_command_rate(b[1], b[2], b[3], **loop_args) for b in held}
+    within = [b for b in held if np.all(predicted_torque_rate(rate[id(b)], noise, lev) <= share * limit)]
+    if within:
+        return min(within, key=lambda b: b[0]), within, rate
+    least = min(held, key=lambda b: (rate[id(b)], b[4]))
+    return least, [least], rate
 
 
 __all__ = ["ForceFilter", "butterworth", "sensed_force_loop", "noise_gains", "command_rate", "loop_damping",
-           "design_sensing", "SensingDesign"]
+           "design_sensing", "SensingDesign", "max_command_rate", "predicted_torque_rate", "P99_GAUSS"]

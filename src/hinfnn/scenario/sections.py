@@ -1298,6 +1298,48 @@ class SensorAssumptionConfig:
         return float(noise), int(delay)
 
 
+#: The share of the torque-rate limit the sensor noise may use by default (docs/beyond-the-paper.md,
+#: section 12): on ur5-polish-sensor the drum's contact alone, with no noise, drives the shoulder's
+#: commanded 99th percentile of |Δτ|/h to 290 N·m/s with ideal motors and 780–970 N·m/s behind the
+#: 1,000 N·m/s clamp, and with the whole limit for the noise the design's choice at σ = 0.5 N (its
+#: noise predicted at 0.66 of the limit) lost contact at the start.
+TORQUE_RATE_SHARE = 0.5
+
+#: The least noise the torque-rate criterion assumes by default, N (section 12): with no noise the
+#: drum's contact alone makes the first-order filters above 50 Hz that a small declared noise
+#: admits stop behind the 1,000 N·m/s clamp (σ = 0.25 N: at 1.12 s), while the choice at 1 N holds
+#: from σ = 0 to 1 N.
+RATE_NOISE_FLOOR = 1.0
+
+
+@section
+class ActuatorAssumptionConfig:
+    """The motors the controller's design assumes (the controller never reads the plant: by default
+    the scenario's declared plant.actuator, copied when the scenario is built)."""
+
+    torque_rate_limit: Literal["declared", "none"] | Numbers = param(
+        "declared", doc="largest change of each joint's torque the design keeps the force path's noise within, N m/s "
+        "(a number or one per joint; \"declared\": plant.actuator.torque_rate_limit; \"none\": no constraint)",
+        gt=0.0, le=1e12)
+    torque_rate_share: float = param(
+        TORQUE_RATE_SHARE, doc="share of the torque-rate limit the design lets the sensor noise's predicted 99th "
+        "percentile of |dtau|/h use (the rest is the motion's and the contact's own torque changes)", gt=0.0, le=1.0)
+    rate_noise_floor: float = param(
+        RATE_NOISE_FLOOR, doc="least force noise the torque-rate criterion assumes, N (the contact's own force "
+        "changes pass the same path as the sensor's noise; the declared noise where larger)", ge=0.0, le=1e6)
+
+    def resolved(self, declared, n: int, path: str = "controller.actuator"):
+        """The torque-rate limit per joint (N·m/s, an (n,) array) the design keeps within, or None:
+        "declared" is ``declared`` (the scenario's plant.actuator.torque_rate_limit,
+        :attr:`hinfnn.scenario.setup.Setup.declared_torque_rate`; None there: none)."""
+        value = declared if self.torque_rate_limit == "declared" else self.torque_rate_limit
+        if value is None or (isinstance(value, str) and value == "none"):
+            return None
+        key = (f"{path}.torque_rate_limit" if self.torque_rate_limit != "declared"
+               else "plant.actuator.torque_rate_limit")
+        return per_item(value, n, key, "one per joint")
+
+
 @section
 class ControllerConfig:
     kind: str | tuple[str, ...] = param(doc="controller(s) to run: a name of hinfnn.controllers.KINDS or a list",
@@ -1312,6 +1354,7 @@ class ControllerConfig:
     force_filter: ForceFilterConfig = param(ForceFilterConfig(), doc="low-pass on the measured force (not in the "
                                             "paper)")
     sensor: SensorAssumptionConfig = param(SensorAssumptionConfig(), doc="the sensor the design assumes")
+    actuator: ActuatorAssumptionConfig = param(ActuatorAssumptionConfig(), doc="the motors the design assumes")
     singularity_stop: float = param(0.0, doc="stop (simulator) or return NaN (sampled controller) when the smallest "
                                              "singular value of the nominal Jacobian falls below this; 0: off",
                                     ge=0.0, le=100.0)
@@ -1335,13 +1378,15 @@ class ControllerConfig:
             raise ConfigError(f"lists a controller twice: {list(self.kinds)}", key=key)
 
     def build(self, kind: str, arm, surface, *, u1_path=None, q_start=None, period=None, adaptation=None,
-              declared=(0.0, 0)):
+              declared=(0.0, 0), declared_rate=None):
         """Design the controller ``kind`` from the NOMINAL arm and surface (``u1_path``,
         ``q_start``: the reference's path in u1 and a start pose, for the force-rate rule;
         ``period``: the control period under sampled control; ``adaptation``: the design inputs of
         the robust update laws, :func:`hinfnn.controllers.kinds.robust_adaptation`'s ``q``,
         ``lam_max``, ``force_noise``, ``q_noise``, ``qd_noise``; ``declared``: the scenario's declared
-        sensor (force noise, delay), what ``controller.sensor`` defaults to). Raises
+        sensor (force noise, delay), what ``controller.sensor`` defaults to; ``declared_rate``: the
+        scenario's declared torque-rate limit, N·m/s per joint or None, what
+        ``controller.actuator.torque_rate_limit`` defaults to). Raises
         :class:`DesignError` with the dotted key of the failing gain, :class:`ConfigError` for a
         force filter under continuous control."""
         from ..controllers import design
@@ -1364,6 +1409,11 @@ class ControllerConfig:
             force_filter = dict(order=ff.order, cutoff_hz=ff.cutoff_hz, noise=noise, delay=delay, period=period)
         elif force_rate is not None and source == "velocity" and period is not None:  # designed for the sensor
             force_filter = dict(order=0, cutoff_hz="design", noise=noise, delay=delay, period=period)
+        rate_limit = self.actuator.resolved(declared_rate, int(arm.n))
+        if rate_limit is not None and force_filter is not None:  # the design keeps within the motors' rate
+            force_filter["torque_rate_limit"] = tuple(float(v) for v in rate_limit)
+            force_filter["torque_rate_share"] = float(self.actuator.torque_rate_share)
+            force_filter["rate_noise_floor"] = float(self.actuator.rate_noise_floor)
         try:
             return design(kind, arm, surface, self.gains.build(), augmented=self.augmented,
                           network_p=self.network_p.build("controller.network_p", surface.m),

@@ -199,7 +199,7 @@ class Setup:
         adapt = self._adaptation_inputs()
         adapt = None if adapt is None else repr({k: np.asarray(v, float).tobytes() for k, v in adapt.items()})
         return kind, models, repr(self.scenario.controller), self.control_period, path, start, adapt, \
-            self.declared_sensor
+            self.declared_sensor, repr(self.declared_torque_rate)
 
     def _adaptation_inputs(self) -> dict | None:
         """What the robust update laws' design reads (``controller.adaptation``, not "none", nor
@@ -228,7 +228,8 @@ class Setup:
         return self.scenario.controller.build(kind, self.nominal_arm, self.constraint, u1_path=u1_path,
                                               q_start=q_start, period=self.control_period,
                                               adaptation=self._adaptation_inputs(),
-                                              declared=self.declared_sensor)
+                                              declared=self.declared_sensor,
+                                              declared_rate=self.declared_torque_rate)
 
     @property
     def declared_sensor(self) -> tuple[float, int]:
@@ -240,6 +241,15 @@ class Setup:
         if sens is None:
             return 0.0, 0
         return float(sens.force_noise), int(sens.delay)
+
+    @property
+    def declared_torque_rate(self):
+        """The scenario's declared torque-rate limit of the motors (plant.actuator.torque_rate_limit:
+        a number or a tuple, N·m/s), or None ("none", or a plant without motors): what
+        controller.actuator.torque_rate_limit defaults to, handed to the design as numbers."""
+        act = getattr(self.scenario.plant, "actuator", None)
+        value = None if act is None else act.torque_rate_limit
+        return None if value is None or (isinstance(value, str) and value == "none") else value
 
     # --- the simulation -------------------------------------------------------------------------
     @property
