@@ -115,6 +115,26 @@ def test_the_ur5_limits_are_its_urdf_efforts():
     assert L.torque_rate == 1000.0 and np.all(np.isfinite(L.lower))
 
 
+def test_a_robot_run_designs_within_the_safety_clamp():
+    """``controller.actuator.torque_rate_limit = "declared"``: a robot run designs within the
+    tighter of the declared motors' rate limit and the safety layer's clamp; a given value, or
+    motors already within the clamp, are left as they are."""
+    from hinfnn.robot.run import for_the_robot
+
+    base = ["simulation.control=sampled", "plant.sensor.force_noise=1.0"]
+    sc = H.Scenario.load("paper", base)
+    assert sc.build().declared_torque_rate is None
+    assert for_the_robot(sc).controller.actuator.torque_rate_limit == 1000.0  # the clamp's default
+    tighter = H.Scenario.load("paper", base + ["safety.torque_rate_limit=400"])
+    assert for_the_robot(tighter).controller.actuator.torque_rate_limit == 400.0
+    per_joint = H.Scenario.load("paper", base + ["plant.actuator.torque_rate_limit=[300.0, 2000.0]"])
+    assert list(for_the_robot(per_joint).controller.actuator.torque_rate_limit) == [300.0, 1000.0]
+    within = H.Scenario.load("paper", base + ["plant.actuator.torque_rate_limit=500"])
+    assert for_the_robot(within) is within
+    given = H.Scenario.load("paper", base + ["controller.actuator.torque_rate_limit=none"])
+    assert for_the_robot(given) is given
+
+
 def test_retract_moves_the_tool_against_the_last_force():
     J = np.array([[1.0, 0.5], [0.0, 1.0]])
     dq = S.retract_step(J, np.array([0.0, -20.0]), 0.02)  # pressing down: back away upwards

@@ -38,6 +38,23 @@ def safety_limits(sc, setup=None) -> SafetyLimits:
                                     fallback_torque=sc.simulation.torque_limit)
 
 
+def for_the_robot(sc):
+    """The scenario as a robot runs it: a controller whose torque-rate limit is "declared"
+    (``controller.actuator.torque_rate_limit``, its default) is designed within the tighter of the
+    declared motors' limit (``plant.actuator.torque_rate_limit``) and the safety layer's clamp
+    (``safety.torque_rate_limit``): the torque rate the loop will let through. Any other value, and
+    a scenario whose rate limit is already the clamp's or tighter, is returned unchanged."""
+    if sc.controller.actuator.torque_rate_limit != "declared":
+        return sc
+    declared = sc.build().declared_torque_rate
+    clamp = float(sc.safety.torque_rate_limit)
+    if declared is not None and np.all(np.asarray(declared, dtype=float) <= clamp):
+        return sc
+    limit = clamp if declared is None else np.minimum(np.asarray(declared, dtype=float), clamp)
+    value = repr(float(limit)) if np.ndim(limit) == 0 else "[" + ", ".join(repr(float(v)) for v in limit) + "]"
+    return sc.with_overrides([f"controller.actuator.torque_rate_limit={value}"])
+
+
 def _single(sc):
     if len(sc.kinds) != 1:
         raise ConfigError(f"a robot runs one controller: give one kind, got {sc.kinds}", key="controller.kind")
@@ -105,6 +122,7 @@ def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, 
     from ..workflows.run import result_name
 
     _single(sc)
+    sc = for_the_robot(sc)
     case = cases(sc, tags={"robot": robot if isinstance(robot, str) else type(robot).__name__})[0]
     with result_folder(out, command="robot", name=result_name(sc), kind="run", force=force, log=log,
                        command_line=command) as written:
@@ -131,4 +149,4 @@ def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, 
     return RobotRunResult(target=written.path, doc=doc, log=loop_log, note=written.moved)
 
 
-__all__ = ["ROBOTS", "RobotRunResult", "safety_limits", "make_robot", "prepared", "run_robot"]
+__all__ = ["ROBOTS", "RobotRunResult", "for_the_robot", "safety_limits", "make_robot", "prepared", "run_robot"]
