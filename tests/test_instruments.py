@@ -118,7 +118,11 @@ def test_torque_saturates_at_the_limit_and_is_rate_limited():
 
 # --- in the scenario and the simulator ---------------------------------------------------------------
 
-DRUM = ["controller.kind=hinf_nn", "simulation.control=sampled", "simulation.control_period=0.001", "simulation.t_final=0.05"]
+#: the paper's ideal sensor and motors on planar3-drum-stable (which declares a robot's): the tests' baseline
+IDEAL = ["plant.sensor.force_noise=0", "plant.sensor.delay=0", "plant.actuator.torque_limit=none",
+         "controller.force_filter.order=0"]
+DRUM = ["controller.kind=hinf_nn", "simulation.control=sampled", "simulation.control_period=0.001", "simulation.t_final=0.05",
+        *IDEAL]
 
 
 def _run(sets, plant=None):
@@ -197,7 +201,8 @@ def test_an_ideal_sensor_is_no_sensor_and_a_zero_one_gives_the_same_run():
 ])
 def test_continuous_control_refuses_what_needs_samples(sets, key):
     with pytest.raises(ConfigError) as err:
-        H.load_scenario("planar3-drum-stable", ["simulation.t_final=0.05", *sets]).build().plant
+        H.load_scenario("planar3-drum-stable", ["simulation.t_final=0.05", "simulation.control=continuous", *IDEAL,
+                                                *sets]).build().plant
     assert err.value.key == key and "sampled" in str(err.value)
 
 
@@ -288,7 +293,8 @@ def test_the_cli_refuses_a_bad_sensor_or_motor_in_one_line(tmp_path, capsys, ove
 def test_the_sensor_and_motors_act_on_the_mujoco_plant():
     pytest.importorskip("mujoco")
     sets = ["simulation.t_final=0.03", "plant.sensor.force_noise=1.0", "plant.sensor.delay=1",
-            "plant.actuator.torque_limit=[150.0, 40.0, 150.0, 28.0, 28.0, 28.0]"]
+            "plant.actuator.torque_limit=[150.0, 40.0, 150.0, 28.0, 28.0, 28.0]",
+            "controller.force_filter.order=0"]  # no force filter: the shoulder asks for more than 40 N m
     sc = H.load_scenario("ur5-polish", sets)
     r = sc.build().run()
     assert r.plant.sensor.delay == 1 and np.asarray(r.plant.actuator.torque_limit)[1] == 40.0

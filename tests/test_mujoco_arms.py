@@ -724,8 +724,8 @@ def test_design_refuses_what_run_refuses(monkeypatch, capsys):
     def refuse(self, q0, qd0=None):
         raise ConfigError("MuJoCo cannot start from this pose", key="plant.mjcf.file")
 
+    sc = H.load_scenario("ur5-polish", ["simulation.t_final=0.01"])  # its sensor's check reads the start state
     monkeypatch.setattr(MujocoPlant, "initial_state", refuse)
-    sc = H.load_scenario("ur5-polish", ["simulation.t_final=0.01"])
     with pytest.raises(ConfigError) as run_err:
         sc.simulate()
     code = cli.main(["design", "ur5-polish"])

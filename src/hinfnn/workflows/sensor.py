@@ -6,8 +6,9 @@ disturbance) with a force sensor of white noise σ ∈ :data:`SENSOR_NOISE` N pe
 :data:`SENSOR_DELAY` sample of transport delay, the URDF's torque limits on the true motors and a
 1 kHz zero-order hold, each law of :data:`SENSOR_KINDS` runs twice:
 
-* ``paper``: the scenario's controller as shipped (its force-rate term with κ by the rule of
-  section 7, designed for an ideal sensor; none where the scenario has none);
+* ``paper``: the scenario's controller designed for an ideal sensor (its force-rate term with κ by
+  the rule of section 7 on the differenced force, no force filter, whatever sensor the scenario
+  declares; none where the scenario has none);
 * ``designed``: the force filter and κ designed together for the declared sensor
   (``controller.force_filter.order = "design"``, κ "rule"; section 12), over the scenario's stated
   stiffness range (or, without a force-rate section, up to the plant's contact stiffness).
@@ -65,8 +66,9 @@ def sensor_cases(arm: str, overrides=(), noises=SENSOR_NOISE, kinds=SENSOR_KINDS
                       "simulation.t_final": float(t_final)}
             for variant in ("paper", "designed"):
                 o = dict(common)
-                if variant == "paper":  # the law as designed for an ideal sensor: ṡ the differenced force
+                if variant == "paper":  # the law as designed for an ideal sensor: ṡ the differenced force, no filter
                     o["controller.force_rate.source"] = "force"
+                    o["controller.force_filter.order"] = 0
                 if variant == "designed":
                     o["controller.force_filter.order"] = "design"
                     if fr.kappa == 0.0:

@@ -2,7 +2,8 @@
 contact (``hinfnn gallery --beyond``), the arms' counterpart of the paper study's "Beyond the paper".
 
 For each gallery arm (``planar3-drum``, ``ur5-table``, ``ur5-sphere``) the shipped ``<arm>-stable``
-scenario (its model errors, friction, payload and disturbance; contact damping 0) runs with
+scenario (its model errors, friction, payload and disturbance; contact damping 0; the paper's ideal
+sensor and motors, :data:`IDEAL_INSTRUMENTS`, whatever sensor the scenario declares) runs with
 
 * both robust laws (H∞-only ``hinf`` and adaptive ``hinf_nn``),
 * the paper's law (the same controller with the force-rate gain κ = 0: the term's filter then acts
@@ -42,7 +43,7 @@ STIFF_STIFFNESS = (1e4, 1e5, 1e6)
 #: The laws compared.
 STIFF_KINDS = ("hinf", "hinf_nn")
 #: Control modes: continuous and a 1 kHz zero-order hold.
-STIFF_MODES = {"cont": {}, "1kHz": {"simulation.control": "sampled", "simulation.control_period": 1e-3}}
+STIFF_MODES = {"cont": {"simulation.control": "continuous"}, "1kHz": {"simulation.control": "sampled", "simulation.control_period": 1e-3}}
 #: The start's transient excluded from "out of contact" and the torque peak (s).
 AFTER = 0.2
 #: Targets: the largest RMS e_λ over the last 2 s, as a fraction of the mean force reference, by
@@ -52,6 +53,10 @@ TARGET_FORCE = {("hinf_nn", "cont"): 0.02, ("hinf", "cont"): 0.10, ("hinf_nn", "
 STIFF_FIELDS = ("t", "u1", "u1_d", "lam", "lam_d", "e_u1", "e_lam", "tau", "penetration", "normal_force",
                 "tau_abs_max", "steps_out_of_contact")
 MODE_WORDS = {"cont": "continuous", "1kHz": "ZOH 1 kHz"}
+#: The comparison's sensor and motors: the paper's (ideal sensor, no torque limit, no force filter),
+#: whatever the ``-stable`` scenario declares (a robot's: ``hinfnn gallery --sensor`` compares those).
+IDEAL_INSTRUMENTS = {"plant.sensor.force_noise": 0.0, "plant.sensor.delay": 0, "plant.actuator.torque_limit": "none",
+                     "controller.force_filter.order": 0}
 
 
 def stiffness_max(mode: str, k: float) -> float:
@@ -70,8 +75,8 @@ def stiff_cases(arm: str, overrides=()) -> tuple[list[Case], dict[str, str]]:
     for kind in STIFF_KINDS:
         for mode, mode_over in STIFF_MODES.items():
             for k in STIFF_STIFFNESS:
-                common = {"controller.kind": kind, "plant.contact.stiffness": k, "plant.contact.damping": 0.0,
-                          **mode_over}
+                common = {**IDEAL_INSTRUMENTS, "controller.kind": kind, "plant.contact.stiffness": k,
+                          "plant.contact.damping": 0.0, **mode_over}
                 for variant in ("paper", "stable"):
                     o = dict(common)
                     if variant == "paper":  # κ = 0 needs no design range: the design's own for the mode
@@ -115,7 +120,7 @@ def modes_of(arm: str, overrides=(), kinds=STIFF_KINDS) -> list[dict]:
     rows = []
     for kind in kinds:
         sc = Scenario.load(f"{arm}-stable", overrides).with_overrides(
-            {"controller.kind": kind, "plant.contact.damping": 0.0,
+            {**IDEAL_INSTRUMENTS, **STIFF_MODES["cont"], "controller.kind": kind, "plant.contact.damping": 0.0,
              "controller.force_rate.stiffness_max": max(STIFF_STIFFNESS)})
         ctrl = sc.build_controller(kind)
         for k in STIFF_STIFFNESS:
