@@ -144,6 +144,21 @@ def test_the_filter_in_the_law_filters_e_lam_from_rest_at_the_first_sample():
     assert np.max(np.abs(np.array(seen) - signal.lfilter(b, a, raw, zi=zi)[0])) < 1e-9
 
 
+def _simulated_noise(plant, ctrl, ref, q_eq, lam_d, sigma, t_final, delay=0):
+    """A run at rest at the operating point with a sensor of white noise σ (and ``delay`` samples):
+    (its arrays, the samples after 0.5 s, the RMS torque per joint and the RMS true λ, each per N of
+    noise; λ the normal force in the paper's scaling, λ = f_n / ‖Â‖, Â = [tan δ, −1])."""
+    noisy = dataclasses.replace(plant, sensor=Sensor.make(3, force_noise=sigma, delay=delay))
+    tr = H.simulate(noisy, ctrl, ref, q0=jnp.asarray(q_eq), t_final=t_final, dt=1e-4, control_period=1e-3,
+                    save_interval=1e-3)
+    a = tr.arrays
+    keep = np.asarray(a["t"]) > 0.5
+    tau_std = np.std(np.asarray(a["tau"])[keep], axis=0) / sigma
+    scale = float(lam_d[0]) / float(np.mean(np.asarray(a["normal_force"])[keep]))
+    lam_std = np.std(np.asarray(a["normal_force"])[keep]) * scale / sigma
+    return a, keep, tau_std, lam_std
+
+
 def test_noise_gains_and_delay_of_the_linearised_loop_against_simulation():
     """The paper's arm, H∞-only law with the force-rate term at 1 kHz on an undamped 1e5 N/m contact
     (the exact model at rest at u1 = 1.0, λ = 60): the linearised sampled loop with white force
@@ -157,16 +172,8 @@ def test_noise_gains_and_delay_of_the_linearised_loop_against_simulation():
     nr = A.noise_response(A.sensed_sampled_loop(plant, ctrl, ref, q_eq, 1e-3, 1e-4, 0))
     assert nr["stable"]
     sigma = 0.1
-    noisy = dataclasses.replace(plant, sensor=Sensor.make(3, force_noise=sigma))
-    tr = H.simulate(noisy, ctrl, ref, q0=jnp.asarray(q_eq), t_final=3.0, dt=1e-4, control_period=1e-3,
-                    save_interval=1e-3)
-    a = tr.arrays
-    keep = np.asarray(a["t"]) > 0.5
-    tau_std = np.std(np.asarray(a["tau"])[keep], axis=0) / sigma
+    a, keep, tau_std, lam_std = _simulated_noise(plant, ctrl, ref, q_eq, lam_d, sigma, 3.0)
     assert tau_std == pytest.approx(np.asarray(nr["tau_per_n"]), rel=0.2)
-    # the true λ: the normal force in the paper's scaling (λ = f_n / ‖Â‖, Â = [tan δ, −1])
-    scale = float(lam_d[0]) / float(np.mean(np.asarray(a["normal_force"])[keep]))
-    lam_std = np.std(np.asarray(a["normal_force"])[keep]) * scale / sigma
     assert lam_std == pytest.approx(nr["lam_per_n"], rel=0.2)
 
     late = A.noise_response(A.sensed_sampled_loop(plant, ctrl, ref, q_eq, 1e-3, 1e-4, 1))
@@ -337,15 +344,8 @@ def test_velocity_noise_gains_against_simulation():
                                                source="velocity", rate_scale=1.0))[0]
     one_d /= float(jnp.linalg.norm(ctrl.surface.A_hat(ctrl.arm.h(jnp.asarray(q_eq)))))  # λ's noise: 1/‖Â‖ per N
     assert one_d == pytest.approx(nr["lam_per_n"], rel=0.05)
-    noisy = dataclasses.replace(plant, sensor=Sensor.make(3, force_noise=sigma, delay=1))
-    tr = H.simulate(noisy, ctrl, ref, q0=jnp.asarray(q_eq), t_final=2.0, dt=1e-4, control_period=1e-3,
-                    save_interval=1e-3)
-    a = tr.arrays
-    keep = np.asarray(a["t"]) > 0.5
-    tau_std = np.std(np.asarray(a["tau"])[keep], axis=0) / sigma
+    a, keep, tau_std, lam_std = _simulated_noise(plant, ctrl, ref, q_eq, lam_d, sigma, 2.0, delay=1)
     assert tau_std == pytest.approx(np.asarray(nr["tau_per_n"]), rel=0.2)
-    scale = float(lam_d[0]) / float(np.mean(np.asarray(a["normal_force"])[keep]))
-    lam_std = np.std(np.asarray(a["normal_force"])[keep]) * scale / sigma
     assert lam_std == pytest.approx(nr["lam_per_n"], rel=0.2)
     assert lam_std == pytest.approx(one_d, rel=0.2)
     tau = np.asarray(a["tau"])[keep]

@@ -123,6 +123,45 @@ def _none():
     return np.zeros((0, 0)), np.zeros(0), np.zeros(0), 1.0
 
 
+def _contact_rows(N, omega0_h, w, wn):
+    """(Φ, Γ) of an N-state one-period map with its first two rows filled: the undamped contact mode
+    (e, ė/ω0) over one period of the zero-order hold, driven by the held command w (a row over the
+    state) and its noise coefficient wn."""
+    c, sn = math.cos(omega0_h), math.sin(omega0_h)
+    Phi, G = np.zeros((N, N)), np.zeros(N)
+    Phi[0] = (1.0 - c) * w
+    Phi[0, 0] += c
+    Phi[0, 1] += sn
+    G[0] = (1.0 - c) * wn
+    Phi[1] = sn * w
+    Phi[1, 0] -= sn
+    Phi[1, 1] += c
+    G[1] = sn * wn
+    return Phi, G
+
+
+def _filter_rows(Phi, G, filt, i_f, ym, ymn):
+    """The force filter's rows (its state from index ``i_f``) reading the measurement row ``ym``."""
+    Af, Bf = filt
+    nf = Af.shape[0]
+    if nf:
+        Phi[i_f:i_f + nf] = np.outer(Bf, ym)
+        Phi[i_f:i_f + nf, i_f:i_f + nf] += Af
+        G[i_f:i_f + nf] = Bf * ymn
+
+
+def _integral_rows(Phi, G, ec, ecn, h, mu_z, alpha_z, g_f, i_z, i_nu):
+    """The rows of z (eq. (27), forward Euler over h) and, with g_f > 0, of the force network's
+    output ν (its integral action on e_c), both driven by the filtered error row ``ec``."""
+    Phi[i_z] = -h * alpha_z * ec
+    Phi[i_z, i_z] += 1.0 - h * mu_z
+    G[i_z] = -h * alpha_z * ecn
+    if g_f:
+        Phi[i_nu] = h * g_f * ec
+        Phi[i_nu, i_nu] += 1.0
+        G[i_nu] = h * g_f * ecn
+
+
 def sensed_force_loop(omega0_h: float, g_P: float, kappa: float, h: float, mu_z: float = 0.0, alpha_z: float = 0.0,
                       g_f: float = 0.0, delay: int = 0, filt=None, source: str = "force", rate_scale: float = 1.0):
     """(Φ, Γ, w, w_n): the force loop over one period of the zero-order hold, linearised on the
@@ -166,32 +205,14 @@ def sensed_force_loop(omega0_h: float, g_P: float, kappa: float, h: float, mu_z:
     w[i_z] += 1.0
     if g_f:
         w[i_nu] -= 1.0
-    c, sn = math.cos(omega0_h), math.sin(omega0_h)
-    Phi, G = np.zeros((N, N)), np.zeros(N)
-    Phi[0] = (1.0 - c) * w
-    Phi[0, 0] += c
-    Phi[0, 1] += sn
-    G[0] = (1.0 - c) * wn
-    Phi[1] = sn * w
-    Phi[1, 0] -= sn
-    Phi[1, 1] += c
-    G[1] = sn * wn
+    Phi, G = _contact_rows(N, omega0_h, w, wn)
     if d:
         Phi[2, 0], G[2] = 1.0, 1.0
         for j in range(1, d):
             Phi[2 + j, 2 + j - 1] = 1.0
-    if nf:
-        Phi[i_f:i_f + nf] = np.outer(Bf, ym)
-        Phi[i_f:i_f + nf, i_f:i_f + nf] += Af
-        G[i_f:i_f + nf] = Bf * ymn
+    _filter_rows(Phi, G, (Af, Bf), i_f, ym, ymn)
     Phi[i_s], G[i_s] = ec, ecn
-    Phi[i_z] = -h * alpha_z * ec
-    Phi[i_z, i_z] += 1.0 - h * mu_z
-    G[i_z] = -h * alpha_z * ecn
-    if g_f:
-        Phi[i_nu] = h * g_f * ec
-        Phi[i_nu, i_nu] += 1.0
-        G[i_nu] = h * g_f * ecn
+    _integral_rows(Phi, G, ec, ecn, h, mu_z, alpha_z, g_f, i_z, i_nu)
     return Phi, G, w, wn
 
 
@@ -221,33 +242,15 @@ def _velocity_force_loop(omega0_h, g_P, kappa, h, mu_z, alpha_z, g_f, delay, fil
     w[i_z] += 1.0
     if g_f:
         w[i_nu] -= 1.0
-    c, sn = math.cos(omega0_h), math.sin(omega0_h)
-    Phi, G = np.zeros((N, N)), np.zeros(N)
-    Phi[0] = (1.0 - c) * w
-    Phi[0, 0] += c
-    Phi[0, 1] += sn
-    G[0] = (1.0 - c) * wn
-    Phi[1] = sn * w
-    Phi[1, 0] -= sn
-    Phi[1, 1] += c
-    G[1] = sn * wn
+    Phi, G = _contact_rows(N, omega0_h, w, wn)
     if d:
         Phi[i_y, 0], G[i_y] = 1.0, 1.0
         Phi[i_v, 1] = 1.0
         for j in range(1, d):
             Phi[i_y + j, i_y + j - 1] = 1.0
             Phi[i_v + j, i_v + j - 1] = 1.0
-    if nf:
-        Phi[i_f:i_f + nf] = np.outer(Bf, ym)
-        Phi[i_f:i_f + nf, i_f:i_f + nf] += Af
-        G[i_f:i_f + nf] = Bf * ymn
-    Phi[i_z] = -h * alpha_z * ec
-    Phi[i_z, i_z] += 1.0 - h * mu_z
-    G[i_z] = -h * alpha_z * ecn
-    if g_f:
-        Phi[i_nu] = h * g_f * ec
-        Phi[i_nu, i_nu] += 1.0
-        G[i_nu] = h * g_f * ecn
+    _filter_rows(Phi, G, (Af, Bf), i_f, ym, ymn)
+    _integral_rows(Phi, G, ec, ecn, h, mu_z, alpha_z, g_f, i_z, i_nu)
     return Phi, G, w, wn
 
 
