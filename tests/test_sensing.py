@@ -172,7 +172,7 @@ def test_noise_gains_and_delay_of_the_linearised_loop_against_simulation():
     nr = A.noise_response(A.sensed_sampled_loop(plant, ctrl, ref, q_eq, 1e-3, 1e-4, 0))
     assert nr["stable"]
     sigma = 0.1
-    a, keep, tau_std, lam_std = _simulated_noise(plant, ctrl, ref, q_eq, lam_d, sigma, 3.0)
+    _, _, tau_std, lam_std = _simulated_noise(plant, ctrl, ref, q_eq, lam_d, sigma, 3.0)
     assert tau_std == pytest.approx(np.asarray(nr["tau_per_n"]), rel=0.2)
     assert lam_std == pytest.approx(nr["lam_per_n"], rel=0.2)
 
