@@ -107,11 +107,12 @@ def _runs(flags) -> list[int]:
 @contextlib.contextmanager
 def _no_collection():
     """Python's cyclic garbage collector held off for the loop (a full collection can take
-    milliseconds: a late cycle): what exists is collected and frozen first, collection is
-    re-enabled (if it was on) when the loop ends, whatever ends it. The loop's own allocations are
-    freed by reference counting as usual."""
+    milliseconds: a late cycle): what exists is frozen first (collect before the robot starts:
+    :func:`hinfnn.robot.run.run_robot` does, a full collection of a large process takes tens of
+    milliseconds, which a started robot's watchdog counts), collection is re-enabled (if it was on)
+    when the loop ends, whatever ends it. The loop's own allocations are freed by reference counting
+    as usual."""
     was = gc.isenabled()
-    gc.collect()
     gc.freeze()
     gc.disable()
     try:
@@ -129,7 +130,7 @@ def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, g
     safety layer stops it. ``gravity(q)``, ``point_jacobian(q)``: the nominal arm's G and tool-point
     Jacobian as NumPy (the hold and the retraction). ``log(line)``: each event as it fires. The
     robot must be started; the loop does not stop it. Python's cyclic garbage collector is held
-    off while the loop runs (:func:`_no_collection`)."""
+    off while the loop runs (:func:`_no_collection`; collect before starting the robot)."""
     with _no_collection():
         return _drive(robot, sampled, limits, t_final=t_final, gravity=gravity, point_jacobian=point_jacobian, log=log)
 
