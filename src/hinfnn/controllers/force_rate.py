@@ -328,9 +328,9 @@ def design_force_rate(arm, surface, gains, *, robust: bool, u1_path=None, q_star
     control, and under sampled control κ and the filter always come from
     :func:`~hinfnn.controllers.sensing.design_sensing` (``sensing`` None: no filter, an ideal
     sensor)."""
-    if source not in ("force", "velocity"):
-        raise DesignError(f"must be \"force\" or \"velocity\", got {source!r}", key="force_rate.source",
-                          value=source)
+    from .sensing import check_source
+
+    check_source(source)
     velocity = source == "velocity"
     if velocity and period is not None and sensing is None:
         sensing = dict(order=0, cutoff_hz="design", noise=0.0, delay=0, g_f=0.0)

@@ -119,6 +119,18 @@ def butterworth(order: int, cutoff_hz: float, period: float) -> ForceFilter:
                        period=np.asarray(float(period)), order=int(order), cutoff_hz=float(cutoff_hz))
 
 
+#: Where the force-rate term's ṡ comes from (:class:`hinfnn.controllers.terms.ForceRate`).
+FORCE_RATE_SOURCES = ("force", "velocity")
+
+
+def check_source(source) -> None:
+    """DesignError naming ``force_rate.source`` unless ``source`` is one of
+    :data:`FORCE_RATE_SOURCES`."""
+    if source not in FORCE_RATE_SOURCES:
+        raise DesignError(f"must be \"force\" or \"velocity\", got {source!r}", key="force_rate.source",
+                          value=source)
+
+
 def _none():
     return np.zeros((0, 0)), np.zeros(0), np.zeros(0), 1.0
 
@@ -421,9 +433,7 @@ def design_sensing(*, h: float, g_P: float, mu_z: float, alpha_z: float, g_f: fl
     taken as at least ``rate_noise_floor`` N (the contact's own force changes pass the same path); the choice above is then made among those within it, and when none is,
     the candidate of least predicted rate is taken (ties: the least force error) and the record
     says so (``within_rate_limit`` False, ``rate_warning``): the robot's clamp still acts."""
-    if source not in ("force", "velocity"):
-        raise DesignError(f"must be \"force\" or \"velocity\", got {source!r}", key="force_rate.source",
-                          value=source)
+    check_source(source)
     zeta_min = float(zeta_min)
     pts = corners(stiffness_min, stiffness_max, m_n_min, m_n_max)
     orders = (0, 1, 2) if order == "design" else (int(order),)

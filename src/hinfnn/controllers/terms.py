@@ -376,10 +376,9 @@ class ForceRate(Term):
 
     def check(self, m, k):
         from ..errors import DesignError
+        from .sensing import check_source
 
-        if self.source not in ("force", "velocity"):
-            raise DesignError(f"must be \"force\" or \"velocity\", got {self.source!r}", key="force_rate.source",
-                              value=self.source)
+        check_source(self.source)
         if self.source == "velocity" and self.stiffness is None:
             raise DesignError("the \"velocity\" source needs the design's stiffest contact k_s",
                               key="force_rate.stiffness_max", value=None)
