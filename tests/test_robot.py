@@ -135,6 +135,53 @@ def test_a_robot_run_designs_within_the_safety_clamp():
     assert for_the_robot(given) is given
 
 
+def _thread_scheduling():
+    import os
+
+    return os.sched_getscheduler(0), os.sched_getparam(0).sched_priority, os.sched_getaffinity(0)
+
+
+def test_real_time_scheduling_is_set_inside_and_restored_after():
+    """SCHED_FIFO where the kernel permits it (auto: else the ordinary policy and the reason), the
+    thread's policy, priority and CPU set as they were after the block, also after an error."""
+    import os
+
+    from hinfnn.robot.realtime import PRIORITY, realtime
+
+    before = _thread_scheduling()
+    with realtime("auto") as how:
+        inside = _thread_scheduling()
+    assert _thread_scheduling() == before
+    if how.realtime:
+        assert inside[:2] == (os.SCHED_FIFO, PRIORITY) and how.priority == PRIORITY and how.note == ""
+    else:
+        assert inside[:2] == before[:2] and "refused" in how.note
+    cpu = max(before[2])
+    with pytest.raises(RuntimeError, match="inside"), realtime("off", cpu=cpu) as how:
+        assert _thread_scheduling()[2] == {cpu} and how.cpus == (cpu,) and how.policy == "SCHED_OTHER"
+        raise RuntimeError("inside")
+    assert _thread_scheduling() == before
+
+
+def test_a_refused_real_time_scheduling_is_named_or_enforced(monkeypatch):
+    import os
+
+    from hinfnn.robot.realtime import realtime
+
+    def refuse(*_):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    with realtime("auto") as how:
+        assert not how.realtime and "Operation not permitted" in how.note and "rtprio" in how.note
+    with pytest.raises(H.SimulationError, match="enforce.*Operation not permitted"), realtime("enforce"):
+        pass
+    for bad, key in ((dict(mode="fifo"), "realtime"), (dict(cpu=10_000), "cpu"), (dict(cpu=True), "cpu"),
+                     (dict(priority=0), "priority")):
+        with pytest.raises(ConfigError, match=key), realtime(**bad):
+            pass
+
+
 def test_retract_moves_the_tool_against_the_last_force():
     J = np.array([[1.0, 0.5], [0.0, 1.0]])
     dq = S.retract_step(J, np.array([0.0, -20.0]), 0.02)  # pressing down: back away upwards
@@ -279,6 +326,8 @@ def test_a_lock_step_virtual_run_is_the_simulation_and_loads(virtual_scenario, t
     np.testing.assert_array_equal(traj.tau, traj.tau_law)  # nothing clamped
     robot = json.loads((res.target / "metrics.json").read_text())["robot"]
     assert robot["cycles"] == 61 and robot["stop"] is None and robot["latency_s"]["p50"] > 0
+    assert robot["realtime"]["mode"] == "auto" and robot["realtime"]["policy"] in ("SCHED_FIFO", "SCHED_OTHER")
+    assert robot["device"]["server_realtime"]["policy"] == "SCHED_OTHER"  # lock-step: never real-time scheduled
     assert (res.target / "robot.log").read_text().strip().endswith("completed: reached t_final")
     columns = set(loaded.to_pandas().columns)  # exported with their units, as a simulation's fields
     assert {"cycle_latency [s]", "force_measured_1 [N]", "tau_law_2 [N·m]", "lam [N]"} <= columns
@@ -364,11 +413,11 @@ def test_cli_robot_run(tmp_path, capsys):
 
     out = tmp_path / "cli"
     sets = [a for o in VIRTUAL for a in ("--set", o)]
-    code = cli.main(["robot", "run", "paper", "--out", str(out), "--no-figures", *sets,
+    code = cli.main(["robot", "run", "paper", "--out", str(out), "--no-figures", "--scheduling", "off", *sets,
                      "--set", "simulation.t_final=0.02"])
     text = capsys.readouterr()
     assert code in (0, 1), text.err  # 1: a stop by the safety layer under this machine's load (a result, not an error)
-    assert "loop:" in text.out and "latency p50" in text.out
+    assert "loop:" in text.out and "latency p50" in text.out and "loop thread: SCHED_OTHER" in text.out
     assert H.load(out).trajectories["hinf_nn"].arrays["cycle_latency"].size >= 1
     code = cli.main(["robot", "run", "paper", "--out", str(tmp_path / "bad"), "--set", "simulation.control=sampled",
                      "--set", "controller.kind=hinf_nn"])

@@ -151,6 +151,12 @@ def _parser() -> argparse.ArgumentParser:
                          "franka: a Franka (or franka-sim) through libfranka's pylibfranka at --host (docs/robot.md)")
     rr.add_argument("--host", default="127.0.0.1", metavar="ADDRESS",
                     help="the Franka's address for --robot franka (default: 127.0.0.1, franka-sim on this machine)")
+    rr.add_argument("--scheduling", choices=("auto", "enforce", "off"), default="auto",
+                    help="the loop thread's real-time scheduling (docs/robot.md): auto: SCHED_FIFO where this process "
+                         "may (root, CAP_SYS_NICE or an rtprio limit), else the ordinary policy (default); enforce: "
+                         "SCHED_FIFO or an error before the robot starts (libfranka's default); off: ordinary")
+    rr.add_argument("--cpu", type=int, default=None, metavar="N",
+                    help="run the loop's thread on CPU N only while it runs (default: any)")
     rr.add_argument("--out", default=None, metavar="DIR",
                     help="output folder (default: results/robots/<scenario name>-<UTC time>)")
     rr.add_argument("--no-figures", dest="figures", action="store_false", help="write no figures")

@@ -17,7 +17,8 @@ def main(args) -> int:
         return 2
     sc = Scenario.load(args.scenario, args.overrides)
     res = run_robot(sc, robot=args.robot, out=args.out, force=args.force, command=command_line(args), log=log_stderr,
-                    figures=args.figures, host=args.host)  # no printing inside the loop: the events are in robot.log
+                    figures=args.figures, host=args.host, scheduling=args.scheduling,
+                    cpu=args.cpu)  # no printing inside the loop: the events are in robot.log
     doc, target, s = res.doc, res.target, res.doc["robot"]
     if not args.quiet:
         from ..report.markdown import metrics_table
@@ -27,6 +28,8 @@ def main(args) -> int:
         print(f"loop: {s['cycles']} cycles at {1e3 * s['period']:g} ms; latency p50 {1e6 * lat['p50']:.0f} µs, "
               f"p99 {1e6 * lat['p99']:.0f} µs, max {1e6 * lat['max']:.0f} µs; late cycles {s['late_cycles']} "
               f"({s['late_fraction']:.2%}, longest run {s['longest_late_run']}); rejected readings {s['rejected']}")
+        if res.log.scheduling is not None:
+            print(f"loop thread: {res.log.scheduling.line()}")
         pngs = ", *.png" if args.figures else ""
         print(f"results: {target}/ (metrics.json, trajectory.npz, scenario.toml, robot.log{pngs})")
     failed = [r for r in doc["runs"] if r["status"] != "ok"]

@@ -8,7 +8,9 @@ and a :class:`VirtualRobot` (docs/robot.md).
 * :class:`VirtualRobot`, :class:`Fault` — the scenario's MuJoCo plant in its own process, in real
   time, with faults to inject;
 * :class:`FrankaRobot` — a Franka through libfranka's ``pylibfranka`` (imported when it starts);
-* :class:`MomentumObserver` — the contact force from q, q̇ and the torques, without a force sensor.
+* :class:`MomentumObserver` — the contact force from q, q̇ and the torques, without a force sensor;
+* :mod:`hinfnn.robot.realtime` — the loop thread under the kernel's real-time policy (SCHED_FIFO)
+  while it runs (:class:`Scheduling`: how it was scheduled).
 """
 
 from .base import Reading, Robot
@@ -17,8 +19,9 @@ from .run import ROBOTS, RobotRunResult, run_robot, safety_limits
 from .safety import RULES, Event, SafetyLimits
 from .franka import FrankaRobot
 from .observer import MomentumObserver
+from .realtime import Scheduling
 from .virtual import FAULTS, Fault, VirtualRobot
 
 __all__ = ["Reading", "Robot", "LoopLog", "run_loop", "trajectory", "ROBOTS", "RobotRunResult", "run_robot",
            "safety_limits", "RULES", "Event", "SafetyLimits", "FAULTS", "Fault", "VirtualRobot", "FrankaRobot",
-           "MomentumObserver"]
+           "MomentumObserver", "Scheduling"]

@@ -32,6 +32,7 @@ from ..protocols import Measurement, needs_start
 from ..status import RunStatus
 from . import safety as S
 from .base import Robot
+from .realtime import Scheduling, realtime
 
 #: The loop's own recorded fields (beside those of the law; units in :data:`hinfnn.fields.FIELDS`).
 LOOP_FIELDS = ("force_measured", "tau_law", "t_reading", "cycle_latency", "cycle_lateness", "missed_ticks", "control_h",
@@ -47,7 +48,8 @@ class LoopLog:
     """What one loop run did, cycle by cycle (NumPy arrays after :func:`run_loop` returns), its
     events (:class:`~hinfnn.robot.safety.Event`, at most :data:`LOGGED_PER_RULE` of each rule),
     ``counts`` (every event by rule), the ``stop`` that ended it (None: it reached t_final) and the
-    robot's period."""
+    robot's period; ``scheduling``: how the loop's thread was scheduled
+    (:class:`~hinfnn.robot.realtime.Scheduling`)."""
 
     period: float
     rows: dict
@@ -55,6 +57,7 @@ class LoopLog:
     counts: dict
     stop: S.Event | None
     seconds: float = 0.0
+    scheduling: Scheduling | None = None
 
     def summary(self) -> dict:
         """Latency and lateness percentiles, late and rejected cycles, the events by rule: the
@@ -81,6 +84,7 @@ class LoopLog:
             "rejected": sum(k for rule, k in self.counts.items() if S.RULES[rule] == "reject"),
             "events": dict(self.counts),
             "stop": None if self.stop is None else self.stop.to_dict(),
+            "realtime": None if self.scheduling is None else self.scheduling.as_dict(),
         }
 
     def lines(self) -> list[str]:
@@ -106,33 +110,34 @@ def _runs(flags) -> list[int]:
 
 @contextlib.contextmanager
 def _no_collection():
-    """Python's cyclic garbage collector held off for the loop (a full collection can take
-    milliseconds: a late cycle): what exists is frozen first (collect before the robot starts:
-    :func:`hinfnn.robot.run.run_robot` does, a full collection of a large process takes tens of
-    milliseconds, which a started robot's watchdog counts), collection is re-enabled (if it was on)
-    when the loop ends, whatever ends it. The loop's own allocations are freed by reference counting
-    as usual."""
+    """Python's cyclic garbage collector held off for the loop (a full collection of a large process
+    takes milliseconds: a late cycle), re-enabled (if it was on) when the loop ends, whatever ends it.
+    Collect before the robot starts (:func:`hinfnn.robot.run.run_robot` does: a full collection
+    of a large process takes tens of milliseconds, which a started robot's watchdog counts). The
+    loop's own allocations are freed by reference counting as usual."""
     was = gc.isenabled()
-    gc.freeze()
     gc.disable()
     try:
         yield
     finally:
-        gc.unfreeze()
         if was:
             gc.enable()
 
 
 def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, gravity, point_jacobian,
-             log=None) -> LoopLog:
+             log=None, scheduling: str = "off", cpu: int | None = None) -> LoopLog:
     """Drive ``robot`` with ``sampled`` (a :class:`hinfnn.controllers.SampledController`, its
     compiled update warmed up before the call) until the robot's time reaches ``t_final`` or the
     safety layer stops it. ``gravity(q)``, ``point_jacobian(q)``: the nominal arm's G and tool-point
     Jacobian as NumPy (the hold and the retraction). ``log(line)``: each event as it fires. The
     robot must be started; the loop does not stop it. Python's cyclic garbage collector is held
-    off while the loop runs (:func:`_no_collection`; collect before starting the robot)."""
-    with _no_collection():
-        return _drive(robot, sampled, limits, t_final=t_final, gravity=gravity, point_jacobian=point_jacobian, log=log)
+    off while the loop runs (:func:`_no_collection`; collect before starting the robot). ``scheduling``
+    (:data:`hinfnn.robot.realtime.MODES`) and ``cpu``: the calling thread's real-time scheduling while
+    the loop runs (:func:`hinfnn.robot.realtime.realtime`), recorded as the log's ``scheduling``."""
+    with realtime(scheduling, cpu=cpu) as how, _no_collection():
+        out = _drive(robot, sampled, limits, t_final=t_final, gravity=gravity, point_jacobian=point_jacobian, log=log)
+    out.scheduling = how
+    return out
 
 
 def _drive(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, gravity, point_jacobian,

@@ -12,6 +12,7 @@ import numpy as np
 from ..errors import ConfigError
 from .base import require_sampled
 from .loop import run_loop, trajectory
+from .realtime import check_cpu, check_mode
 from .safety import SafetyLimits
 
 #: The robots ``hinfnn robot run --robot`` knows.
@@ -63,13 +64,13 @@ def _single(sc):
     return sc.kinds[0]
 
 
-def make_robot(sc, robot: str, faults=(), host: str = "127.0.0.1"):
+def make_robot(sc, robot: str, faults=(), host: str = "127.0.0.1", scheduling: str = "auto"):
     """The robot named ``robot`` (:data:`ROBOTS`) for scenario ``sc`` (``host``: the Franka's
-    address)."""
+    address; ``scheduling``: the virtual robot's served clock's, :mod:`hinfnn.robot.realtime`)."""
     if robot == "virtual":
         from .virtual import VirtualRobot
 
-        return VirtualRobot(sc, faults=faults)
+        return VirtualRobot(sc, faults=faults, scheduling=scheduling)
     if robot == "franka":
         if faults:
             raise ConfigError("faults are injected in the virtual robot only", key="faults")
@@ -107,7 +108,8 @@ def prepared(sc):
 
 
 def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, command: str = "", log=print,
-              figures: bool = True, event_log=None, host: str = "127.0.0.1") -> RobotRunResult:
+              figures: bool = True, event_log=None, host: str = "127.0.0.1", scheduling: str = "auto",
+              cpu: int | None = None) -> RobotRunResult:
     """Run the scenario's one controller on ``robot`` (a :class:`~hinfnn.robot.Robot`, or a name of
     :data:`ROBOTS`; ``faults`` for the virtual one) for ``simulation.t_final`` s of robot time,
     through the safety layer, and write the result folder as ``hinfnn run`` does (reserved before
@@ -116,24 +118,29 @@ def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, 
     trajectory.npz, scenario.toml, robot.log (the events, one per line) and figures. A stop by the
     safety layer is a result (status ``diverged``, the rule in its reason), not an error.
     ``event_log(line)``: each safety event as it fires; ``host``: the Franka's address (``robot =
-    "franka"``). A robot with a ``report()`` method adds its dict as ``robot.device``."""
+    "franka"``). A robot with a ``report()`` method adds its dict as ``robot.device``. ``scheduling``
+    ("auto", "enforce", "off") and ``cpu``: the loop thread's real-time scheduling
+    (:func:`hinfnn.robot.realtime.realtime`; "auto": SCHED_FIFO where the process may), recorded as
+    ``robot.realtime``; the virtual robot's served clock is scheduled the same way."""
     from ..experiment import Outcome, cases, result_folder, write_result
     from ..io import atomic_write_text
     from ..metrics import compute_metrics
     from ..workflows.run import result_name
 
     _single(sc)
+    check_mode(scheduling, key="scheduling")
+    check_cpu(cpu)
     sc = for_the_robot(sc)
     case = cases(sc, tags={"robot": robot if isinstance(robot, str) else type(robot).__name__})[0]
     with result_folder(out, command="robot", name=result_name(sc), kind="run", force=force, log=log,
                        command_line=command) as written:
         sampled, limits, gravity, jacobian = prepared(sc)
-        bot = make_robot(sc, robot, faults, host) if isinstance(robot, str) else robot
+        bot = make_robot(sc, robot, faults, host, scheduling) if isinstance(robot, str) else robot
         gc.collect()  # before the robot starts: the loop holds the collector off (hinfnn.robot.loop)
         t0 = time.perf_counter()
         with bot:
             loop_log = run_loop(bot, sampled, limits, t_final=sc.simulation.t_final, gravity=gravity,
-                                point_jacobian=jacobian, log=event_log)
+                                point_jacobian=jacobian, log=event_log, scheduling=scheduling, cpu=cpu)
         traj = trajectory(loop_log, sampled, case.info())
         metrics = compute_metrics(traj)
         outcome = Outcome(cases=[case], trajectories={case.name: traj}, metrics={case.name: metrics},

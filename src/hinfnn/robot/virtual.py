@@ -38,6 +38,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, SimulationError
+from .realtime import check_mode
+from .realtime import realtime as scheduled
 from .base import Reading, Robot, require_sampled
 
 #: The fault kinds :class:`VirtualRobot` injects (``stall`` on the loop's side, the others in the server).
@@ -98,8 +100,11 @@ def _blocks(buf, n: int, d: int):
 
 def serve(config: dict) -> None:
     """The server process (``python -m hinfnn.robot._server``, its ``config`` pickled on stdin):
-    build the plant, say ``ready`` on stdout, wait for ``start`` on stdin, then step the plant in
-    real time until told to stop."""
+    build the plant, schedule its thread (``config["scheduling"]``, in real time only: :mod:`.realtime`),
+    say ``ready`` and how it is scheduled (JSON) on stdout, wait for ``start`` on stdin, then step the
+    plant in real time until told to stop."""
+    import contextlib
+    import json
     import sys
     from multiprocessing import resource_tracker, shared_memory
 
@@ -149,8 +154,14 @@ def serve(config: dict) -> None:
     except Exception as err:  # noqa: BLE001 - reported to the loop's process as one line
         say(f"error {type(err).__name__}: {' '.join(str(err).split())}")
         return
+    hold = contextlib.ExitStack()  # the process's thread stays scheduled so until the process ends
+    try:
+        how = hold.enter_context(scheduled(config["scheduling"] if realtime else "off"))
+    except SimulationError as err:
+        say(f"error {err}")
+        return
     S[0] = _READY
-    say("ready")
+    say("ready " + json.dumps(how.as_dict()))
     if sys.stdin.readline().strip() != "start":
         return
     fired = [False] * len(faults)
@@ -189,7 +200,6 @@ def serve(config: dict) -> None:
     S[0] = _RUNNING
     publish(0, state, 0)
     gc.collect()  # the served plant's clock must not stop for a collection (the loop's side does the same)
-    gc.freeze()
     gc.disable()
     while C[0] < 2 and S[0] == _RUNNING:  # the clock starts with the first torque (the arm held until then)
         time.sleep(1e-4)
@@ -240,15 +250,23 @@ class VirtualRobot(Robot):
     :meth:`stop`, when the loop's process ends, or at ``limit``. ``realtime=False``: lock-step, for
     tests of behaviour that must not depend on the machine's load: each tick waits for the torque
     of the previous reading (no late cycles; the same numbers as a simulation of the same job).
+    ``scheduling`` ("auto", "enforce", "off"): the served clock's thread under SCHED_FIFO in real
+    time (:mod:`hinfnn.robot.realtime`; a real robot's controller runs on its own real-time computer),
+    reported by :meth:`report`; lock-step runs are never real-time scheduled.
     """
 
-    def __init__(self, scenario, faults=(), limit: float | None = None, realtime: bool = True):
+    def __init__(self, scenario, faults=(), limit: float | None = None, realtime: bool = True,
+                 scheduling: str = "auto"):
         if scenario.plant.engine != "mujoco":
             raise ConfigError(f"the virtual robot serves the MuJoCo plant: set plant.engine = \"mujoco\", got "
                               f"{scenario.plant.engine!r}", key="plant.engine")
         require_sampled(scenario)
         self.scenario = scenario
         self.realtime = bool(realtime)
+        self.scheduling = check_mode(scheduling, key="scheduling")
+        #: How the server's clock thread is scheduled (:meth:`hinfnn.robot.realtime.Scheduling.as_dict`),
+        #: once started.
+        self.server_scheduling: dict | None = None
         self.period = float(scenario.simulation.control_period)
         self.faults = tuple(faults)
         for f in self.faults:
@@ -270,6 +288,7 @@ class VirtualRobot(Robot):
         """Start the server process, wait until its plant is built and its step compiled, start the
         clock."""
         import os
+        import json
         import pickle
         import subprocess
         import sys
@@ -289,15 +308,16 @@ class VirtualRobot(Robot):
                                       stdout=subprocess.PIPE, env=env)
         config = {"scenario": self.scenario.to_dict(), "source": self.scenario.source, "period": self.period,
                   "faults": self.faults, "limit": self.limit, "shm": self._shm.name, "n": n, "d": d,
-                  "realtime": self.realtime}
+                  "realtime": self.realtime, "scheduling": self.scheduling}
         self._proc.stdin.write(pickle.dumps(config))
         self._proc.stdin.flush()
         line = self._proc.stdout.readline().decode(errors="replace").strip()
-        if line != "ready":
+        if line.split(" ", 1)[0] != "ready":
             detail = line[len("error "):] if line.startswith("error ") else \
                 f"its process ended (exit code {self._proc.poll()})"
             self._end()
             raise SimulationError(f"the virtual robot could not start: {detail}")
+        self.server_scheduling = json.loads(line[len("ready"):] or "null")
         self._proc.stdin.write(b"start\n")
         self._proc.stdin.flush()
 
@@ -332,6 +352,12 @@ class VirtualRobot(Robot):
                 self._stalled[i] = True
                 time.sleep(f.duration)
         _publish(self._c, np.asarray(tau, dtype=float))
+
+    def report(self) -> dict:
+        """The served clock's side of the run (the result's ``robot.device``): how its thread was
+        scheduled (:class:`hinfnn.robot.realtime.Scheduling` as a dict; None before a start) and the
+        ticks at which it was itself a period or more behind."""
+        return {"robot": "virtual", "server_realtime": self.server_scheduling, "server_behind": self.server_behind}
 
     def stop(self) -> None:
         """Stop the server's clock and its process."""

@@ -1,0 +1,138 @@
+"""Real-time scheduling of the robot loop's thread (docs/robot.md, "Real-time scheduling").
+
+A 1-kHz loop on a general-purpose kernel is late when the scheduler gives its core to something
+else for more than the slack of one period. A robot's control process therefore runs its loop under
+the kernel's real-time policy ``SCHED_FIFO``: a runnable FIFO thread preempts every ordinary
+(``SCHED_OTHER``) thread at once and keeps its core until it blocks. libfranka does the same
+(``RealtimeConfig::kEnforce``, its default: the control thread at the highest FIFO priority, or an
+exception), and so does ros2_control's controller manager.
+
+:func:`realtime` sets it for the calling thread only, for the duration of a ``with`` block, and
+puts the thread's previous policy, priority and CPU set back afterwards, so a long-lived Python
+process (a notebook, a test run) is left as it was. Three modes (:data:`MODES`):
+
+* ``"auto"`` (the default of ``hinfnn robot run``): ``SCHED_FIFO`` at :data:`PRIORITY` where the
+  process may (root, ``CAP_SYS_NICE`` or an ``rtprio`` limit in ``/etc/security/limits.conf``),
+  otherwise the ordinary policy, with the reason recorded;
+* ``"enforce"``: ``SCHED_FIFO`` or a :class:`~hinfnn.errors.SimulationError` saying why, before the
+  robot starts (libfranka's ``kEnforce``);
+* ``"off"``: the ordinary policy.
+
+``cpu``: pin the thread to this CPU (``os.sched_setaffinity``) while it runs; None leaves its CPU
+set alone. The kernel's real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``, 95 % by
+default) still leaves the other threads 5 % of each core, so a loop that never blocks cannot freeze
+the machine. Memory is not locked (``mlockall``): the loop allocates nothing large once it runs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import os
+
+from ..errors import ConfigError, SimulationError
+
+#: The scheduling modes: "auto" (real time where permitted), "enforce" (real time or an error), "off".
+MODES = ("auto", "enforce", "off")
+#: The loop thread's SCHED_FIFO priority (1..99): above the kernel's threaded interrupt handlers' 50,
+#: below its own watchdog and migration threads' 99.
+PRIORITY = 80
+
+
+@dataclasses.dataclass(frozen=True)
+class Scheduling:
+    """How a loop thread was scheduled: ``policy`` ("SCHED_FIFO" or "SCHED_OTHER"), ``priority``
+    (0 for SCHED_OTHER), ``cpus`` (the CPUs it could run on), ``mode`` (as asked) and ``note`` (why
+    it is not real time when it was asked for, else empty)."""
+
+    policy: str
+    priority: int
+    cpus: tuple[int, ...]
+    mode: str
+    note: str = ""
+
+    @property
+    def realtime(self) -> bool:
+        """Whether the thread ran under SCHED_FIFO."""
+        return self.policy == "SCHED_FIFO"
+
+    def as_dict(self) -> dict:
+        """JSON-ready fields (the run's ``robot.realtime`` in metrics.json)."""
+        return {"policy": self.policy, "priority": self.priority, "cpus": list(self.cpus), "mode": self.mode,
+                "note": self.note}
+
+    def line(self) -> str:
+        """One line for the log and the CLI."""
+        where = f" on CPU {','.join(map(str, self.cpus))}" if self.cpus else ""
+        what = f"{self.policy} priority {self.priority}" if self.realtime else self.policy
+        return f"{what}{where}" + (f" ({self.note})" if self.note else "")
+
+
+def check_mode(mode, key: str = "realtime") -> str:
+    """``mode`` if it is one of :data:`MODES`, else a ConfigError naming ``key``."""
+    if mode not in MODES:
+        raise ConfigError(f"must be one of {', '.join(map(repr, MODES))}, got {mode!r}", key=key)
+    return mode
+
+
+def check_cpu(cpu, key: str = "cpu") -> int | None:
+    """``cpu`` if it is None or a CPU this process may run on, else a ConfigError naming ``key``."""
+    if cpu is None:
+        return None
+    allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if isinstance(cpu, bool) or not isinstance(cpu, int) or (allowed and cpu not in allowed):
+        raise ConfigError(f"must be a CPU this process may run on ({', '.join(map(str, allowed)) or 'none known'}), "
+                          f"got {cpu!r}", key=key)
+    return cpu
+
+
+def _policy_name(policy: int) -> str:
+    return "SCHED_FIFO" if policy == getattr(os, "SCHED_FIFO", -1) else \
+        "SCHED_RR" if policy == getattr(os, "SCHED_RR", -1) else "SCHED_OTHER"
+
+
+def _cpus() -> tuple[int, ...]:
+    return tuple(sorted(os.sched_getaffinity(0))) if hasattr(os, "sched_getaffinity") else ()
+
+
+@contextlib.contextmanager
+def realtime(mode: str = "auto", priority: int = PRIORITY, cpu: int | None = None):
+    """The calling thread under SCHED_FIFO at ``priority`` (and on ``cpu``, if given) inside the
+    ``with`` block, as ``mode`` asks (:data:`MODES`); yields the :class:`Scheduling` it got. On
+    exit the thread's previous policy, priority and CPU set are restored, whatever ends the block.
+    ``mode = "enforce"`` raises :class:`~hinfnn.errors.SimulationError` when the kernel refuses."""
+    check_mode(mode)
+    check_cpu(cpu)
+    if not 1 <= int(priority) <= 99:
+        raise ConfigError(f"must be a SCHED_FIFO priority in 1..99, got {priority!r}", key="priority")
+    can = hasattr(os, "sched_setscheduler") and hasattr(os, "SCHED_FIFO")
+    old_affinity = _cpus() if cpu is not None and hasattr(os, "sched_setaffinity") else None
+    old = (os.sched_getscheduler(0), os.sched_getparam(0)) if can else None
+    note = ""
+    try:
+        if old_affinity is not None:
+            os.sched_setaffinity(0, {cpu})
+        if mode != "off":
+            if not can:
+                note = "this platform has no SCHED_FIFO"
+            else:
+                try:
+                    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
+                except OSError as err:
+                    note = (f"the kernel refused SCHED_FIFO ({err.strerror or err}): run as root, with CAP_SYS_NICE, or "
+                            "with an rtprio limit of at least the priority in /etc/security/limits.conf")
+            if note and mode == "enforce":
+                raise SimulationError(f"real-time scheduling was asked for (realtime = \"enforce\") but {note}")
+        policy = _policy_name(os.sched_getscheduler(0)) if can else "SCHED_OTHER"
+        prio = int(os.sched_getparam(0).sched_priority) if can else 0
+        yield Scheduling(policy=policy, priority=prio, cpus=_cpus(), mode=mode, note=note)
+    finally:
+        if old is not None:
+            with contextlib.suppress(OSError):
+                os.sched_setscheduler(0, old[0], old[1])
+        if old_affinity is not None:
+            with contextlib.suppress(OSError):
+                os.sched_setaffinity(0, set(old_affinity))
+
+
+__all__ = ["MODES", "PRIORITY", "Scheduling", "check_cpu", "check_mode", "realtime"]
