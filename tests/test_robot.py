@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import types
 
 import numpy as np
@@ -161,6 +162,12 @@ def test_real_time_scheduling_is_set_inside_and_restored_after():
         assert _thread_scheduling()[2] == {cpu} and how.cpus == (cpu,) and how.policy == "SCHED_OTHER"
         raise RuntimeError("inside")
     assert _thread_scheduling() == before
+    from hinfnn.robot.realtime import loop_cpu
+
+    assert loop_cpu(None, "auto") is None and loop_cpu(cpu, "off") == cpu
+    assert loop_cpu("auto", "auto") == (cpu if len(before[2]) >= 2 else None) and loop_cpu("auto", "off") is None
+    with realtime("off", cpu=set(before[2])) as how:
+        assert how.cpus == tuple(sorted(before[2]))
 
 
 def test_a_refused_real_time_scheduling_is_named_or_enforced(monkeypatch):
@@ -177,7 +184,7 @@ def test_a_refused_real_time_scheduling_is_named_or_enforced(monkeypatch):
     with pytest.raises(H.SimulationError, match="enforce.*Operation not permitted"), realtime("enforce"):
         pass
     for bad, key in ((dict(mode="fifo"), "realtime"), (dict(cpu=10_000), "cpu"), (dict(cpu=True), "cpu"),
-                     (dict(priority=0), "priority")):
+                     (dict(cpu=[]), "cpu"), (dict(priority=0), "priority")):
         with pytest.raises(ConfigError, match=key), realtime(**bad):
             pass
 
@@ -327,7 +334,9 @@ def test_a_lock_step_virtual_run_is_the_simulation_and_loads(virtual_scenario, t
     robot = json.loads((res.target / "metrics.json").read_text())["robot"]
     assert robot["cycles"] == 61 and robot["stop"] is None and robot["latency_s"]["p50"] > 0
     assert robot["realtime"]["mode"] == "auto" and robot["realtime"]["policy"] in ("SCHED_FIFO", "SCHED_OTHER")
-    assert robot["device"]["server_realtime"]["policy"] == "SCHED_OTHER"  # lock-step: never real-time scheduled
+    server = robot["device"]["server_realtime"]  # lock-step: never real-time scheduled nor pinned
+    assert server["policy"] == "SCHED_OTHER" and server["mode"] == "off"
+    assert len(server["cpus"]) == len(os.sched_getaffinity(0))
     assert (res.target / "robot.log").read_text().strip().endswith("completed: reached t_final")
     columns = set(loaded.to_pandas().columns)  # exported with their units, as a simulation's fields
     assert {"cycle_latency [s]", "force_measured_1 [N]", "tau_law_2 [N·m]", "lam [N]"} <= columns

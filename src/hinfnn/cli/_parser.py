@@ -91,6 +91,16 @@ exit codes:
 """
 
 
+def _cpu_arg(text: str):
+    """``--cpu``: "auto", "any" (None) or a CPU number."""
+    if text in ("auto", "any"):
+        return None if text == "any" else text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be auto, any or a CPU number, got {text!r}") from None
+
+
 @functools.cache
 def _parser() -> argparse.ArgumentParser:
     """The command line's parser, built once per process: it holds only constants (parsing does
@@ -155,8 +165,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="the loop thread's real-time scheduling (docs/robot.md): auto: SCHED_FIFO where this process "
                          "may (root, CAP_SYS_NICE or an rtprio limit), else the ordinary policy (default); enforce: "
                          "SCHED_FIFO or an error before the robot starts (libfranka's default); off: ordinary")
-    rr.add_argument("--cpu", type=int, default=None, metavar="N",
-                    help="run the loop's thread on CPU N only while it runs (default: any)")
+    rr.add_argument("--cpu", type=_cpu_arg, default="auto", metavar="N",
+                    help="run the loop's thread on CPU N only while it runs; auto (default): the last CPU where there "
+                         "are two or more and the loop is real-time scheduled (the virtual robot's clock on the "
+                         "others); any: no pinning")
     rr.add_argument("--out", default=None, metavar="DIR",
                     help="output folder (default: results/robots/<scenario name>-<UTC time>)")
     rr.add_argument("--no-figures", dest="figures", action="store_false", help="write no figures")

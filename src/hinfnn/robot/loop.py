@@ -125,7 +125,7 @@ def _no_collection():
 
 
 def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, gravity, point_jacobian,
-             log=None, scheduling: str = "off", cpu: int | None = None) -> LoopLog:
+             log=None, scheduling: str = "off", cpu=None) -> LoopLog:
     """Drive ``robot`` with ``sampled`` (a :class:`hinfnn.controllers.SampledController`, its
     compiled update warmed up before the call) until the robot's time reaches ``t_final`` or the
     safety layer stops it. ``gravity(q)``, ``point_jacobian(q)``: the nominal arm's G and tool-point

@@ -18,10 +18,13 @@ process (a notebook, a test run) is left as it was. Three modes (:data:`MODES`):
   robot starts (libfranka's ``kEnforce``);
 * ``"off"``: the ordinary policy.
 
-``cpu``: pin the thread to this CPU (``os.sched_setaffinity``) while it runs; None leaves its CPU
-set alone. The kernel's real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``, 95 % by
-default) still leaves the other threads 5 % of each core, so a loop that never blocks cannot freeze
-the machine. Memory is not locked (``mlockall``): the loop allocates nothing large once it runs.
+``cpu``: pin the thread to this CPU, or these CPUs (``os.sched_setaffinity``), while it runs; None
+leaves its CPU set alone. :func:`loop_cpu` resolves ``"auto"`` (the default of ``hinfnn robot
+run``): the process's last CPU where it has two or more and the loop is real-time scheduled, so that
+the loop's thread is not moved between cores nor queued behind another real-time thread (the virtual
+robot's served clock then runs on the other CPUs). The kernel's real-time throttling
+(``/proc/sys/kernel/sched_rt_runtime_us``, 95 % by default) still leaves the other threads 5 % of
+each core, so a loop that never blocks cannot freeze the machine. Memory is not locked (``mlockall``): the loop allocates nothing large once it runs.
 """
 
 from __future__ import annotations
@@ -75,15 +78,28 @@ def check_mode(mode, key: str = "realtime") -> str:
     return mode
 
 
-def check_cpu(cpu, key: str = "cpu") -> int | None:
-    """``cpu`` if it is None or a CPU this process may run on, else a ConfigError naming ``key``."""
-    if cpu is None:
-        return None
+def check_cpu(cpu, key: str = "cpu"):
+    """``cpu`` if it is None, ``"auto"``, a CPU this process may run on or a non-empty collection of
+    them (as a frozenset), else a ConfigError naming ``key``."""
+    if cpu is None or cpu == "auto":
+        return cpu
     allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-    if isinstance(cpu, bool) or not isinstance(cpu, int) or (allowed and cpu not in allowed):
-        raise ConfigError(f"must be a CPU this process may run on ({', '.join(map(str, allowed)) or 'none known'}), "
-                          f"got {cpu!r}", key=key)
-    return cpu
+    many = isinstance(cpu, (set, frozenset, list, tuple))
+    items = list(cpu) if many else [cpu]
+    if not items or any(isinstance(c, bool) or not isinstance(c, int) or (allowed and c not in allowed) for c in items):
+        raise ConfigError(f"must be \"auto\", None or CPUs this process may run on "
+                          f"({', '.join(map(str, allowed)) or 'none known'}), got {cpu!r}", key=key)
+    return frozenset(items) if many else cpu
+
+
+def loop_cpu(cpu, mode: str) -> int | None:
+    """The loop thread's CPU: ``cpu`` as given (None: any), or for ``"auto"`` the last CPU this
+    process may run on when it may run on two or more and ``mode`` is not "off" (else None)."""
+    cpu = check_cpu(cpu)
+    if cpu != "auto":
+        return cpu
+    cpus = _cpus()
+    return cpus[-1] if mode != "off" and len(cpus) >= 2 else None
 
 
 def _policy_name(policy: int) -> str:
@@ -96,13 +112,14 @@ def _cpus() -> tuple[int, ...]:
 
 
 @contextlib.contextmanager
-def realtime(mode: str = "auto", priority: int = PRIORITY, cpu: int | None = None):
+def realtime(mode: str = "auto", priority: int = PRIORITY, cpu=None):
     """The calling thread under SCHED_FIFO at ``priority`` (and on ``cpu``, if given) inside the
-    ``with`` block, as ``mode`` asks (:data:`MODES`); yields the :class:`Scheduling` it got. On
+    ``with`` block, as ``mode`` asks (:data:`MODES`; ``cpu``: a CPU or a collection of CPUs, or
+    "auto": :func:`loop_cpu`); yields the :class:`Scheduling` it got. On
     exit the thread's previous policy, priority and CPU set are restored, whatever ends the block.
     ``mode = "enforce"`` raises :class:`~hinfnn.errors.SimulationError` when the kernel refuses."""
     check_mode(mode)
-    check_cpu(cpu)
+    cpu = loop_cpu(cpu, mode)
     if not 1 <= int(priority) <= 99:
         raise ConfigError(f"must be a SCHED_FIFO priority in 1..99, got {priority!r}", key="priority")
     can = hasattr(os, "sched_setscheduler") and hasattr(os, "SCHED_FIFO")
@@ -111,7 +128,7 @@ def realtime(mode: str = "auto", priority: int = PRIORITY, cpu: int | None = Non
     note = ""
     try:
         if old_affinity is not None:
-            os.sched_setaffinity(0, {cpu})
+            os.sched_setaffinity(0, set(cpu) if isinstance(cpu, frozenset) else {cpu})
         if mode != "off":
             if not can:
                 note = "this platform has no SCHED_FIFO"
@@ -119,8 +136,9 @@ def realtime(mode: str = "auto", priority: int = PRIORITY, cpu: int | None = Non
                 try:
                     os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
                 except OSError as err:
-                    note = (f"the kernel refused SCHED_FIFO ({err.strerror or err}): run as root, with CAP_SYS_NICE, or "
-                            "with an rtprio limit of at least the priority in /etc/security/limits.conf")
+                    note = (f"the kernel refused SCHED_FIFO ({err.strerror or err}): run as root, with "
+                            "CAP_SYS_NICE, or with an rtprio limit of at least the priority in "
+                            "/etc/security/limits.conf")
             if note and mode == "enforce":
                 raise SimulationError(f"real-time scheduling was asked for (realtime = \"enforce\") but {note}")
         policy = _policy_name(os.sched_getscheduler(0)) if can else "SCHED_OTHER"
@@ -135,4 +153,4 @@ def realtime(mode: str = "auto", priority: int = PRIORITY, cpu: int | None = Non
                 os.sched_setaffinity(0, set(old_affinity))
 
 
-__all__ = ["MODES", "PRIORITY", "Scheduling", "check_cpu", "check_mode", "realtime"]
+__all__ = ["MODES", "PRIORITY", "Scheduling", "check_cpu", "check_mode", "loop_cpu", "realtime"]

@@ -12,7 +12,7 @@ import numpy as np
 from ..errors import ConfigError
 from .base import require_sampled
 from .loop import run_loop, trajectory
-from .realtime import check_cpu, check_mode
+from .realtime import check_mode, loop_cpu
 from .safety import SafetyLimits
 
 #: The robots ``hinfnn robot run --robot`` knows.
@@ -64,13 +64,18 @@ def _single(sc):
     return sc.kinds[0]
 
 
-def make_robot(sc, robot: str, faults=(), host: str = "127.0.0.1", scheduling: str = "auto"):
+def make_robot(sc, robot: str, faults=(), host: str = "127.0.0.1", scheduling: str = "auto",
+               loop_cpu: int | None = None):
     """The robot named ``robot`` (:data:`ROBOTS`) for scenario ``sc`` (``host``: the Franka's
-    address; ``scheduling``: the virtual robot's served clock's, :mod:`hinfnn.robot.realtime`)."""
+    address; ``scheduling``: the virtual robot's served clock's, :mod:`hinfnn.robot.realtime`, on
+    every CPU but ``loop_cpu``, the loop's, when that is given)."""
     if robot == "virtual":
+        import os
+
         from .virtual import VirtualRobot
 
-        return VirtualRobot(sc, faults=faults, scheduling=scheduling)
+        others = set(os.sched_getaffinity(0)) - {loop_cpu} if loop_cpu is not None else set()
+        return VirtualRobot(sc, faults=faults, scheduling=scheduling, cpus=others or None)
     if robot == "franka":
         if faults:
             raise ConfigError("faults are injected in the virtual robot only", key="faults")
@@ -109,7 +114,7 @@ def prepared(sc):
 
 def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, command: str = "", log=print,
               figures: bool = True, event_log=None, host: str = "127.0.0.1", scheduling: str = "auto",
-              cpu: int | None = None) -> RobotRunResult:
+              cpu="auto") -> RobotRunResult:
     """Run the scenario's one controller on ``robot`` (a :class:`~hinfnn.robot.Robot`, or a name of
     :data:`ROBOTS`; ``faults`` for the virtual one) for ``simulation.t_final`` s of robot time,
     through the safety layer, and write the result folder as ``hinfnn run`` does (reserved before
@@ -120,8 +125,10 @@ def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, 
     ``event_log(line)``: each safety event as it fires; ``host``: the Franka's address (``robot =
     "franka"``). A robot with a ``report()`` method adds its dict as ``robot.device``. ``scheduling``
     ("auto", "enforce", "off") and ``cpu``: the loop thread's real-time scheduling
-    (:func:`hinfnn.robot.realtime.realtime`; "auto": SCHED_FIFO where the process may), recorded as
-    ``robot.realtime``; the virtual robot's served clock is scheduled the same way."""
+    (:func:`hinfnn.robot.realtime.realtime`; "auto": SCHED_FIFO where the process may) and CPU
+    (None: any; "auto": the last of two or more, :func:`hinfnn.robot.realtime.loop_cpu`), recorded
+    as ``robot.realtime``; the virtual robot's served clock is scheduled the same way, on the other
+    CPUs."""
     from ..experiment import Outcome, cases, result_folder, write_result
     from ..io import atomic_write_text
     from ..metrics import compute_metrics
@@ -129,13 +136,13 @@ def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, 
 
     _single(sc)
     check_mode(scheduling, key="scheduling")
-    check_cpu(cpu)
+    cpu = loop_cpu(cpu, scheduling)
     sc = for_the_robot(sc)
     case = cases(sc, tags={"robot": robot if isinstance(robot, str) else type(robot).__name__})[0]
     with result_folder(out, command="robot", name=result_name(sc), kind="run", force=force, log=log,
                        command_line=command) as written:
         sampled, limits, gravity, jacobian = prepared(sc)
-        bot = make_robot(sc, robot, faults, host, scheduling) if isinstance(robot, str) else robot
+        bot = make_robot(sc, robot, faults, host, scheduling, cpu) if isinstance(robot, str) else robot
         gc.collect()  # before the robot starts: the loop holds the collector off (hinfnn.robot.loop)
         t0 = time.perf_counter()
         with bot:

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, SimulationError
-from .realtime import check_mode
+from .realtime import check_cpu, check_mode
 from .realtime import realtime as scheduled
 from .base import Reading, Robot, require_sampled
 
@@ -156,7 +156,8 @@ def serve(config: dict) -> None:
         return
     hold = contextlib.ExitStack()  # the process's thread stays scheduled so until the process ends
     try:
-        how = hold.enter_context(scheduled(config["scheduling"] if realtime else "off"))
+        how = hold.enter_context(scheduled(config["scheduling"] if realtime else "off",
+                                           cpu=None if not realtime or config["cpus"] is None else set(config["cpus"])))
     except SimulationError as err:
         say(f"error {err}")
         return
@@ -252,11 +253,12 @@ class VirtualRobot(Robot):
     of the previous reading (no late cycles; the same numbers as a simulation of the same job).
     ``scheduling`` ("auto", "enforce", "off"): the served clock's thread under SCHED_FIFO in real
     time (:mod:`hinfnn.robot.realtime`; a real robot's controller runs on its own real-time computer),
-    reported by :meth:`report`; lock-step runs are never real-time scheduled.
+    on ``cpus`` (a collection of CPUs; None: any), reported by :meth:`report`; lock-step runs are never
+    real-time scheduled nor pinned.
     """
 
     def __init__(self, scenario, faults=(), limit: float | None = None, realtime: bool = True,
-                 scheduling: str = "auto"):
+                 scheduling: str = "auto", cpus=None):
         if scenario.plant.engine != "mujoco":
             raise ConfigError(f"the virtual robot serves the MuJoCo plant: set plant.engine = \"mujoco\", got "
                               f"{scenario.plant.engine!r}", key="plant.engine")
@@ -264,6 +266,7 @@ class VirtualRobot(Robot):
         self.scenario = scenario
         self.realtime = bool(realtime)
         self.scheduling = check_mode(scheduling, key="scheduling")
+        self.cpus = check_cpu(None if cpus is None else frozenset(cpus), key="cpus")
         #: How the server's clock thread is scheduled (:meth:`hinfnn.robot.realtime.Scheduling.as_dict`),
         #: once started.
         self.server_scheduling: dict | None = None
@@ -308,7 +311,8 @@ class VirtualRobot(Robot):
                                       stdout=subprocess.PIPE, env=env)
         config = {"scenario": self.scenario.to_dict(), "source": self.scenario.source, "period": self.period,
                   "faults": self.faults, "limit": self.limit, "shm": self._shm.name, "n": n, "d": d,
-                  "realtime": self.realtime, "scheduling": self.scheduling}
+                  "realtime": self.realtime, "scheduling": self.scheduling,
+                  "cpus": None if self.cpus is None else sorted(self.cpus)}
         self._proc.stdin.write(pickle.dumps(config))
         self._proc.stdin.flush()
         line = self._proc.stdout.readline().decode(errors="replace").strip()
