@@ -27,7 +27,8 @@ def main(args) -> int:
         lat, late = s["latency_s"], s["lateness_s"]
         print(f"loop: {s['cycles']} cycles at {1e3 * s['period']:g} ms; latency p50 {1e6 * lat['p50']:.0f} µs, "
               f"p99 {1e6 * lat['p99']:.0f} µs, max {1e6 * lat['max']:.0f} µs; late cycles {s['late_cycles']} "
-              f"({s['late_fraction']:.2%}, longest run {s['longest_late_run']}); rejected readings {s['rejected']}")
+              f"({s['late_fraction']:.2%}, longest run {s['longest_late_run']}); ticks the robot held the previous "
+              f"torque {s['missed_ticks']} ({s['missed_tick_fraction']:.2%}); rejected readings {s['rejected']}")
         if res.log.scheduling is not None:
             print(f"loop thread: {res.log.scheduling.line()}")
         pngs = ", *.png" if args.figures else ""

@@ -60,8 +60,9 @@ class LoopLog:
     scheduling: Scheduling | None = None
 
     def summary(self) -> dict:
-        """Latency and lateness percentiles, late and rejected cycles, the events by rule: the
-        ``robot`` entry of metrics.json."""
+        """Latency and lateness percentiles, late and rejected cycles, the ticks at which the robot
+        held the previous torque (as the robot reports them: ``missed_ticks``), the events by rule:
+        the ``robot`` entry of metrics.json."""
         lat = np.asarray(self.rows["cycle_latency"])
         late = np.asarray(self.rows["cycle_lateness"])
         missed = np.asarray(self.rows["missed_ticks"])
@@ -81,6 +82,8 @@ class LoopLog:
             "late_fraction": float(np.mean(late > 0)) if late.size else 0.0,
             "longest_late_run": int(max(runs, default=0)),
             "max_missed_in_a_row": int(np.max(missed)) if missed.size else 0,
+            "missed_ticks": int(np.sum(missed > 0)),
+            "missed_tick_fraction": float(np.mean(missed > 0)) if missed.size else 0.0,
             "rejected": sum(k for rule, k in self.counts.items() if S.RULES[rule] == "reject"),
             "events": dict(self.counts),
             "stop": None if self.stop is None else self.stop.to_dict(),

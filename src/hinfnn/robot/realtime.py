@@ -24,7 +24,8 @@ run``): the process's last CPU where it has two or more and the loop is real-tim
 the loop's thread is not moved between cores nor queued behind another real-time thread (the virtual
 robot's served clock then runs on the other CPUs). The kernel's real-time throttling
 (``/proc/sys/kernel/sched_rt_runtime_us``, 95 % by default) still leaves the other threads 5 % of
-each core, so a loop that never blocks cannot freeze the machine. Memory is not locked (``mlockall``): the loop allocates nothing large once it runs.
+each core, so a loop that never blocks cannot freeze the machine. Memory is not locked
+(``mlockall``): the loop allocates nothing large once it runs.
 """
 
 from __future__ import annotations

@@ -12,8 +12,12 @@ joints' friction. The loop and the server share two small blocks of memory (a re
 a command, each behind a sequence counter): the loop reaches the plant only through the
 :class:`~hinfnn.robot.Robot` interface, so the timing, the jitter and the late cycles are real.
 A tick at which no fresh torque has arrived since the previous one holds the old torque again and
-counts as missed (:attr:`~hinfnn.robot.Reading.missed`: missed ticks in a row). A server held up
-by its own machine for more than half a period moves its clock on by the delay (counted in
+counts as missed (:attr:`~hinfnn.robot.Reading.missed`: missed ticks in a row). In real time a
+reading is stamped (:attr:`~hinfnn.robot.Reading.wall`) with the tick whose torque made it, so the
+torque for it is due one period after that stamp and the loop's lateness is against the robot's next
+tick; the server steps the plant after the tick, so the loop has a period less that step's time to
+answer. The server runs every compiled call on its own thread (JAX's CPU async dispatch off). A
+server held up by its own machine for more than half a period moves its clock on by the delay (counted in
 :attr:`VirtualRobot.server_behind`) rather than stepping the plant several times in a row with a
 stale torque: a real robot's clock never lags, so the lateness a run sees is the loop's own.
 
@@ -123,7 +127,7 @@ def serve(config: dict) -> None:
         import hinfnn
         from hinfnn.scenario import Scenario
 
-        hinfnn.configure()
+        hinfnn.configure(async_dispatch=False)  # every compiled call on this (real-time) thread
         sc = Scenario.from_dict(config["scenario"], source=config["source"], check=False)
         setup = sc.build()
         plant = setup.plant
@@ -170,7 +174,7 @@ def serve(config: dict) -> None:
     if sensor is None:
         sensed = None
 
-    def publish(k, state, missed):
+    def publish(k, state, missed, tick=None):
         nonlocal prev, sensed
         t = k * period
         reading = state
@@ -195,7 +199,7 @@ def serve(config: dict) -> None:
                 q[f.joint] = upper[f.joint] - f.value
             elif f.kind == "time_back":
                 t = t - f.value
-        prev = np.concatenate([[t, time.perf_counter(), float(missed)], q, qd, force])
+        prev = np.concatenate([[t, time.perf_counter() if tick is None else tick, float(missed)], q, qd, force])
         _publish(R, prev)
 
     S[0] = _RUNNING
@@ -232,7 +236,9 @@ def serve(config: dict) -> None:
             applied, drive = actuate(drive, applied, k == 0, state.qd)
         state = step(k * period, state, drive)
         k += 1
-        publish(k, state, missed)
+        # in real time the reading is stamped with its tick (the torque for it is due one period later),
+        # not with when the step that made it ended: the loop's lateness is against the robot's next tick
+        publish(k, state, missed, t0 + k * period if realtime else None)
     S[1] = behind
     S[0] = _ENDED
     del R, C, S
