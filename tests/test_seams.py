@@ -260,7 +260,7 @@ def _reach(graph, start) -> set[str]:
 #: layers below, never above (the package root, which names everything lazily, excepted).
 LAYERS = [
     ("hinfnn._pytree", "hinfnn._config", "hinfnn._cache", "hinfnn._programs", "hinfnn._signals", "hinfnn._startup",
-     "hinfnn._loop", "hinfnn._linalg", "hinfnn.errors", "hinfnn.status", "hinfnn.fields", "hinfnn.protocols", "hinfnn.reference"),
+     "hinfnn._loop", "hinfnn._linalg", "hinfnn._declared", "hinfnn.errors", "hinfnn.status", "hinfnn.fields", "hinfnn.protocols", "hinfnn.reference"),
     ("hinfnn.model",),
     ("hinfnn.controllers",),
     ("hinfnn.plant",),
@@ -331,29 +331,58 @@ def test_the_graph_is_read_correctly():
 #: never the modules that define the functions it compiles.
 COMPILE_MACHINERY = ("hinfnn._loop", "hinfnn._programs", "hinfnn._cache")
 BELOW_THE_CALLERS = ("hinfnn.model", "hinfnn.controllers", "hinfnn.plant", "hinfnn.scenario")
-#: The modules below the callers that still import it, with what (issue 53): their design and setup
-#: programs are called from inside the same packages (the force-rate design, the robust laws'
-#: sizing, the start pose, ``check_start``), so the compiled form cannot be applied by a caller
-#: without passing it down. The list only shrinks: a module added to it, or one listed that no
-#: longer imports the machinery, fails the test.
-STILL_COMPILING = {
-    "hinfnn.controllers.law": ["hinfnn._programs"],
-    "hinfnn.controllers.kinds": ["hinfnn._programs"],
-    "hinfnn.controllers.force_rate": ["hinfnn._programs"],
-    "hinfnn.controllers.sampled": ["hinfnn._loop"],
-    "hinfnn.plant.rigid": ["hinfnn._programs"],
-}
 
 
 def test_no_compile_machinery_below_the_callers():
     """No module under model/, controllers/, plant/ or scenario/ imports the compile machinery
-    (``_loop``, ``_programs``, ``_cache``; anywhere in the file, function bodies included) beyond
-    :data:`STILL_COMPILING`; the scan sees such imports where they are (the simulator's)."""
+    (``_loop``, ``_programs``, ``_cache``; anywhere in the file, function bodies included): the
+    programs they call themselves are declared (:mod:`hinfnn._declared`) and compiled by
+    :mod:`hinfnn.compiled`. The scan sees such imports where they are (the simulator's, the
+    compiled entries')."""
     graph = _graph()
     found = {m: sorted(d for d in deps if d in COMPILE_MACHINERY) for m, deps in graph.items()
              if m.startswith(BELOW_THE_CALLERS)}
-    assert {m: d for m, d in found.items() if d} == STILL_COMPILING
+    assert {m: d for m, d in found.items() if d} == {}
     assert "hinfnn._programs" in graph["hinfnn.sim.simulate"] and "hinfnn._programs" in graph["hinfnn.compiled"]
+    assert "hinfnn._declared" in graph["hinfnn.plant.rigid"] and "hinfnn._declared" in graph["hinfnn.controllers.sampled"]
+    assert not graph["hinfnn._declared"], "the declarations import nothing of hinfnn (the caller layer by name, lazily)"
+
+
+def test_declared_programs_are_compiled_by_the_callers_as_their_kind_says():
+    """Every program declared below the callers (:mod:`hinfnn._declared`) is compiled by
+    :func:`hinfnn.compiled.compile_declared` into what the decorator of its kind makes: a setup
+    program a pair of ``KeptFunction`` under its name (the arm's compiled with the loop's XLA
+    options), a design program ``jit_by_joints``'s pair (the arm's at LLVM -O0); once per process;
+    and a declared program computes what its plain function computes."""
+    from hinfnn import compiled
+    from hinfnn._declared import DeclaredProgram, design_program, setup_program
+    from hinfnn._loop import ROLL_FROM_JOINTS, LoopOptions
+    from hinfnn._programs import ANALYSIS_OPTIONS, KeptFunction
+    from hinfnn.controllers import force_rate, kinds, law
+    from hinfnn.plant import rigid
+
+    loop = LoopOptions().compiler_options(ROLL_FROM_JOINTS)
+    declared = {"effective_mass": rigid._effective_mass, "initial_q_cartesian": rigid._initial_q_cartesian,
+                "nominal_jacobian_det": law._nominal_jacobian_det}
+    for name, program in declared.items():
+        assert isinstance(program, DeclaredProgram) and program.kind == "setup" and program.name == name
+        made = program.compiled
+        assert made is program.compiled  # once per process
+        assert isinstance(made.plain, KeptFunction) and isinstance(made.arm, KeptFunction)
+        assert made.plain.name == made.arm.name == name
+        assert made.plain.compiler_options is None and made.arm.compiler_options == loop
+    for program in (force_rate.pose_measures, force_rate._newton_path, kinds._observation_jacobians):
+        assert isinstance(program, DeclaredProgram) and program.kind == "design"
+        made = program.compiled
+        assert made.__wrapped__ is program.fn and made is program.compiled
+        assert callable(made.plain) and callable(made.arm) and made.plain is not made.arm
+    two = H.TwoLinkArm(m1=1.5, m2=1.0, l1=1.0, l2=1.0)
+    q = jnp.asarray([0.3, -1.2])
+    np.testing.assert_array_equal(law._nominal_jacobian_det(two, q), jax.jit(law._nominal_jacobian_det.fn)(two, q))
+    with pytest.raises(ValueError, match="kind"):
+        DeclaredProgram(lambda a: a, "loop")
+    assert setup_program("x")(lambda a: a).kind == "setup" and design_program(lambda a: a).kind == "design"
+    assert ANALYSIS_OPTIONS and compiled.loop_jit(lambda a: a, 2)(1.0) == 1.0
 
 
 def test_the_loop_formulation_is_a_value_the_objects_hold():

@@ -1,8 +1,16 @@
-"""The compiled entries of the programs that run once per process (setup and design), for their
-callers: the plain functions of ``controllers/`` (and the path check's own program) with hinfnn's
-compile decorators applied here, so that the modules that define them import none of the compile
-machinery (:mod:`hinfnn._programs`, :mod:`hinfnn._loop`, :mod:`hinfnn._cache`;
-docs/architecture.md, "Writing code the loop runs", rule 8).
+"""The compiled entries of the programs that run once per process (setup and design) and of the
+loop programs made outside the simulator, for their callers: the plain functions of ``model/``,
+``controllers/`` and ``plant/`` (and the path check's own program) with hinfnn's compile decorators
+applied here, so that the modules that define them import none of the compile machinery
+(:mod:`hinfnn._programs`, :mod:`hinfnn._loop`, :mod:`hinfnn._cache`; docs/architecture.md,
+"Writing code the loop runs", rule 8).
+
+* :func:`compile_declared`: the programs those modules declare and call themselves
+  (:mod:`hinfnn._declared`: the start pose's solve, the effective mass, ``check_start``'s det Ĵ,
+  the force-rate design's poses and measures, the robust laws' sizing), each compiled at its first
+  call.
+* :func:`loop_jit`: the robot loop's update (:class:`hinfnn.controllers.SampledController`),
+  compiled with the simulator's XLA options for the arm.
 
 * :func:`approach_pose`: :func:`hinfnn.controllers.job.approach_pose` as a design-time program
   (:func:`hinfnn._programs.jit_by_joints`), for :attr:`hinfnn.scenario.Setup.start_q`.
@@ -17,8 +25,26 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from ._loop import LoopOptions
 from ._programs import jit_by_joints, kept
 from .controllers import job
+
+
+def compile_declared(program):
+    """The compiled form of a program declared below the callers (:class:`hinfnn._declared.DeclaredProgram`):
+    a setup program as :func:`hinfnn._programs.kept` under its name, a design program as
+    :func:`hinfnn._programs.jit_by_joints` with its static arguments; the same programs as the
+    decorators applied where the function is defined."""
+    if program.kind == "setup":
+        return kept(program.name)(program.fn)
+    return jit_by_joints(program.fn, static_argnames=program.static_argnames)
+
+
+def loop_jit(fn, n_joints: int, **jit_kwargs):
+    """``jax.jit(fn, **jit_kwargs)`` compiled with the simulator's XLA options for an arm of
+    ``n_joints`` joints (:meth:`hinfnn._loop.LoopOptions.compiler_options`: XLA's older loop
+    emitters on arms of 3 joints or more, XLA's defaults for the two-link arm)."""
+    return jax.jit(fn, compiler_options=LoopOptions().compiler_options(n_joints), **jit_kwargs)
 
 
 def path_joints_plain(arm, surf, ref, t, q0):
@@ -46,4 +72,4 @@ path_joints = kept("path_joints")(path_joints_plain)
 #: :func:`hinfnn.controllers.job.approach_pose` compiled as a design-time program.
 approach_pose = jit_by_joints(job.approach_pose)
 
-__all__ = ["approach_pose", "path_joints", "path_joints_plain"]
+__all__ = ["approach_pose", "compile_declared", "loop_jit", "path_joints", "path_joints_plain"]

@@ -45,7 +45,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._programs import jit_by_joints
+from .._declared import design_program
 from .._pytree import value_key
 from ..errors import DesignError
 
@@ -117,7 +117,7 @@ def normal_lever(arm, surface, q):
     return jnp.sqrt(jnp.sum((N @ arm.J(q)) ** 2, axis=0))
 
 
-@jit_by_joints
+@design_program
 def pose_measures(arm, surface, q):
     """(smallest, largest normal mass, σ_min(Ĵ)) at the pose q: m_n twice for one constraint, the
     extreme eigenvalues of M_N for several; σ_min(Ĵ) the singularity guard's measure. One
@@ -187,7 +187,7 @@ def _solve_path(arm, surface, points, q_start, span):
     return [(float(u[0]) if span else u, q) for u, q in zip(points, qs)]
 
 
-@jit_by_joints
+@design_program
 def _newton_path(arm, surface, points, q_start):
     """Poses along the path by damped Newton (Levenberg–Marquardt) steps on h(q) = (u1, Ω(u1)),
     each started from the previous pose (steps of at most 0.5 rad, as the start-pose solver of the

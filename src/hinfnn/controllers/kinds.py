@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._programs import jit_by_joints
+from .._declared import design_program
 from .._pytree import Note
 from ..errors import DesignError
 from . import terms as T
@@ -67,7 +67,7 @@ ROBUST = ("none", "dead_zone", "sigma", "e_mod", "projection")
 GRAVITY_BOUND = 9.81
 
 
-@jit_by_joints
+@design_program
 def _observation_jacobians(ctrl, q, qd, force):
     """∂(u1, u̇1, λ)/∂(q, q̇, f) of the law's observation map (:meth:`ReducedOrderController.observe`)."""
     from ..protocols import Measurement

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _linalg as la
-from .._programs import kept
+from .._declared import setup_program
 from .._pytree import pytree_dataclass, static_field
 from ..model.reduced import reduced_model
 from ..protocols import Controller, ControllerOutput, Dissipation, Dissipative
@@ -517,7 +517,7 @@ def nominal_sigma_min(arm, q):
     return sigma_min(arm.J(q))
 
 
-@kept("nominal_jacobian_det")
+@setup_program("nominal_jacobian_det")
 def _nominal_jacobian_det(arm, q):
     """det Ĵ(q) as one compiled program (a new process lowers each eager operation separately)."""
     return jnp.linalg.det(arm.J(q))

@@ -83,8 +83,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._declared import loop_jit
 from .._linalg import Kernels
-from .._loop import LoopOptions
 from .._pytree import all_finite, pytree_dataclass
 from ..errors import HinfnnError
 from ..protocols import Measurement, needs_start
@@ -314,9 +314,10 @@ class SampledController:
 
     def _jit(self, fn, **jit_kwargs):
         """``jax.jit(fn)`` (a method of this wrapper) on this wrapper with its controller and
-        reference holding :attr:`kernels` (:meth:`hinfnn._linalg.Kernels.hold`), compiled with
-        the simulator's compile options (XLA's older loop emitters on arms, as the simulator's
-        programs); the paper's arm is traced and compiled as before."""
+        reference holding :attr:`kernels` (:meth:`hinfnn._linalg.Kernels.hold`), compiled by the
+        compiled layer with the simulator's compile options (:func:`hinfnn._declared.loop_jit`:
+        XLA's older loop emitters on arms, as the simulator's programs); the paper's arm is traced
+        and compiled as before."""
         self._check_parts()
         wrapper = self.kernels.hold(self)
         for name in ("_layout", "_treedef"):  # the state's layout, the same with any kernels: made once
@@ -326,7 +327,7 @@ class SampledController:
         @functools.wraps(fn)
         def traced(*args):
             return held(*args)
-        return jax.jit(traced, compiler_options=LoopOptions().compiler_options(self.n_joints), **jit_kwargs)
+        return loop_jit(traced, self.n_joints, **jit_kwargs)
 
     @functools.cached_property
     def _jit_update(self):

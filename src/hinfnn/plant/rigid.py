@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _linalg as la
-from .._programs import kept
+from .._declared import setup_program
 from .._pytree import pytree_dataclass
 from ..model.geometry import Geometry
 from ..protocols import ContinuousPlant, Measurement, PlantRecord
@@ -210,7 +210,7 @@ class RigidBodyPlant(ContinuousPlant):
         return _effective_mass(self, jnp.asarray(q, dtype=float))
 
 
-@kept("effective_mass")
+@setup_program("effective_mass")
 def _effective_mass(plant, q):
     if plant.cartesian:  # the tool point, its Jacobian and M alone (a URDF arm's by 3 × 3 products, UrdfChain.fk)
         arm = plant.arm
@@ -223,7 +223,7 @@ def _effective_mass(plant, q):
     return 1.0 / plant.kernels.mm(Jn, jnp.linalg.solve(M, Jn))
 
 
-@kept("initial_q_cartesian")
+@setup_program("initial_q_cartesian")
 def _initial_q_cartesian(plant, u1, q, lo, hi):
     """Damped Newton (Levenberg–Marquardt) on r(q) = (h(q)[:m] − u1, d(p(q))) = 0, projected onto
     the joint limits [lo, hi]: the guess is clipped into them, a joint at a limit that the step
