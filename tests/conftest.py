@@ -173,6 +173,21 @@ def pytest_runtest_setup(item):
                     pytrace=False)
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """Every compiled program the module's tests made is dropped after the module
+    (:func:`hinfnn.sim.simulate.release_programs`; the session's disk cache keeps them, so a later
+    module loads what it needs again instead of compiling it). XLA's CPU backend maps about three
+    regions of memory per compiled program and never unmaps them while the program is held: a worker
+    that kept the ~20,000 programs of a whole suite reached the kernel's 65,530 mappings per process
+    (vm.max_map_count), its next mmap failed, and it died with a segmentation fault while XLA raised
+    the error (seen in compiles and cache writes of unrelated tests)."""
+    yield
+    from hinfnn.sim.simulate import release_programs
+
+    release_programs()
+
+
 @pytest.fixture(scope="session")
 def cache():
     """The test session's compilation cache (above), for the subprocesses and Ray workers a test
