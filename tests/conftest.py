@@ -173,19 +173,38 @@ def pytest_runtest_setup(item):
                     pytrace=False)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _release_compiled_programs():
-    """Every compiled program the module's tests made is dropped after the module
-    (:func:`hinfnn.sim.simulate.release_programs`; the session's disk cache keeps them, so a later
-    module loads what it needs again instead of compiling it). XLA's CPU backend maps about three
-    regions of memory per compiled program and never unmaps them while the program is held: a worker
-    that kept the ~20,000 programs of a whole suite reached the kernel's 65,530 mappings per process
-    (vm.max_map_count), its next mmap failed, and it died with a segmentation fault while XLA raised
-    the error (seen in compiles and cache writes of unrelated tests)."""
-    yield
-    from hinfnn.sim.simulate import release_programs
+def _mappings() -> int:
+    """The memory mappings this process holds (Linux; 0 where /proc is not there)."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            return sum(1 for _ in f)
+    except OSError:
+        return 0
 
-    release_programs()
+
+#: Compiled programs are released when a test leaves the process with more memory mappings than
+#: this (the kernel's default limit, vm.max_map_count, is 65,530).
+MAPPINGS_RELEASE = 24_000
+_release_above = [MAPPINGS_RELEASE]
+
+
+@pytest.fixture(autouse=True)
+def _release_compiled_programs():
+    """Every compiled program held in memory is dropped after a test that leaves the worker with
+    more than :data:`MAPPINGS_RELEASE` memory mappings (:func:`hinfnn.sim.simulate.release_programs`;
+    the session's disk cache keeps them, so a later test loads what it needs again instead of
+    compiling it). XLA's CPU backend maps about three regions of memory per compiled program and
+    unmaps them only when the program is dropped: a worker that held the ~20,000 programs of a
+    whole suite reached the kernel's 65,530 mappings per process (vm.max_map_count), its next mmap
+    failed, and it died with a segmentation fault while XLA raised that error (the core of the
+    crashed worker had 65,508 segments; seen in compiles and cache writes of unrelated tests)."""
+    yield
+    n = _mappings()
+    if n > _release_above[0]:
+        from hinfnn.sim.simulate import release_programs
+
+        release_programs()
+        _release_above[0] = max(MAPPINGS_RELEASE, _mappings() + MAPPINGS_RELEASE // 2)  # what is still held stays
 
 
 @pytest.fixture(scope="session")
