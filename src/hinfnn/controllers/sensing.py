@@ -582,14 +582,10 @@ def period_cost(omega0: float, h: float, damping_ratio: float = 0.0):
     return E[:2, :2], E[:2, 2], 0.5 * (Q + Q.T)
 
 
-def lqg_cost(Phi, Gam, W, C, V, Qbar, Mx, Mu) -> float:
-    """The least stationary cost per sample E[(Mx x + Mu u)ᵀ Q̄ (Mx x + Mu u)] any causal law
-    u_k = f(y_0, …, y_k) holds on x_{k+1} = Φ x_k + Γ u_k + w_k, y_k = C x_k + n_k (w, n white,
-    Gaussian, covariances W and V): the LQG law (Riccati equations of the control, with the cross
-    term, and of the filter, the estimate x̂_{k|k} using y_k), its cost evaluated exactly on the
-    closed loop (true state and estimator) by the discrete Lyapunov equation. Optimal among all
-    laws, linear or not, for Gaussian noise (separation)."""
-    from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
+def lqg_law(Phi, Gam, W, C, V, Qbar, Mx, Mu):
+    """(K, L) of the LQG law of :func:`lqg_cost`'s problem: u_k = −K x̂_{k|k},
+    x̂_{k|k} = x̂_{k|k−1} + L (y_k − C x̂_{k|k−1}), x̂_{k+1|k} = Φ x̂_{k|k} + Γ u_k."""
+    from scipy.linalg import solve_discrete_are
 
     Phi, Gam, C = np.atleast_2d(Phi), np.asarray(Gam, float).reshape(Phi.shape[0], -1), np.atleast_2d(C)
     W, V = np.atleast_2d(W), np.atleast_2d(V)
@@ -600,6 +596,21 @@ def lqg_cost(Phi, Gam, W, C, V, Qbar, Mx, Mu) -> float:
     K = np.linalg.solve(R + Gam.T @ P @ Gam, Gam.T @ P @ Phi + S_.T)
     Pf = solve_discrete_are(Phi.T, C.T, W, V)
     L = Pf @ C.T @ np.linalg.inv(C @ Pf @ C.T + V)
+    return K, L
+
+
+def lqg_cost(Phi, Gam, W, C, V, Qbar, Mx, Mu) -> float:
+    """The least stationary cost per sample E[(Mx x + Mu u)ᵀ Q̄ (Mx x + Mu u)] any causal law
+    u_k = f(y_0, …, y_k) holds on x_{k+1} = Φ x_k + Γ u_k + w_k, y_k = C x_k + n_k (w, n white,
+    Gaussian, covariances W and V): the LQG law (Riccati equations of the control, with the cross
+    term, and of the filter, the estimate x̂_{k|k} using y_k), its cost evaluated exactly on the
+    closed loop (true state and estimator) by the discrete Lyapunov equation. Optimal among all
+    laws, linear or not, for Gaussian noise (separation)."""
+    from scipy.linalg import solve_discrete_lyapunov
+
+    Phi, Gam, C = np.atleast_2d(Phi), np.asarray(Gam, float).reshape(Phi.shape[0], -1), np.atleast_2d(C)
+    W, V = np.atleast_2d(W), np.atleast_2d(V)
+    K, L = lqg_law(Phi, Gam, W, C, V, Qbar, Mx, Mu)
     n, ny = Phi.shape[0], C.shape[0]
     I = np.eye(n)
     # closed loop on (x, x̂_{k|k−1}), driven by (w, n): u = −K[(I − LC) x̂⁻ + L(Cx + n)]
@@ -640,6 +651,14 @@ def force_error_bound(*, omega0: float, h: float, noise: float, delay: int, dist
             raise DesignError(f"must be finite and >= 0, got {v!r}", key=key, value=v, bound=0.0)
     if disturbance == 0.0:
         return 0.0
+    model = bound_model(omega0=omega0, h=h, noise=noise, delay=delay, disturbance=disturbance,
+                        disturbance_hz=disturbance_hz, damping_ratio=damping_ratio, rate_noise=rate_noise)
+    return math.sqrt(max(lqg_cost(*model), 0.0) / float(h))
+
+
+def bound_model(*, omega0, h, noise, delay, disturbance, disturbance_hz, damping_ratio=0.0, rate_noise=None):
+    """(Φ, Γ, W, C, V, Q̄, M_x, M_u): :func:`force_error_bound`'s problem as :func:`lqg_cost` takes it
+    (state (e, ė/ω0, d, the delay lines); the cost's argument (e, ė/ω0, the held force u + d))."""
     d = int(delay)
     rate = rate_noise is not None
     Phi2, Gam2, Qbar = period_cost(float(omega0), float(h), float(damping_ratio))
@@ -666,7 +685,7 @@ def force_error_bound(*, omega0: float, h: float, noise: float, delay: int, dist
     Mx, Mu = np.zeros((3, n)), np.zeros((3, 1))
     Mx[0, 0] = Mx[1, 1] = Mx[2, 2] = 1.0  # (e, ė/ω0, s = u + d)
     Mu[2, 0] = 1.0
-    return math.sqrt(max(lqg_cost(Phi, Gam, W, C, V, Qbar, Mx, Mu), 0.0) / float(h))
+    return Phi, Gam, W, C, V, Qbar, Mx, Mu
 
 
 def command_column(Phi, omega0_h: float, h: float, damping_ratio: float = 0.0) -> np.ndarray:
@@ -717,5 +736,5 @@ def fit_force_disturbance(error, h: float, Phi, g_d, *, band=(0.5, 200.0), corne
 
 __all__ = ["ForceFilter", "butterworth", "sensed_force_loop", "noise_gains", "command_rate", "loop_damping",
            "design_sensing", "SensingDesign", "max_command_rate", "predicted_torque_rate", "P99_GAUSS",
-           "period_cost", "lqg_cost", "force_error_bound",
+           "period_cost", "lqg_cost", "lqg_law", "force_error_bound", "bound_model",
            "command_column", "fit_force_disturbance"]
