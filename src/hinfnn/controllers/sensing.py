@@ -700,7 +700,7 @@ def fit_force_disturbance(error, h: float, Phi, g_d, *, band=(0.5, 200.0), corne
     samples of the TRUE force error at the period ``h`` of a run with an ideal sensor, ``Phi`` the
     loop's one-period map (:func:`sensed_force_loop` of the law that ran), ``g_d`` the
     disturbance's column (:func:`command_column`). For each corner on a grid (``corners``, Hz;
-    default 0.01 to 100 Hz) the spectrum the loop predicts, |e₀ᵀ(zI − Φ)⁻¹g_d|² times the
+    default 0.01 to 400 Hz) the spectrum the loop predicts, |e₀ᵀ(zI − Φ)⁻¹g_d|² times the
     disturbance's, is fitted to the measured one (Welch) in log over ``band`` (Hz): the corner of
     least log misfit is taken, and D so that the loop's predicted RMS error equals the measured."""
     from scipy import signal
@@ -714,7 +714,7 @@ def fit_force_disturbance(error, h: float, Phi, g_d, *, band=(0.5, 200.0), corne
     n = Phi.shape[0]
     z = np.exp(2j * np.pi * f * h)
     T = np.array([np.linalg.solve(zk * np.eye(n) - Phi, g_d)[0] for zk in z])
-    corners = np.geomspace(0.01, 100.0, 97) if corners is None else np.asarray(corners, dtype=float)
+    corners = np.geomspace(0.01, 400.0, 111) if corners is None else np.asarray(corners, dtype=float)
     best = None
     for fd in corners:
         a = math.exp(-2.0 * math.pi * fd * h)
