@@ -381,7 +381,7 @@ def test_an_arms_loop_keeps_its_state_in_blocks_and_equals_update():
     (XLA's CPU runtime then runs the kernels inline: median 141 → 68 µs per call, benchmarks/run.py
     ``ur5_latency_sync``). The packed
     program of the same controller, for contrast, holds about the whole packed state (338 values) in one
-    array)."""
+    array."""
     import math
     import re
 
