@@ -218,16 +218,27 @@ def test_a_noisy_late_sensor_on_the_ur5_drum_holds_within_the_torque_limits_only
 
 def test_design_command_prints_the_sensor_design_and_the_noise_gains(capsys):
     """`hinfnn design` with a declared sensor and the filter by design: the choice, the predicted
-    noise gains per N and the largest noise within the torque limits."""
+    noise gains per N and the largest noise within the torque limits; with a declared disturbance,
+    the least force error any law holds (force_error_bound at the stiffest contact and the worst
+    of the path's normal masses)."""
+    import re
+
     from hinfnn import cli
 
     assert cli.main(["design", "paper-stable", "--set", "controller.kind=hinf", "--set", "simulation.control=sampled",
                      "--set", "controller.force_rate.stiffness_max=1e5", "--set", "plant.sensor.force_noise=0.1",
-                     "--set", "plant.actuator.torque_limit=500", "--set", "controller.force_filter.order=design"]) == 0
+                     "--set", "plant.actuator.torque_limit=500", "--set", "controller.force_filter.order=design",
+                     "--set", "controller.sensor.disturbance=2", "--set", "controller.sensor.disturbance_hz=3"]) == 0
     out = capsys.readouterr().out
     assert "designed for the sensor (noise 0.1 N, delay 0 sample(s))" in out
     assert "noise gains with 0 sample(s) of delay at 100000 N/m: RMS torque per N of sensor noise" in out
     assert "3 sigma of torque within the limits up to sensor noise" in out and "declared noise 0.1 N" in out
+    line = next(x for x in out.splitlines() if "least force error any law holds at sensor noise 0.1 N" in x)
+    printed = float(re.search(r"([0-9.e+-]+) N at 100000 N/m", line).group(1))
+    lo, hi = (float(v) for v in re.search(r"m_n ([0-9.]+)\.\.([0-9.]+) kg", line).groups())
+    want = max(S.force_error_bound(omega0=math.sqrt(1e5 / m), h=1e-3, noise=0.1, delay=0, disturbance=2.0,
+                                   disturbance_hz=3.0) for m in (lo, hi))
+    assert printed == pytest.approx(want, rel=2e-3)
 
 
 # --- the force-rate term's rate from the joint rates (source "velocity") ----------------------------
