@@ -28,7 +28,10 @@ period h (gain κ/h on the noise). This module gives the controller
   command). None holding is a DesignError naming ``controller.sensor.delay``. Told the robot's
   torque-rate limit, it chooses among the candidates whose predicted 99th percentile of each
   joint's |Δτ|/h from the noise (:func:`predicted_torque_rate`) is within a share of it, and
-  reports plainly when none is.
+  reports plainly when none is;
+* :func:`force_error_bound`: the least RMS true force error ANY law holds on the same contact mode,
+  delay and noise against a declared force disturbance (the LQG law, :func:`lqg_cost`), and
+  :func:`fit_force_disturbance`, which identifies that disturbance from a run with an ideal sensor.
 
 Nothing here imports :mod:`hinfnn.plant`: the sensor the design assumes is the controller's own
 statement (``controller.sensor``), copied from the scenario's declared sensor by default.
