@@ -218,16 +218,27 @@ def test_a_noisy_late_sensor_on_the_ur5_drum_holds_within_the_torque_limits_only
 
 def test_design_command_prints_the_sensor_design_and_the_noise_gains(capsys):
     """`hinfnn design` with a declared sensor and the filter by design: the choice, the predicted
-    noise gains per N and the largest noise within the torque limits."""
+    noise gains per N and the largest noise within the torque limits; with a declared disturbance,
+    the least force error any law holds (force_error_bound at the stiffest contact and the worst
+    of the path's normal masses)."""
+    import re
+
     from hinfnn import cli
 
     assert cli.main(["design", "paper-stable", "--set", "controller.kind=hinf", "--set", "simulation.control=sampled",
                      "--set", "controller.force_rate.stiffness_max=1e5", "--set", "plant.sensor.force_noise=0.1",
-                     "--set", "plant.actuator.torque_limit=500", "--set", "controller.force_filter.order=design"]) == 0
+                     "--set", "plant.actuator.torque_limit=500", "--set", "controller.force_filter.order=design",
+                     "--set", "controller.sensor.disturbance=2", "--set", "controller.sensor.disturbance_hz=3"]) == 0
     out = capsys.readouterr().out
     assert "designed for the sensor (noise 0.1 N, delay 0 sample(s))" in out
     assert "noise gains with 0 sample(s) of delay at 100000 N/m: RMS torque per N of sensor noise" in out
     assert "3 sigma of torque within the limits up to sensor noise" in out and "declared noise 0.1 N" in out
+    line = next(x for x in out.splitlines() if "least force error any law holds at sensor noise 0.1 N" in x)
+    printed = float(re.search(r"([0-9.e+-]+) N at 100000 N/m", line).group(1))
+    lo, hi = (float(v) for v in re.search(r"m_n ([0-9.]+)\.\.([0-9.]+) kg", line).groups())
+    want = max(S.force_error_bound(omega0=math.sqrt(1e5 / m), h=1e-3, noise=0.1, delay=0, disturbance=2.0,
+                                   disturbance_hz=3.0) for m in (lo, hi))
+    assert printed == pytest.approx(want, rel=2e-3)
 
 
 # --- the force-rate term's rate from the joint rates (source "velocity") ----------------------------
@@ -475,3 +486,76 @@ def test_torque_rate_limit_key_declared_number_none_and_bad_values():
                         "controller.actuator.torque_rate_limit": "none"})
                 .build_controller().term(H.controllers.ForceRate).design)["sensing"]
     assert none["torque_rate_limit"] is None
+
+
+# --- the least force error any law holds (force_error_bound) ---------------------------------------
+
+def test_lqg_cost_of_a_scalar_plant_is_the_kalman_closed_form():
+    """x_{k+1} = a x + u + w, y = x + n, cost E[x²] (+ a vanishing control weight): the best law
+    cancels the estimate, u = −a x̂_{k|k}, so E[x²] = a² P_{k|k} + q with the Kalman filter's
+    stationary variances P⁻ = a²P + q, P = P⁻r/(P⁻ + r) (a quadratic)."""
+    a, q, r = 0.9, 0.3, 0.5
+    cost = S.lqg_cost(np.array([[a]]), np.array([[1.0]]), np.array([[q]]), np.array([[1.0]]), np.array([[r]]),
+                      np.diag([1.0, 1e-12]), np.array([[1.0], [0.0]]), np.array([[0.0], [1.0]]))
+    # P⁻ solves P⁻ = a² P⁻ r/(P⁻ + r) + q: P⁻² + (r − a²r − q) P⁻ − q r = 0
+    b = r - a * a * r - q
+    p_pred = 0.5 * (-b + math.sqrt(b * b + 4 * q * r))
+    p_filt = p_pred * r / (p_pred + r)
+    assert cost == pytest.approx(a * a * p_filt + q, rel=1e-8)
+
+
+def test_period_cost_is_the_integral_of_the_squared_force_error():
+    """Q̄ of period_cost against the quadrature of e(t)² over one held period (the exact solution
+    of the damped contact mode at 2001 points), for a random state and held force."""
+    from scipy.integrate import simpson
+    from scipy.linalg import expm
+
+    w0, h, zeta = 180.0, 1e-3, 0.2
+    Phi, Gam, Qbar = S.period_cost(w0, h, zeta)
+    A = np.array([[0.0, w0, 0.0], [-w0, -2 * zeta * w0, w0], [0.0, 0.0, 0.0]])
+    x = np.random.default_rng(1).normal(size=3)
+    ts = np.linspace(0.0, h, 2001)
+    e = np.array([(expm(A * t) @ x)[0] for t in ts])
+    assert float(x @ Qbar @ x) == pytest.approx(simpson(e * e, x=ts), rel=1e-8)
+    assert np.allclose(np.append(Phi @ x[:2] + Gam * x[2], x[2]), expm(A * h) @ x, atol=1e-13)
+
+
+def test_force_error_bound_is_what_the_lqg_law_holds_in_a_simulation():
+    """The bound (the LQG law on the UR5 table's contact, one sample of delay, σ = 1 N, a 2 N
+    disturbance at 2 Hz) against a seeded simulation of that law on the continuous contact mode
+    (20 sub-steps a period): the RMS true force error within 3 %. The bound grows with the noise
+    and with the delay, and is 0 with no disturbance (a law that does nothing holds e = 0)."""
+    w0, h = math.sqrt(1e5 / 4.26), 1e-3
+    kw = dict(omega0=w0, h=h, delay=1, disturbance=2.0, disturbance_hz=2.0)
+    bound = S.force_error_bound(noise=1.0, **kw)
+    Phi, Gam, W, C, V, Qbar, Mx, Mu = S.bound_model(noise=1.0, **kw)
+    K, L = S.lqg_law(Phi, Gam, W, C, V, Qbar, Mx, Mu)
+    P_sub, G_sub, _ = S.period_cost(w0, h / 20)
+    rng = np.random.default_rng(0)
+    n = Phi.shape[0]
+    x, xh = np.zeros(n), np.zeros(n)
+    acc, cnt = 0.0, 0
+    steps = 60_000
+    wd, vn = rng.normal(size=steps) * math.sqrt(W[2, 2]), rng.normal(size=steps) * math.sqrt(V[0, 0])
+    for k in range(steps):
+        y = C @ x + vn[k]
+        xf = xh + L @ (y - C @ xh)
+        u = float(-(K @ xf)[0])
+        s_ = u + x[2]
+        ev = x[:2].copy()
+        if k >= 2000:
+            for _ in range(20):  # the true error between the samples
+                acc += ev[0] ** 2
+                cnt += 1
+                ev = P_sub @ ev + G_sub * s_
+        nxt = Phi @ x + Gam[:, 0] * u
+        nxt[2] += wd[k]
+        x = nxt
+        xh = Phi @ xf + Gam[:, 0] * u
+    assert math.sqrt(acc / cnt) == pytest.approx(bound, rel=0.03)
+    assert S.force_error_bound(noise=2.0, **kw) > bound
+    assert S.force_error_bound(noise=1.0, **{**kw, "delay": 2}) > bound
+    assert S.force_error_bound(noise=1.0, **{**kw, "disturbance": 0.0}) == 0.0
+    with pytest.raises(DesignError) as err:
+        S.force_error_bound(noise=-1.0, **kw)
+    assert err.value.key == "sensor.noise"

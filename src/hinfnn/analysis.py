@@ -855,9 +855,30 @@ def design_report(scenario) -> dict:
                                         largest_sigma=largest_noise(nr["tau_per_n"], limits), **nr)
             modes["variants"][label] = entries
         d["contact_modes"] = modes
+        bound = _force_error_bound(scenario, path, stiffnesses, sigma, delay, period)
+        if bound is not None:
+            d["force_error_bound"] = bound
         out["kinds"][kind] = d
     out["path"] = path
     return out
+
+
+def _force_error_bound(scenario, path, stiffnesses, sigma, delay, period):
+    """The least RMS true force error any law holds at the sensor (σ, delay) against the disturbance
+    of ``controller.sensor`` (:func:`hinfnn.controllers.sensing.force_error_bound`), on the design's
+    linearised contact mode at each stiffness of ``stiffnesses``, the worst of the path's normal
+    masses; None without sampled control, a declared disturbance or the path's masses."""
+    from .controllers.sensing import force_error_bound
+
+    cs = scenario.controller.sensor
+    if period is None or not cs.disturbance or not path or "m_n_min" not in path:
+        return None
+    masses = (float(path["m_n_min"]), float(path["m_n_max"]))
+    at = {f"{k:g}": max(force_error_bound(omega0=math.sqrt(k / m), h=float(period), noise=sigma, delay=delay,
+                                          disturbance=float(cs.disturbance), disturbance_hz=float(cs.disturbance_hz))
+                        for m in masses) for k in stiffnesses}
+    return dict(sigma=sigma, delay=delay, disturbance=float(cs.disturbance), disturbance_hz=float(cs.disturbance_hz),
+                m_n=list(masses), at=at)
 
 
 def _sensor_facts(scenario):
@@ -963,6 +984,14 @@ def format_design_report(rep: dict) -> str:
                                  + (": within" if sd.get("within_rate_limit") else ": NOT within"))
                 if sd.get("rate_warning"):
                     lines.append(f"  WARNING: {sd['rate_warning']}")
+        fb = d.get("force_error_bound")
+        if fb:
+            lines.append(f"  least force error any law holds at sensor noise {fb['sigma']:g} N with {fb['delay']} "
+                         f"sample(s) of delay, against a force disturbance of {fb['disturbance']:g} N RMS at "
+                         f"{fb['disturbance_hz']:g} Hz (controller.sensor.disturbance): "
+                         + ", ".join(f"{v:.3g} N at {k} N/m" for k, v in fb["at"].items())
+                         + f" (RMS over time, the worst of m_n {fb['m_n'][0]:.4g}..{fb['m_n'][1]:.4g} kg; the "
+                         "LQG law on the linearised contact mode)")
         if d["singularity_stop"] > 0:
             lines.append(f"  singularity guard: stop when sigma_min(J) < {d['singularity_stop']:g}")
         cm = d["contact_modes"]

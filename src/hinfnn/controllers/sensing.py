@@ -28,7 +28,10 @@ period h (gain κ/h on the noise). This module gives the controller
   command). None holding is a DesignError naming ``controller.sensor.delay``. Told the robot's
   torque-rate limit, it chooses among the candidates whose predicted 99th percentile of each
   joint's |Δτ|/h from the noise (:func:`predicted_torque_rate`) is within a share of it, and
-  reports plainly when none is.
+  reports plainly when none is;
+* :func:`force_error_bound`: the least RMS true force error ANY law holds on the same contact mode,
+  delay and noise against a declared force disturbance (the LQG law, :func:`lqg_cost`), and
+  :func:`fit_force_disturbance`, which identifies that disturbance from a run with an ideal sensor.
 
 Nothing here imports :mod:`hinfnn.plant`: the sensor the design assumes is the controller's own
 statement (``controller.sensor``), copied from the scenario's declared sensor by default.
@@ -135,12 +138,19 @@ def _none():
     return np.zeros((0, 0)), np.zeros(0), np.zeros(0), 1.0
 
 
-def _contact_rows(N, omega0_h, w, wn):
+def _contact_rows(N, omega0_h, w, wn, h=None, damping_ratio=0.0):
     """(Φ, Γ) of an N-state one-period map with its first two rows filled: the undamped contact mode
     (e, ė/ω0) over one period of the zero-order hold, driven by the held command w (a row over the
-    state) and its noise coefficient wn."""
-    c, sn = math.cos(omega0_h), math.sin(omega0_h)
+    state) and its noise coefficient wn; with ``damping_ratio`` ζ > 0 (and the period ``h``) the
+    contact damped by ζ (:func:`period_cost`)."""
     Phi, G = np.zeros((N, N)), np.zeros(N)
+    if damping_ratio:
+        P2, G2, _ = period_cost(omega0_h / h, h, damping_ratio)
+        Phi[:2] = np.outer(G2, w)
+        Phi[:2, :2] += P2
+        G[:2] = G2 * wn
+        return Phi, G
+    c, sn = math.cos(omega0_h), math.sin(omega0_h)
     Phi[0] = (1.0 - c) * w
     Phi[0, 0] += c
     Phi[0, 1] += sn
@@ -175,7 +185,8 @@ def _integral_rows(Phi, G, ec, ecn, h, mu_z, alpha_z, g_f, i_z, i_nu):
 
 
 def sensed_force_loop(omega0_h: float, g_P: float, kappa: float, h: float, mu_z: float = 0.0, alpha_z: float = 0.0,
-                      g_f: float = 0.0, delay: int = 0, filt=None, source: str = "force", rate_scale: float = 1.0):
+                      g_f: float = 0.0, delay: int = 0, filt=None, source: str = "force", rate_scale: float = 1.0,
+                      damping_ratio: float = 0.0):
     """(Φ, Γ, w, w_n): the force loop over one period of the zero-order hold, linearised on the
     contact mode ω0 = √(k/m_n), with the measurement path of a real sensor (module docstring).
 
@@ -193,9 +204,13 @@ def sensed_force_loop(omega0_h: float, g_P: float, kappa: float, h: float, mu_z:
     samples before (the joint rates are delayed with the force), scaled by ``rate_scale`` = k_s/k
     (the term's ṡ = k_s D²ÂĴq̇ is k_s/k times the contact's λ̇), and carries none of the force
     noise; the s state is replaced by the delay line of ė/ω0 (after the acquisitions'), and
-    w = z − ν − g_P e_c − κ (k_s/k) ė_{k−d}."""
+    w = z − ν − g_P e_c − κ (k_s/k) ė_{k−d}.
+
+    ``damping_ratio``: the contact's own damping ratio ζ (a damped pad; 0: the bare contact the
+    design assumes), :func:`period_cost`'s contact mode (the rate term still reads ė)."""
     if source == "velocity":
-        return _velocity_force_loop(omega0_h, g_P, kappa, h, mu_z, alpha_z, g_f, delay, filt, rate_scale)
+        return _velocity_force_loop(omega0_h, g_P, kappa, h, mu_z, alpha_z, g_f, delay, filt, rate_scale,
+                                    damping_ratio)
     Af, Bf, Cf, Df = _none() if filt is None else filt
     nf = Af.shape[0]
     d = int(delay)
@@ -217,7 +232,7 @@ def sensed_force_loop(omega0_h: float, g_P: float, kappa: float, h: float, mu_z:
     w[i_z] += 1.0
     if g_f:
         w[i_nu] -= 1.0
-    Phi, G = _contact_rows(N, omega0_h, w, wn)
+    Phi, G = _contact_rows(N, omega0_h, w, wn, h, damping_ratio)
     if d:
         Phi[2, 0], G[2] = 1.0, 1.0
         for j in range(1, d):
@@ -228,7 +243,7 @@ def sensed_force_loop(omega0_h: float, g_P: float, kappa: float, h: float, mu_z:
     return Phi, G, w, wn
 
 
-def _velocity_force_loop(omega0_h, g_P, kappa, h, mu_z, alpha_z, g_f, delay, filt, rate_scale):
+def _velocity_force_loop(omega0_h, g_P, kappa, h, mu_z, alpha_z, g_f, delay, filt, rate_scale, damping_ratio=0.0):
     """:func:`sensed_force_loop` with the "velocity" source (its docstring): state (e, ė/ω0, the
     ``delay`` acquisitions y, the ``delay`` past ė/ω0, the filter's, z, ν)."""
     Af, Bf, Cf, Df = _none() if filt is None else filt
@@ -254,7 +269,7 @@ def _velocity_force_loop(omega0_h, g_P, kappa, h, mu_z, alpha_z, g_f, delay, fil
     w[i_z] += 1.0
     if g_f:
         w[i_nu] -= 1.0
-    Phi, G = _contact_rows(N, omega0_h, w, wn)
+    Phi, G = _contact_rows(N, omega0_h, w, wn, h, damping_ratio)
     if d:
         Phi[i_y, 0], G[i_y] = 1.0, 1.0
         Phi[i_v, 1] = 1.0
@@ -546,5 +561,183 @@ def _within_rate(held, torque_rate_limit, lever, noise, share, **loop_args):
     return least, [least], rate
 
 
+# --- the least force error any linear law holds (the LQG bound) -------------------------------------
+
+def period_cost(omega0: float, h: float, damping_ratio: float = 0.0):
+    """(Φ, Γ, Q̄) of the contact mode over one period of the zero-order hold: x = (e, ė/ω0) the
+    force error and its scaled rate, ẋ = A x + B s with A = [[0, ω0], [−ω0, −2ζω0]], B = (0, ω0)
+    (ë = ω0²(s − e) − 2ζω0ė: the held force command s pushes against the contact of ω0 = √(k/m_n),
+    damped by ζ), x_{k+1} = Φ x_k + Γ s_k, and ∫_0^h e(t)² dt = (x, s)ᵀ Q̄ (x, s) (Van Loan's
+    integral of the sampled-data cost: the true force error between the samples too)."""
+    from scipy.linalg import expm
+
+    A = np.array([[0.0, omega0], [-omega0, -2.0 * damping_ratio * omega0]])
+    Ab = np.zeros((3, 3))
+    Ab[:2, :2] = A
+    Ab[1, 2] = omega0
+    E = expm(Ab * h)
+    M = np.zeros((6, 6))
+    M[:3, :3] = -Ab.T
+    M[0, 3] = 1.0  # C̄ᵀC̄ with C̄ = (1, 0, 0): the cost reads e
+    M[3:, 3:] = Ab
+    F = expm(M * h)
+    Q = F[3:, 3:].T @ F[:3, 3:]
+    return E[:2, :2], E[:2, 2], 0.5 * (Q + Q.T)
+
+
+def lqg_law(Phi, Gam, W, C, V, Qbar, Mx, Mu):
+    """(K, L) of the LQG law of :func:`lqg_cost`'s problem: u_k = −K x̂_{k|k},
+    x̂_{k|k} = x̂_{k|k−1} + L (y_k − C x̂_{k|k−1}), x̂_{k+1|k} = Φ x̂_{k|k} + Γ u_k."""
+    from scipy.linalg import solve_discrete_are
+
+    Phi, Gam, C = np.atleast_2d(Phi), np.asarray(Gam, float).reshape(Phi.shape[0], -1), np.atleast_2d(C)
+    W, V = np.atleast_2d(W), np.atleast_2d(V)
+    Q = Mx.T @ Qbar @ Mx
+    R = np.atleast_2d(Mu.T @ Qbar @ Mu)
+    S_ = (Mx.T @ Qbar @ Mu).reshape(Phi.shape[0], -1)
+    P = solve_discrete_are(Phi, Gam, Q, R, s=S_)
+    K = np.linalg.solve(R + Gam.T @ P @ Gam, Gam.T @ P @ Phi + S_.T)
+    Pf = solve_discrete_are(Phi.T, C.T, W, V)
+    L = Pf @ C.T @ np.linalg.inv(C @ Pf @ C.T + V)
+    return K, L
+
+
+def lqg_cost(Phi, Gam, W, C, V, Qbar, Mx, Mu) -> float:
+    """The least stationary cost per sample E[(Mx x + Mu u)ᵀ Q̄ (Mx x + Mu u)] any causal law
+    u_k = f(y_0, …, y_k) holds on x_{k+1} = Φ x_k + Γ u_k + w_k, y_k = C x_k + n_k (w, n white,
+    Gaussian, covariances W and V): the LQG law (Riccati equations of the control, with the cross
+    term, and of the filter, the estimate x̂_{k|k} using y_k), its cost evaluated exactly on the
+    closed loop (true state and estimator) by the discrete Lyapunov equation. Optimal among all
+    laws, linear or not, for Gaussian noise (separation)."""
+    from scipy.linalg import solve_discrete_lyapunov
+
+    Phi, Gam, C = np.atleast_2d(Phi), np.asarray(Gam, float).reshape(Phi.shape[0], -1), np.atleast_2d(C)
+    W, V = np.atleast_2d(W), np.atleast_2d(V)
+    K, L = lqg_law(Phi, Gam, W, C, V, Qbar, Mx, Mu)
+    n, ny = Phi.shape[0], C.shape[0]
+    I = np.eye(n)
+    # closed loop on (x, x̂_{k|k−1}), driven by (w, n): u = −K[(I − LC) x̂⁻ + L(Cx + n)]
+    Ku_x, Ku_h, Ku_n = -K @ L @ C, -K @ (I - L @ C), -K @ L
+    Acl = np.block([[Phi + Gam @ Ku_x, Gam @ Ku_h], [(Phi - Gam @ K) @ L @ C, (Phi - Gam @ K) @ (I - L @ C)]])
+    Bcl = np.block([[I, Gam @ Ku_n], [np.zeros((n, n)), (Phi - Gam @ K) @ L]])
+    Ncov = np.zeros((n + ny, n + ny))
+    Ncov[:n, :n], Ncov[n:, n:] = W, V
+    if np.max(np.abs(np.linalg.eigvals(Acl))) >= 1.0:
+        return math.inf
+    X = solve_discrete_lyapunov(Acl, Bcl @ Ncov @ Bcl.T)
+    # the cost's argument (Mx x + Mu u) as a row map on (x, x̂⁻, n)
+    G = np.hstack([Mx + Mu @ Ku_x, Mu @ Ku_h, Mu @ Ku_n])
+    Z = np.zeros((2 * n + ny, 2 * n + ny))
+    Z[:2 * n, :2 * n] = X
+    Z[2 * n:, 2 * n:] = V
+    return float(np.trace(G.T @ Qbar @ G @ Z))
+
+
+def force_error_bound(*, omega0: float, h: float, noise: float, delay: int, disturbance: float,
+                      disturbance_hz: float, damping_ratio: float = 0.0, rate_noise: float | None = None) -> float:
+    """The least RMS TRUE force error (N, over continuous time) any law holds on the contact mode
+    ω0 = √(k/m_n) (damping ratio ``damping_ratio``) under a zero-order hold at the period ``h``,
+    reading the force error ``delay`` samples late with white noise of ``noise`` N at each sample,
+    against a force disturbance d held with the command: a first-order Gauss–Markov process of RMS
+    ``disturbance`` N and corner ``disturbance_hz`` (d_{k+1} = a d_k + √(1 − a²) D v_k,
+    a = exp(−2π f_d h)). ``rate_noise`` (N/s; None: no such measurement): the law also reads the
+    force error's rate ė, as late, with white noise of that RMS (the force-rate term's "velocity"
+    source: the contact's rate from the joint rates). The model is :func:`sensed_force_loop`'s
+    contact mode and delay line, the law any causal function of the measurements (:func:`lqg_cost`:
+    the LQG law is the best, linear or not); the cost is ∫e² between the samples
+    (:func:`period_cost`). With no disturbance the bound is 0 (a law that does nothing holds
+    e = 0). Raises DesignError naming the key of a negative input."""
+    for key, v in (("sensor.noise", noise), ("sensor.disturbance", disturbance),
+                   ("sensor.disturbance_hz", disturbance_hz), ("sensor.delay", delay),
+                   ("sensor.rate_noise", 0.0 if rate_noise is None else rate_noise)):
+        if not (np.isfinite(v) and v >= 0):
+            raise DesignError(f"must be finite and >= 0, got {v!r}", key=key, value=v, bound=0.0)
+    if disturbance == 0.0:
+        return 0.0
+    model = bound_model(omega0=omega0, h=h, noise=noise, delay=delay, disturbance=disturbance,
+                        disturbance_hz=disturbance_hz, damping_ratio=damping_ratio, rate_noise=rate_noise)
+    return math.sqrt(max(lqg_cost(*model), 0.0) / float(h))
+
+
+def bound_model(*, omega0, h, noise, delay, disturbance, disturbance_hz, damping_ratio=0.0, rate_noise=None):
+    """(Φ, Γ, W, C, V, Q̄, M_x, M_u): :func:`force_error_bound`'s problem as :func:`lqg_cost` takes it
+    (state (e, ė/ω0, d, the delay lines); the cost's argument (e, ė/ω0, the held force u + d))."""
+    d = int(delay)
+    rate = rate_noise is not None
+    Phi2, Gam2, Qbar = period_cost(float(omega0), float(h), float(damping_ratio))
+    a = math.exp(-2.0 * math.pi * float(disturbance_hz) * float(h))
+    # (e, ė/ω0, d, e_{k−1} … e_{k−delay}, and with the rate (ė/ω0)_{k−1} … (ė/ω0)_{k−delay})
+    n = 3 + d * (2 if rate else 1)
+    Phi, Gam = np.zeros((n, n)), np.zeros((n, 1))
+    Phi[:2, :2], Phi[:2, 2], Gam[:2, 0] = Phi2, Gam2, Gam2
+    Phi[2, 2] = a
+    for j in range(d):
+        Phi[3 + j, 0 if j == 0 else 3 + j - 1] = 1.0
+        if rate:
+            Phi[3 + d + j, 1 if j == 0 else 3 + d + j - 1] = 1.0
+    W = np.zeros((n, n))
+    W[2, 2] = (1.0 - a * a) * float(disturbance) ** 2
+    C = np.zeros((2 if rate else 1, n))
+    C[0, 0 if d == 0 else 3 + d - 1] = 1.0
+    # a sensor with no noise: a noise far below the disturbance's (the filter's Riccati needs V > 0)
+    floor = 1e-6 * float(disturbance)
+    V = np.diag([max(float(noise), floor) ** 2] + ([max(float(rate_noise) / float(omega0), floor) ** 2]
+                                                    if rate else []))
+    if rate:
+        C[1, 1 if d == 0 else 3 + 2 * d - 1] = 1.0  # ė/ω0, its noise scaled alike
+    Mx, Mu = np.zeros((3, n)), np.zeros((3, 1))
+    Mx[0, 0] = Mx[1, 1] = Mx[2, 2] = 1.0  # (e, ė/ω0, s = u + d)
+    Mu[2, 0] = 1.0
+    return Phi, Gam, W, C, V, Qbar, Mx, Mu
+
+
+def command_column(Phi, omega0_h: float, h: float, damping_ratio: float = 0.0) -> np.ndarray:
+    """The column by which a force held with the command (a disturbance d added to w over the
+    period) enters the one-period map ``Phi`` of :func:`sensed_force_loop` (its first two rows)."""
+    return _contact_rows(Phi.shape[0], omega0_h, np.zeros(Phi.shape[0]), 1.0, h, damping_ratio)[1]
+
+
+def fit_force_disturbance(error, h: float, Phi, g_d, *, band=(0.5, 200.0), corners=None):
+    """(D, f_d): the first-order Gauss–Markov force disturbance of :func:`force_error_bound` (RMS D
+    in N, corner f_d in Hz) that reproduces a measured force error through a loop: ``error`` the
+    samples of the TRUE force error at the period ``h`` of a run with an ideal sensor, ``Phi`` the
+    loop's one-period map (:func:`sensed_force_loop` of the law that ran), ``g_d`` the
+    disturbance's column (:func:`command_column`). For each corner on a grid (``corners``, Hz;
+    default 0.01 to 400 Hz) the spectrum the loop predicts, |e₀ᵀ(zI − Φ)⁻¹g_d|² times the
+    disturbance's, is fitted to the measured one (Welch) in log over ``band`` (Hz): the corner of
+    least log misfit is taken, and D so that the loop's predicted RMS error equals the measured."""
+    from scipy import signal
+    from scipy.linalg import solve_discrete_lyapunov
+
+    e = np.asarray(error, dtype=float)
+    fs = 1.0 / float(h)
+    f, P = signal.welch(e, fs=fs, nperseg=min(len(e), 2048), detrend=False)
+    sel = (f >= band[0]) & (f <= band[1])
+    f, P = f[sel], P[sel]
+    n = Phi.shape[0]
+    z = np.exp(2j * np.pi * f * h)
+    T = np.array([np.linalg.solve(zk * np.eye(n) - Phi, g_d)[0] for zk in z])
+    corners = np.geomspace(0.01, 400.0, 111) if corners is None else np.asarray(corners, dtype=float)
+    best = None
+    for fd in corners:
+        a = math.exp(-2.0 * math.pi * fd * h)
+        Sd = (1.0 - a * a) / np.abs(1.0 - a / z) ** 2  # unit variance
+        r = np.log(P) - np.log(np.abs(T) ** 2 * Sd * 2.0 / fs)
+        miss = float(np.var(r))
+        if best is None or miss < best[0]:
+            best = (miss, fd, a)
+    _, fd, a = best
+    # the loop with the disturbance's state: its predicted error variance per unit D²
+    Pa = np.zeros((n + 1, n + 1))
+    Pa[:n, :n], Pa[:n, n], Pa[n, n] = Phi, g_d, a
+    Ga = np.zeros(n + 1)
+    Ga[n] = math.sqrt(1.0 - a * a)
+    X = solve_discrete_lyapunov(Pa, np.outer(Ga, Ga))
+    D = math.sqrt(float(np.mean(e * e)) / X[0, 0])
+    return D, float(fd)
+
+
 __all__ = ["ForceFilter", "butterworth", "sensed_force_loop", "noise_gains", "command_rate", "loop_damping",
-           "design_sensing", "SensingDesign", "max_command_rate", "predicted_torque_rate", "P99_GAUSS"]
+           "design_sensing", "SensingDesign", "max_command_rate", "predicted_torque_rate", "P99_GAUSS",
+           "period_cost", "lqg_cost", "lqg_law", "force_error_bound", "bound_model",
+           "command_column", "fit_force_disturbance"]

@@ -1289,6 +1289,11 @@ class SensorAssumptionConfig:
     delay: Literal["declared"] | int = param("declared", doc="transport delay of the measurements the design assumes, "
                                                              "whole control samples; \"declared\": "
                                                              "plant.sensor.delay", ge=0, le=1000)
+    disturbance: float = param(0.0, doc="RMS of the force disturbance the contact loop meets, N (a first-order "
+                                        "Gauss-Markov force held with the command), for the least force error any "
+                                        "law holds that `hinfnn design` prints; 0: none declared, no bound",
+                               ge=0.0, le=1e6)
+    disturbance_hz: float = param(1.0, doc="corner frequency of that disturbance, Hz", gt=0.0, le=1e6)
 
     def resolved(self, declared: tuple[float, int]) -> tuple[float, int]:
         """(noise σ, N; delay, samples) the design assumes, "declared" taken from ``declared``
