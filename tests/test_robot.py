@@ -142,19 +142,36 @@ def _thread_scheduling():
     return os.sched_getscheduler(0), os.sched_getparam(0).sched_priority, os.sched_getaffinity(0)
 
 
-def test_real_time_scheduling_is_set_inside_and_restored_after():
-    """SCHED_FIFO where the kernel permits it (auto: else the ordinary policy and the reason), the
-    thread's policy, priority and CPU set as they were after the block, also after an error."""
-    import os
+@pytest.fixture
+def ordinary_thread():
+    """The test's thread under the ordinary policy (lowering is always permitted: another test, e.g. a
+    libfranka robot, may have left it real-time scheduled), put back as it was afterwards."""
+    from hinfnn.robot.realtime import restore_scheduling, thread_scheduling
 
-    from hinfnn.robot.realtime import PRIORITY, realtime
+    saved = thread_scheduling()
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    yield
+    restore_scheduling(saved)
+
+
+def test_real_time_scheduling_is_set_inside_and_restored_after(ordinary_thread):
+    """SCHED_FIFO where the kernel permits it (auto: else the ordinary policy and the reason), the
+    thread's policy, priority and CPU set as they were after the block, also after an error; a thread
+    already real-time scheduled higher is left as it is."""
+    from hinfnn.robot.realtime import PRIORITY, loop_cpu, realtime
 
     before = _thread_scheduling()
+    assert before[0] == os.SCHED_OTHER
     with realtime("auto") as how:
         inside = _thread_scheduling()
     assert _thread_scheduling() == before
     if how.realtime:
         assert inside[:2] == (os.SCHED_FIFO, PRIORITY) and how.priority == PRIORITY and how.note == ""
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(PRIORITY + 10))  # as libfranka leaves its thread
+        with realtime("auto") as higher:
+            assert _thread_scheduling()[:2] == (os.SCHED_FIFO, PRIORITY + 10) and higher.priority == PRIORITY + 10
+        assert _thread_scheduling()[:2] == (os.SCHED_FIFO, PRIORITY + 10)
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     else:
         assert inside[:2] == before[:2] and "refused" in how.note
     cpu = max(before[2])
@@ -162,17 +179,13 @@ def test_real_time_scheduling_is_set_inside_and_restored_after():
         assert _thread_scheduling()[2] == {cpu} and how.cpus == (cpu,) and how.policy == "SCHED_OTHER"
         raise RuntimeError("inside")
     assert _thread_scheduling() == before
-    from hinfnn.robot.realtime import loop_cpu
-
     assert loop_cpu(None, "auto") is None and loop_cpu(cpu, "off") == cpu
     assert loop_cpu("auto", "auto") == (cpu if len(before[2]) >= 2 else None) and loop_cpu("auto", "off") is None
     with realtime("off", cpu=set(before[2])) as how:
         assert how.cpus == tuple(sorted(before[2]))
 
 
-def test_a_refused_real_time_scheduling_is_named_or_enforced(monkeypatch):
-    import os
-
+def test_a_refused_real_time_scheduling_is_named_or_enforced(monkeypatch, ordinary_thread):
     from hinfnn.robot.realtime import realtime
 
     def refuse(*_):
@@ -426,7 +439,8 @@ def test_cli_robot_run(tmp_path, capsys):
                      "--set", "simulation.t_final=0.02"])
     text = capsys.readouterr()
     assert code in (0, 1), text.err  # 1: a stop by the safety layer under this machine's load (a result, not an error)
-    assert "loop:" in text.out and "latency p50" in text.out and "loop thread: SCHED_OTHER" in text.out
+    assert "loop:" in text.out and "latency p50" in text.out and "loop thread: SCHED_" in text.out
+    assert H.load(out).metrics["robot"]["realtime"]["mode"] == "off"
     assert H.load(out).trajectories["hinf_nn"].arrays["cycle_latency"].size >= 1
     code = cli.main(["robot", "run", "paper", "--out", str(tmp_path / "bad"), "--set", "simulation.control=sampled",
                      "--set", "controller.kind=hinf_nn"])

@@ -363,10 +363,15 @@ def test_no_start_pose_within_the_limits_names_the_joint(tmp_path, capsys):
 
 
 def test_reference_path_past_a_limit_is_a_design_error():
+    """The path's joint limit is named (without the force-rate term, whose design over the path's poses
+    would refuse the path first, as out of the arm's reach: also a DesignError)."""
     with pytest.raises(H.DesignError, match=r"takes panda_joint4 to -3.1\d* rad at t = 2 s, outside its range "
                        r"\[-3.072, -0.0698\]") as info:
-        Scenario.load("panda-table", {"initial.u1": [-0.2, 0, 0, 0, 0], "reference.u1_offset": [-0.2, 0, 0, 0, 0]})
+        Scenario.load("panda-table", {"initial.u1": [-0.2, 0, 0, 0, 0], "reference.u1_offset": [-0.2, 0, 0, 0, 0],
+                                      "controller.force_rate.kappa": 0.0})
     assert info.value.key == "reference"
+    with pytest.raises(H.DesignError, match="move the reference into the arm's reach"):
+        Scenario.load("panda-table", {"initial.u1": [-0.2, 0, 0, 0, 0], "reference.u1_offset": [-0.2, 0, 0, 0, 0]})
 
 
 def test_run_stops_at_a_joint_limit():

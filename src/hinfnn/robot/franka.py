@@ -39,6 +39,7 @@ import numpy as np
 from ..errors import ConfigError, SimulationError
 from .base import Reading, Robot, require_sampled
 from .observer import MomentumObserver
+from .realtime import restore_scheduling, thread_scheduling
 
 #: libfranka's control period, s.
 PERIOD = 1e-3
@@ -191,6 +192,7 @@ class FrankaRobot(Robot):
         self._reset()
         self._pf = pf
         rt = pf.RealtimeConfig.kIgnore if self.realtime == "ignore" else pf.RealtimeConfig.kEnforce
+        self._scheduling = thread_scheduling()  # libfranka raises this thread to SCHED_FIFO 99 and leaves it there
         try:
             self._robot = pf.Robot(self.host, rt)
             t, f = [self.collision_torque] * 7, [self.collision_force] * 6
@@ -308,6 +310,7 @@ class FrankaRobot(Robot):
             except Exception:  # noqa: BLE001
                 pass
             del robot
+        restore_scheduling(getattr(self, "_scheduling", None))  # the thread as it was before start
 
     def report(self) -> dict:
         """What the robot did beside the loop (metrics.json ``robot.device``)."""

@@ -112,25 +112,42 @@ def _cpus() -> tuple[int, ...]:
     return tuple(sorted(os.sched_getaffinity(0))) if hasattr(os, "sched_getaffinity") else ()
 
 
+def thread_scheduling():
+    """The calling thread's (policy, sched_param), for :func:`restore_scheduling`; None where the
+    platform has no scheduling calls."""
+    return (os.sched_getscheduler(0), os.sched_getparam(0)) if hasattr(os, "sched_getscheduler") else None
+
+
+def restore_scheduling(saved) -> None:
+    """Put back what :func:`thread_scheduling` saved (a refusal is ignored: lowering is always
+    permitted, raising was permitted when it was saved)."""
+    if saved is not None:
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(0, saved[0], saved[1])
+
+
 @contextlib.contextmanager
 def realtime(mode: str = "auto", priority: int = PRIORITY, cpu=None):
     """The calling thread under SCHED_FIFO at ``priority`` (and on ``cpu``, if given) inside the
     ``with`` block, as ``mode`` asks (:data:`MODES`; ``cpu``: a CPU or a collection of CPUs, or
     "auto": :func:`loop_cpu`); yields the :class:`Scheduling` it got. On
     exit the thread's previous policy, priority and CPU set are restored, whatever ends the block.
-    ``mode = "enforce"`` raises :class:`~hinfnn.errors.SimulationError` when the kernel refuses."""
+    ``mode = "enforce"`` raises :class:`~hinfnn.errors.SimulationError` when the kernel refuses. A
+    thread already real-time scheduled at ``priority`` or above (libfranka sets its control thread to
+    the highest) is left as it is."""
     check_mode(mode)
     cpu = loop_cpu(cpu, mode)
     if not 1 <= int(priority) <= 99:
         raise ConfigError(f"must be a SCHED_FIFO priority in 1..99, got {priority!r}", key="priority")
     can = hasattr(os, "sched_setscheduler") and hasattr(os, "SCHED_FIFO")
     old_affinity = _cpus() if cpu is not None and hasattr(os, "sched_setaffinity") else None
-    old = (os.sched_getscheduler(0), os.sched_getparam(0)) if can else None
+    old = thread_scheduling() if can else None
+    already = can and old[0] in (os.SCHED_FIFO, os.SCHED_RR) and old[1].sched_priority >= int(priority)
     note = ""
     try:
         if old_affinity is not None:
             os.sched_setaffinity(0, set(cpu) if isinstance(cpu, frozenset) else {cpu})
-        if mode != "off":
+        if mode != "off" and not already:
             if not can:
                 note = "this platform has no SCHED_FIFO"
             else:
@@ -146,12 +163,12 @@ def realtime(mode: str = "auto", priority: int = PRIORITY, cpu=None):
         prio = int(os.sched_getparam(0).sched_priority) if can else 0
         yield Scheduling(policy=policy, priority=prio, cpus=_cpus(), mode=mode, note=note)
     finally:
-        if old is not None:
-            with contextlib.suppress(OSError):
-                os.sched_setscheduler(0, old[0], old[1])
+        if old is not None and not already:
+            restore_scheduling(old)
         if old_affinity is not None:
             with contextlib.suppress(OSError):
                 os.sched_setaffinity(0, set(old_affinity))
 
 
-__all__ = ["MODES", "PRIORITY", "Scheduling", "check_cpu", "check_mode", "loop_cpu", "realtime"]
+__all__ = ["MODES", "PRIORITY", "Scheduling", "check_cpu", "check_mode", "loop_cpu", "realtime", "restore_scheduling",
+           "thread_scheduling"]

@@ -9,9 +9,11 @@ disturbance) with a force sensor of white noise σ ∈ :data:`SENSOR_NOISE` N pe
 * ``paper``: the scenario's controller designed for an ideal sensor (its force-rate term with κ by
   the rule of section 7 on the differenced force, no force filter, whatever sensor the scenario
   declares; none where the scenario has none);
-* ``designed``: the force filter and κ designed together for the declared sensor
-  (``controller.force_filter.order = "design"``, κ "rule"; section 12), over the scenario's stated
-  stiffness range (or, without a force-rate section, up to the plant's contact stiffness).
+* ``designed``: the law as the scenario ships it for its declared sensor: κ designed for the sensor
+  ("rule"; section 12) with the scenario's own force filter (``"design"``: order and cutoff designed
+  with κ; 0 where the scenario ships none, as `ur5-table-stable` and `panda-table` do), over the
+  scenario's stated stiffness range (or, without a force-rate section, up to the plant's contact
+  stiffness).
 
 A design the sensor makes impossible is refused (the DesignError's text is reported instead of
 the run). Reported per run: status, the TRUE normal force's RMS error over the last 2 s, the
@@ -69,8 +71,7 @@ def sensor_cases(arm: str, overrides=(), noises=SENSOR_NOISE, kinds=SENSOR_KINDS
                 if variant == "paper":  # the law as designed for an ideal sensor: ṡ the differenced force, no filter
                     o["controller.force_rate.source"] = "force"
                     o["controller.force_filter.order"] = 0
-                if variant == "designed":
-                    o["controller.force_filter.order"] = "design"
+                if variant == "designed":  # the scenario's own force filter, as shipped
                     if fr.kappa == 0.0:
                         o.update({"controller.force_rate.kappa": "rule",
                                   "controller.force_rate.stiffness_max": k_plant,
