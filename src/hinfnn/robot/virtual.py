@@ -133,34 +133,28 @@ def serve(config: dict) -> None:
         plant = setup.plant
         state = plant.initial_state(np.asarray(setup.start_q, dtype=float))
         n = int(plant.n)
+        step = jax.jit(lambda t, s, tau: plant.step(t, s, tau, period)[0])
+        step(0.0, state, jnp.zeros(n)).q.block_until_ready()  # compiled before the clock starts
         upper = np.asarray(plant.joint_limits()[1], dtype=float)
         # the truth's sensor and motors (plant.sensor, plant.actuator), as the simulator applies them
         sensor, act = plant.sensor, plant.actuator
-        from hinfnn.protocols import Measurement
+        if sensor is not None:
+            from hinfnn.protocols import Measurement
 
-        def true_reading(s):
-            return Measurement(q=s.q, qd=s.qd, force=s.force)
+            def true_reading(s):
+                return Measurement(q=s.q, qd=s.qd, force=s.force)
 
-        def sense_fn(k, s, st):
-            """What the robot's sensor gives at sample k of state s (the true state without a sensor)."""
-            return sensor.read(k, period, true_reading(s), st) if sensor is not None else (true_reading(s), st)
+            sense = jax.jit(lambda k, s, st: sensor.read(k, period, true_reading(s), st))
+            sensed = sensor.start(true_reading(state))
+            sense(0, state, sensed)[0].q.block_until_ready()
+        if act is not None:
+            def _drive(tau, previous, first, qd):
+                applied = act.apply(tau, previous, period, first)
+                return applied, applied - act.friction(qd)
 
-        def tick_fn(k, s, tau, applied, st):
-            """One tick as one compiled call: the motors (torque and rate limits, then the joints'
-            friction), the plant over the period, the sensor's reading of the new state."""
-            drive = tau
-            if act is not None:
-                applied = act.apply(tau, applied, period, k == 0)
-                drive = applied - act.friction(s.qd)
-            s = plant.step(k * period, s, drive, period)[0]
-            reading, st = sense_fn(k + 1, s, st)
-            return s, applied, st, (reading.q, reading.qd, reading.force)
-
-        sense, tick = jax.jit(sense_fn), jax.jit(tick_fn)
-        sensed = sensor.start(true_reading(state)) if sensor is not None else None
-        applied = jnp.zeros(n)
-        sense(0, state, sensed)[0].q.block_until_ready()  # compiled before the clock starts
-        jax.block_until_ready(tick(0, state, jnp.zeros(n), applied, sensed))
+            actuate = jax.jit(_drive)
+            applied = jnp.zeros(n)
+            actuate(jnp.zeros(n), applied, True, state.qd)[0].block_until_ready()
     except Exception as err:  # noqa: BLE001 - reported to the loop's process as one line
         say(f"error {type(err).__name__}: {' '.join(str(err).split())}")
         return
@@ -177,11 +171,16 @@ def serve(config: dict) -> None:
         return
     fired = [False] * len(faults)
     prev = None
+    if sensor is None:
+        sensed = None
 
-    def publish(k, reading, missed, stamp=None):
-        nonlocal prev
+    def publish(k, state, missed, tick=None):
+        nonlocal prev, sensed
         t = k * period
-        q, qd, force = (np.array(a, dtype=float) for a in reading)
+        reading = state
+        if sensor is not None:  # what the robot's sensor gives at sample k (noise, bias, delay, bandwidth)
+            reading, sensed = sense(k, state, sensed)
+        q, qd, force = (np.array(a, dtype=float) for a in (reading.q, reading.qd, reading.force))
         for i, f in enumerate(faults):
             if f.kind == "stall" or not f.active(t, fired[i]):
                 continue
@@ -200,12 +199,11 @@ def serve(config: dict) -> None:
                 q[f.joint] = upper[f.joint] - f.value
             elif f.kind == "time_back":
                 t = t - f.value
-        prev = np.concatenate([[t, time.perf_counter() if stamp is None else stamp, float(missed)], q, qd, force])
+        prev = np.concatenate([[t, time.perf_counter() if tick is None else tick, float(missed)], q, qd, force])
         _publish(R, prev)
 
     S[0] = _RUNNING
-    first, sensed = sense(0, state, sensed)
-    publish(0, (first.q, first.qd, first.force), 0)
+    publish(0, state, 0)
     gc.collect()  # the served plant's clock must not stop for a collection (the loop's side does the same)
     gc.disable()
     while C[0] < 2 and S[0] == _RUNNING:  # the clock starts with the first torque (the arm held until then)
@@ -233,11 +231,14 @@ def serve(config: dict) -> None:
             missed, last = 0, seq
         if not np.all(np.isfinite(tau)):  # never given to the engine: the robot's own guard
             tau = np.zeros(n)
-        state, applied, sensed, reading = tick(k, state, jnp.asarray(tau), applied, sensed)
+        drive = jnp.asarray(tau)
+        if act is not None:  # the motors: torque and rate limits, then the joints' friction
+            applied, drive = actuate(drive, applied, k == 0, state.qd)
+        state = step(k * period, state, drive)
         k += 1
         # in real time the reading is stamped with its tick (the torque for it is due one period later),
         # not with when the step that made it ended: the loop's lateness is against the robot's next tick
-        publish(k, reading, missed, t0 + k * period if realtime else None)
+        publish(k, state, missed, t0 + k * period if realtime else None)
     S[1] = behind
     S[0] = _ENDED
     del R, C, S
