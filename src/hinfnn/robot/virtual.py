@@ -86,6 +86,12 @@ def _publish(buf: np.ndarray, values) -> None:
     buf[0] += 1.0
 
 
+#: How long before a tick the served clock, and the loop awaiting a reading, stop sleeping and wait
+#: awake, s: a core that goes idle in a sleep can take hundreds of microseconds to wake (in a virtual
+#: machine, its virtual CPU is descheduled by the host), which a 1-kHz loop cannot spare.
+SPIN = 2e-4
+
+
 def _snapshot(buf: np.ndarray):
     """(seq, copy of the values), or (None, None) while the block is being written."""
     s0 = buf[0]
@@ -214,8 +220,11 @@ def serve(config: dict) -> None:
         if realtime:
             deadline = t0 + (k + 1) * period
             wait = deadline - time.perf_counter()
+            if wait > SPIN:  # asleep until just before the tick, then awake on the clock (:data:`SPIN`)
+                time.sleep(wait - SPIN)
             if wait > 0:
-                time.sleep(wait)
+                while time.perf_counter() < deadline:
+                    pass
             elif wait < -0.5 * period:  # the server itself was held up: its clock slips (a robot never lags)
                 t0 -= wait
                 behind += 1
@@ -336,7 +345,7 @@ class VirtualRobot(Robot):
         comes. A SimulationError when the server ended or sends nothing for a second."""
         r = self._r
         give_up = time.perf_counter() + max(1.0, 100 * self.period)
-        nap = self._next - time.perf_counter() - 2e-4  # the next tick is not due before then
+        nap = self._next - time.perf_counter() - SPIN  # the next tick is not due before then
         if nap > 0:
             time.sleep(nap)
         while True:
@@ -347,7 +356,8 @@ class VirtualRobot(Robot):
                 raise SimulationError(f"the virtual robot sent no reading after t = {self._t:.6g} s "
                                       f"(server {'ended' if self._proc.poll() is not None else 'silent'})",
                                       t_fail=self._t)
-            time.sleep(2e-5)
+            if not self.realtime or time.perf_counter() > self._next + self.period:
+                time.sleep(2e-5)  # in real time the reading is awaited awake, up to a period late (:data:`SPIN`)
         self._last = seq
         n, d = self.n, self.d
         self._t = float(vals[0])
