@@ -65,16 +65,16 @@ def _single(sc):
 
 
 def make_robot(sc, robot: str, faults=(), host: str = "127.0.0.1", scheduling: str = "auto",
-               loop_cpu: int | None = None):
+               loop_on: int | None = None):
     """The robot named ``robot`` (:data:`ROBOTS`) for scenario ``sc`` (``host``: the Franka's
     address; ``scheduling``: the virtual robot's served clock's, :mod:`hinfnn.robot.realtime`, on
-    every CPU but ``loop_cpu``, the loop's, when that is given)."""
+    every CPU but ``loop_on``, the loop's, when that is given)."""
     if robot == "virtual":
         import os
 
         from .virtual import VirtualRobot
 
-        others = set(os.sched_getaffinity(0)) - {loop_cpu} if loop_cpu is not None else set()
+        others = set(os.sched_getaffinity(0)) - {loop_on} if loop_on is not None else set()
         return VirtualRobot(sc, faults=faults, scheduling=scheduling, cpus=others or None)
     if robot == "franka":
         if faults:
