@@ -163,9 +163,10 @@ class SampledController:
     def n_joints(self) -> int:
         return int(self.controller.arm.n)
 
-    @property
+    @functools.cached_property
     def force_size(self) -> int:
-        """Length d of the measured tool force: the arm's Cartesian dimension (2 planar, 3 spatial)."""
+        """Length d of the measured tool force: the arm's Cartesian dimension (2 planar, 3 spatial);
+        found once (the arm's ``space_dim`` traces its tool point)."""
         return int(self.controller.arm.space_dim)
 
     @functools.cached_property
