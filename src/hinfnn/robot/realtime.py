@@ -158,7 +158,7 @@ def realtime(mode: str = "auto", priority: int = PRIORITY, cpu=None):
                             "CAP_SYS_NICE, or with an rtprio limit of at least the priority in "
                             "/etc/security/limits.conf")
             if note and mode == "enforce":
-                raise SimulationError(f"real-time scheduling was asked for (realtime = \"enforce\") but {note}")
+                raise SimulationError(f"real-time scheduling was asked for (scheduling = \"enforce\") but {note}")
         policy = _policy_name(os.sched_getscheduler(0)) if can else "SCHED_OTHER"
         prio = int(os.sched_getparam(0).sched_priority) if can else 0
         yield Scheduling(policy=policy, priority=prio, cpus=_cpus(), mode=mode, note=note)
