@@ -84,6 +84,27 @@ def test_a_step_in_the_true_force_appears_delay_samples_later(delay):
     assert np.array_equal(out[:, 2], np.where(np.arange(12) >= 5 + delay, 7.0, 0.0))
 
 
+@pytest.mark.parametrize("delay", [1, 3])
+def test_a_delayed_reading_is_known_before_its_sample_is_acquired(delay):
+    # the virtual robot publishes Sensor.upcoming at the tick and acquires the sample afterwards: it must
+    # be exactly what read gives at that sample (noise, bias and low-pass included)
+    rng = np.random.default_rng(3)
+    sensor = Sensor.make(4, force_noise=1.0, force_bias=[0.2, 0.0, -0.1], q_noise=1e-3, qd_noise=0.1,
+                         bandwidth=80.0, delay=delay)
+    q = jnp.zeros(2)
+    state = sensor.start(Measurement(q=q, qd=q, force=jnp.zeros(3)))
+    for k in range(8):
+        meas = Measurement(q=jnp.asarray(rng.normal(size=2)), qd=jnp.asarray(rng.normal(size=2)),
+                           force=jnp.asarray(rng.normal(size=3)))
+        ahead = sensor.upcoming(state) if k else None
+        out, state = sensor.read(k, 1e-3, meas, state)
+        if ahead is not None:
+            for a, b in zip(jax.tree.leaves(ahead), jax.tree.leaves(out)):
+                assert np.array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(ValueError, match="without delay"):
+        Sensor.make(0).upcoming(state)
+
+
 def test_the_sensor_bandwidth_is_the_first_order_low_pass():
     fc, T, K = 50.0, 1e-3, 60
     forces = np.zeros((K, 3))

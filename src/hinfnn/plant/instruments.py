@@ -111,6 +111,15 @@ class Sensor:
         out = jax.tree.map(lambda b: b[0], buffer)
         return out, SensorState(buffer=buffer, filtered=filtered, out=out)
 
+    def upcoming(self, state: SensorState) -> Measurement:
+        """What :meth:`read` will give at the next sample, known from ``state`` before that sample is
+        acquired when the delay d is one sample or more (the buffer's second-oldest acquisition): a
+        robot publishes it at the sample's instant and acquires the sample afterwards
+        (:mod:`hinfnn.robot.virtual`). With d = 0 the next reading is the next acquisition itself."""
+        if self.delay < 1:
+            raise ValueError("a sensor without delay gives its next reading only once it is acquired")
+        return jax.tree.map(lambda b: b[1], state.buffer)
+
 
 @pytree_dataclass
 class Actuator:

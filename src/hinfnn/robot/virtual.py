@@ -13,10 +13,14 @@ a command, each behind a sequence counter): the loop reaches the plant only thro
 :class:`~hinfnn.robot.Robot` interface, so the timing, the jitter and the late cycles are real.
 A tick at which no fresh torque has arrived since the previous one holds the old torque again and
 counts as missed (:attr:`~hinfnn.robot.Reading.missed`: missed ticks in a row). In real time a
-reading is stamped (:attr:`~hinfnn.robot.Reading.wall`) with the tick whose torque made it, so the
-torque for it is due one period after that stamp and the loop's lateness is against the robot's next
-tick; the server steps the plant after the tick, so the loop has a period less that step's time to
-answer. The server runs every compiled call on its own thread (JAX's CPU async dispatch off). A
+reading is stamped (:attr:`~hinfnn.robot.Reading.wall`) with its tick, so the torque for it is due
+one period after that stamp and the loop's lateness is against the robot's next tick. A sensor at
+least one sample late (``plant.sensor.delay`` ≥ 1, as a real robot's reading is) gives at a tick a
+reading known before it (:meth:`hinfnn.plant.instruments.Sensor.upcoming`): the server publishes it
+at the tick and then steps the plant and acquires the new sample while the loop computes, so the
+loop has the whole period, with the same readings and torques as stepping first. With an ideal or
+undelayed sensor the server steps the plant after the tick and publishes then, so the loop has a
+period less that step's time to answer. The server runs every compiled call on its own thread (JAX's CPU async dispatch off). A
 server held up by its own machine for more than half a period moves its clock on by the delay (counted in
 :attr:`VirtualRobot.server_behind`) rather than stepping the plant several times in a row with a
 stale torque: a real robot's clock never lags, so the lateness a run sees is the loop's own.
@@ -153,6 +157,14 @@ def serve(config: dict) -> None:
             sense = jax.jit(lambda k, s, st: sensor.read(k, period, true_reading(s), st))
             sensed = sensor.start(true_reading(state))
             sense(0, state, sensed)[0].q.block_until_ready()
+
+            if sensor.delay >= 1:  # the sensor's state after acquiring sample k, and its reading at k + 1
+                def _acquire(k, s, st):
+                    st = sensor.read(k, period, true_reading(s), st)[1]
+                    return st, sensor.upcoming(st)
+
+                acquire = jax.jit(_acquire)
+                acquire(0, state, sensed)[0].out.q.block_until_ready()
         if act is not None:
             def _drive(tau, previous, first, qd):
                 applied = act.apply(tau, previous, period, first)
@@ -180,13 +192,23 @@ def serve(config: dict) -> None:
     if sensor is None:
         sensed = None
 
-    def publish(k, state, missed, tick=None):
+    # A sensor at least one sample late (delay d >= 1, as a real robot's reading is) gives at sample k
+    # an acquisition of sample k - d <= k - 1: it is known before the plant is stepped to sample k, so
+    # the reading is published at the tick and the plant stepped after it, while the loop computes (the
+    # same readings and torques as stepping first; lock-step runs take the same path). With an ideal or
+    # undelayed sensor the plant is stepped first.
+    ahead = sensor is not None and sensor.delay >= 1
+    upcoming = None
+
+    def publish(k, state, missed, tick=None, reading=None):
         nonlocal prev, sensed
         t = k * period
-        reading = state
-        if sensor is not None:  # what the robot's sensor gives at sample k (noise, bias, delay, bandwidth)
-            reading, sensed = sense(k, state, sensed)
-        q, qd, force = (np.array(a, dtype=float) for a in (reading.q, reading.qd, reading.force))
+        if reading is None:
+            reading = state
+            if sensor is not None:  # what the robot's sensor gives at sample k (noise, bias, delay, bandwidth)
+                reading, sensed = sense(k, state, sensed)
+            reading = (reading.q, reading.qd, reading.force)
+        q, qd, force = (np.array(a, dtype=float) for a in reading)
         for i, f in enumerate(faults):
             if f.kind == "stall" or not f.active(t, fired[i]):
                 continue
@@ -210,6 +232,9 @@ def serve(config: dict) -> None:
 
     S[0] = _RUNNING
     publish(0, state, 0)
+    if ahead:
+        upcoming = sensor.upcoming(sensed)
+        upcoming = tuple(np.array(a, dtype=float) for a in (upcoming.q, upcoming.qd, upcoming.force))
     gc.collect()  # the served plant's clock must not stop for a collection (the loop's side does the same)
     gc.disable()
     while C[0] < 2 and S[0] == _RUNNING:  # the clock starts with the first torque (the arm held until then)
@@ -243,6 +268,13 @@ def serve(config: dict) -> None:
         drive = jnp.asarray(tau)
         if act is not None:  # the motors: torque and rate limits, then the joints' friction
             applied, drive = actuate(drive, applied, k == 0, state.qd)
+        if ahead:  # the reading of sample k + 1 at its tick, then the plant stepped to it and acquired
+            publish(k + 1, None, missed, t0 + (k + 1) * period if realtime else None, reading=upcoming)
+            state = step(k * period, state, drive)
+            k += 1
+            sensed, upcoming = acquire(k, state, sensed)
+            upcoming = tuple(np.array(a, dtype=float) for a in (upcoming.q, upcoming.qd, upcoming.force))
+            continue
         state = step(k * period, state, drive)
         k += 1
         # in real time the reading is stamped with its tick (the torque for it is due one period later),
