@@ -446,6 +446,13 @@ def test_cli_robot_run(tmp_path, capsys):
                      "--set", "controller.kind=hinf_nn"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "plant.engine" in err[0] and not (tmp_path / "bad").exists()
+    # the parser keeps its choices without importing the robot layer: they must be realtime's modes
+    from hinfnn.cli._parser import _parser
+    from hinfnn.robot.realtime import MODES
+
+    robot_run = next(a for a in _parser()._subparsers._group_actions[0].choices["robot"]._subparsers
+                     ._group_actions[0].choices["run"]._actions if "--scheduling" in a.option_strings)
+    assert tuple(robot_run.choices) == MODES
 
 
 def test_a_ur5_joint_driven_to_its_limit_stops(tmp_path):

@@ -175,6 +175,7 @@ class FrankaRobot(Robot):
         self._G = np.zeros(7)
         self._tau_w = np.zeros(7)  # the last torque written beyond gravity (none before the first: zero)
         self._first = None      # the reading taken when the torque interface opened
+        self._scheduling = None  # the thread's scheduling before start (restored by stop)
         self.rate_clamped = 0   # writes whose change was clamped to TORQUE_RATE_LIMIT
         self.torque_clamped = 0  # writes clamped to the effort limits
         self.moved = 0.0        # largest joint motion of the move to the start pose, rad
@@ -310,7 +311,8 @@ class FrankaRobot(Robot):
             except Exception:  # noqa: BLE001
                 pass
             del robot
-        restore_scheduling(getattr(self, "_scheduling", None))  # the thread as it was before start
+        restore_scheduling(self._scheduling)  # the thread as it was before start
+        self._scheduling = None
 
     def report(self) -> dict:
         """What the robot did beside the loop (metrics.json ``robot.device``)."""
