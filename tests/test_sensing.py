@@ -306,6 +306,15 @@ def test_source_auto_follows_the_assumed_sensor_and_a_bad_source_names_the_key()
     assert dict(term.design)["sensing"]["source"] == "velocity"
     assumed = _paper({"plant.sensor.force_noise": 0.1, "controller.sensor.noise": 0.0}).build_controller()
     assert assumed.term(H.controllers.ForceRate).source == "force"  # the assumed sensor decides
+    # a late sensor without noise: "velocity", designed on the sampled loop with its delay (it used to get the
+    # ideal sensor's rule, a κ no sample of delay was checked against)
+    assert ForceRateConfig().resolved(0.0, 1) == "velocity" and ForceRateConfig().resolved(0.0, 0) == "force"
+    late = _paper({"plant.sensor.delay": 1}).build_controller().term(H.controllers.ForceRate)
+    assert late.source == "velocity" and dict(late.design)["sensing"]["delay"] == 1
+    # "force" asked for with a late sensor: designed for the delay too (here a κ of 3.6 ms, not the rule's 28 ms)
+    forced = _paper({"plant.sensor.delay": 1, "controller.force_rate.source": "force"}).build_controller()
+    sd = dict(forced.term(H.controllers.ForceRate).design)["sensing"]
+    assert sd["delay"] == 1 and sd["source"] == "force" and sd["kappa"] < 0.01
     with pytest.raises(ConfigError) as err:
         H.load_scenario("paper-stable", {"controller.force_rate.source": "speed"})
     assert err.value.key == "controller.force_rate.source"

@@ -264,7 +264,8 @@ def design(kind: str, arm, surface, gains: Gains | None = None, *, augmented: bo
 
         sensing = None
         velocity = force_rate.get("source", "force") == "velocity"
-        if filtering or (velocity and force_rate.get("period") is not None):  # "velocity": the sampled loop's design
+        sampled = force_rate.get("period") is not None
+        if filtering or (sampled and (velocity or int(ff.get("delay", 0)) > 0)):  # the sampled loop's design
             force_net = next((t.network for t in terms if isinstance(t, T.ForceNetwork)), None)
             sensing = dict(order=ff.get("order", 0), cutoff_hz=ff.get("cutoff_hz", "design"),
                            noise=float(ff.get("noise", 0.0)), delay=int(ff.get("delay", 0)),

@@ -1201,14 +1201,16 @@ class ForceRateConfig:
     source: Literal["auto", "force", "velocity"] = param(
         "auto", doc="what ds/dt is: \"force\" (the filtered difference of the measured e_lam), \"velocity\" (the "
                     "contact force's rate from the measured joint rates on the nominal constraint, scaled by "
-                    "stiffness_max), \"auto\" (\"velocity\" when controller.sensor assumes force noise, else "
-                    "\"force\")")
+                    "stiffness_max), \"auto\" (\"velocity\" when controller.sensor assumes force noise or a "
+                    "delay, else \"force\")")
 
-    def resolved(self, noise: float) -> str:
-        """The source run: ``source``, with "auto" resolved by the force noise the design assumes
-        (``noise``, N: :meth:`SensorAssumptionConfig.resolved`): "velocity" when it is not 0."""
+    def resolved(self, noise: float, delay: int = 0) -> str:
+        """The source run: ``source``, with "auto" resolved by the sensor the design assumes (``noise``,
+        N, and ``delay``, samples: :meth:`SensorAssumptionConfig.resolved`): "velocity" when either is
+        not 0 (the differenced force of a late sensor holds a narrower range of contacts than the joint
+        rates, which the encoders give without the force sensor's noise)."""
         if self.source == "auto":
-            return "velocity" if noise > 0.0 else "force"
+            return "velocity" if noise > 0.0 or delay > 0 else "force"
         return self.source
 
     def validate(self, path):
@@ -1399,7 +1401,7 @@ class ControllerConfig:
         fr = self.force_rate
         force_rate = None
         noise, delay = self.sensor.resolved(declared)
-        source = fr.resolved(noise)
+        source = fr.resolved(noise, delay)
         if fr.kappa != 0.0:
             force_rate = dict(kappa=fr.kappa, tau_f=fr.tau_f, zeta=fr.zeta, stiffness_min=fr.stiffness_min,
                               stiffness_max=fr.stiffness_max, u1_path=u1_path, q_start=q_start, period=period,
@@ -1412,7 +1414,9 @@ class ControllerConfig:
                                   "control (simulation.control = \"sampled\", or a plant that steps itself)",
                                   key="controller.force_filter.order")
             force_filter = dict(order=ff.order, cutoff_hz=ff.cutoff_hz, noise=noise, delay=delay, period=period)
-        elif force_rate is not None and source == "velocity" and period is not None:  # designed for the sensor
+        elif force_rate is not None and period is not None and (source == "velocity" or delay > 0):
+            # designed for the sensor: the sampled loop with its delay (a late sensor is never given the ideal
+            # sensor's rule)
             force_filter = dict(order=0, cutoff_hz="design", noise=noise, delay=delay, period=period)
         rate_limit = self.actuator.resolved(declared_rate, int(arm.n))
         if rate_limit is not None and force_filter is not None:  # the design keeps within the motors' rate
