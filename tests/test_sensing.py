@@ -200,8 +200,9 @@ def test_a_noisy_late_sensor_on_the_ur5_drum_holds_within_the_torque_limits_only
 
     over = {"controller.kind": "hinf", "simulation.t_final": 1.2, "plant.sensor.force_noise": 1.0,
             "plant.sensor.delay": 1, "plant.actuator.torque_limit": "urdf"}
-    paper = H.load_scenario("ur5-polish", {**over, "controller.force_rate.source": "force",
-                                           "controller.force_filter.order": 0})
+    paper = H.load_scenario("ur5-polish", {**over, "controller.force_rate.source": "force",  # designed as if the
+                                           "controller.force_filter.order": 0,              # sensor were ideal
+                                           "controller.sensor.delay": 0, "controller.sensor.noise": 0.0})
     designed = H.load_scenario("ur5-polish", {**over, "controller.force_filter.order": "design"})
     sd = dict(designed.build_controller().terms[-1].design)["sensing"]
     assert sd["delay"] == 1 and sd["noise"] == 1.0  # the declared sensor, copied by the scenario
