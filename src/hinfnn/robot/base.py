@@ -24,8 +24,10 @@ class Reading:
     robot estimates them instead (None here: every robot hinfnn drives today has a force sensor).
     ``missed``: control periods in a row, up to this reading, in which the robot got no fresh
     torque and held the previous one (0 when every torque arrived in time). ``wall``: the robot's
-    ``time.perf_counter()`` when the reading was taken (same clock as the loop's on one machine),
-    or NaN when unknown.
+    ``time.perf_counter()`` of the tick the reading belongs to (same clock as the loop's on one
+    machine; the torque for it is due one period later), or NaN when unknown or when no tick is due
+    yet (the virtual robot's first reading: its clock starts with the first torque). The loop
+    counts a cycle's lateness from this stamp, or from the reading's return when it is NaN.
     """
 
     t: float
@@ -47,10 +49,16 @@ class Robot(abc.ABC):
     * :meth:`stop`: hold the robot still and disconnect (idempotent; also on errors).
 
     A robot is a context manager: ``with robot: ...`` starts and stops it.
+
+    ``clock_waits``: whether the robot's clock starts only with the first torque written (the
+    virtual robot's: the arm is held until then), so that the loop may first warm its law up on the
+    thread and CPU it will run on (:func:`hinfnn.robot.loop.run_loop`'s ``warm``); False (a Franka,
+    whose torque interface runs once started) leaves the first cycle to the first reading.
     """
 
     period: float
     n: int
+    clock_waits: bool = False
 
     @abc.abstractmethod
     def start(self) -> None: ...

@@ -128,7 +128,7 @@ def _no_collection():
 
 
 def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, gravity, point_jacobian,
-             log=None, scheduling: str = "off", cpu=None) -> LoopLog:
+             log=None, scheduling: str = "off", cpu=None, warm=None) -> LoopLog:
     """Drive ``robot`` with ``sampled`` (a :class:`hinfnn.controllers.SampledController`, its
     compiled update warmed up before the call) until the robot's time reaches ``t_final`` or the
     safety layer stops it. ``gravity(q)``, ``point_jacobian(q)``: the nominal arm's G and tool-point
@@ -136,8 +136,14 @@ def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, g
     robot must be started; the loop does not stop it. Python's cyclic garbage collector is held
     off while the loop runs (:func:`_no_collection`; collect before starting the robot). ``scheduling``
     (:data:`hinfnn.robot.realtime.MODES`) and ``cpu``: the calling thread's real-time scheduling while
-    the loop runs (:func:`hinfnn.robot.realtime.realtime`), recorded as the log's ``scheduling``."""
+    the loop runs (:func:`hinfnn.robot.realtime.realtime`), recorded as the log's ``scheduling``.
+    ``warm()``: called once on the scheduled thread before the first reading when the robot's clock
+    waits for the first torque (:attr:`~hinfnn.robot.Robot.clock_waits`): the law's first calls on
+    the CPU the loop is pinned to are slower than the rest (its code and data not yet in that CPU's
+    caches), which a started clock would count as late cycles."""
     with realtime(scheduling, cpu=cpu) as how, _no_collection():
+        if warm is not None and getattr(robot, "clock_waits", False):
+            warm()
         out = _drive(robot, sampled, limits, t_final=t_final, gravity=gravity, point_jacobian=point_jacobian, log=log)
     out.scheduling = how
     return out

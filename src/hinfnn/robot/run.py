@@ -85,9 +85,15 @@ def make_robot(sc, robot: str, faults=(), host: str = "127.0.0.1", scheduling: s
     raise ConfigError(f"unknown robot {robot!r}; allowed: {', '.join(ROBOTS)}", key="--robot")
 
 
+#: Samples a throwaway loop runs before the robot starts (:func:`prepared`).
+WARM_SAMPLES = 3
+
+
 def prepared(sc):
-    """(sampled controller, limits, gravity(q), point_jacobian(q)) of a scenario's one controller,
-    every compiled function warmed up (a first call compiles: never inside the loop)."""
+    """(sampled controller, limits, gravity(q), point_jacobian(q), warm()) of a scenario's one
+    controller, every compiled function warmed up (a first call compiles: never inside the loop);
+    ``warm()`` runs the warm-up again (:func:`hinfnn.robot.loop.run_loop` calls it on the loop's own
+    thread and CPU)."""
     import jax
 
     from ..controllers.sampled import SampledController
@@ -105,11 +111,19 @@ def prepared(sc):
     gravity = (lambda q: np.asarray(gravity_fn(np.asarray(q, dtype=float))))
     point_jacobian = (lambda q: np.asarray(jac_fn(np.asarray(q, dtype=float))))
     gravity(q), point_jacobian(q)
-    warm = sampled.loop()
-    warm.update(0.0, limits.period, q, np.zeros(n), np.zeros(d))
+    # a loop run for a few samples at the start pose: its first update (the start at the first sample)
+    # and the next ones (the update on the state the previous one gave back) each do work once that
+    # the robot's first cycles must not (measured: the first two cycles of every robot run were late)
+    q_start = np.asarray(setup.start_q, dtype=float)
+
+    def warm():  # a throwaway loop, a few samples at the start pose (run again on the loop's own thread)
+        loop = sampled.loop()
+        for k in range(WARM_SAMPLES):
+            loop.update(k * limits.period, limits.period, q_start, np.zeros(n), np.zeros(d))
+    warm()
     if needs_start(controller):
         sampled._start(0.0, sampled.init(), Measurement(q=q, qd=np.zeros(n), force=np.zeros(d)))
-    return sampled, limits, gravity, point_jacobian
+    return sampled, limits, gravity, point_jacobian, warm
 
 
 def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, command: str = "", log=print,
@@ -141,13 +155,13 @@ def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, 
     case = cases(sc, tags={"robot": robot if isinstance(robot, str) else type(robot).__name__})[0]
     with result_folder(out, command="robot", name=result_name(sc), kind="run", force=force, log=log,
                        command_line=command) as written:
-        sampled, limits, gravity, jacobian = prepared(sc)
+        sampled, limits, gravity, jacobian, warm = prepared(sc)
         bot = make_robot(sc, robot, faults, host, scheduling, cpu) if isinstance(robot, str) else robot
         gc.collect()  # before the robot starts: the loop holds the collector off (hinfnn.robot.loop)
         t0 = time.perf_counter()
         with bot:
             loop_log = run_loop(bot, sampled, limits, t_final=sc.simulation.t_final, gravity=gravity,
-                                point_jacobian=jacobian, log=event_log, scheduling=scheduling, cpu=cpu)
+                                point_jacobian=jacobian, log=event_log, scheduling=scheduling, cpu=cpu, warm=warm)
         traj = trajectory(loop_log, sampled, case.info())
         metrics = compute_metrics(traj)
         outcome = Outcome(cases=[case], trajectories={case.name: traj}, metrics={case.name: metrics},

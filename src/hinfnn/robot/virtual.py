@@ -231,7 +231,7 @@ def serve(config: dict) -> None:
         _publish(R, prev)
 
     S[0] = _RUNNING
-    publish(0, state, 0)
+    publish(0, state, 0, math.nan if realtime else None)  # in real time no tick yet: the clock starts with the first torque
     if ahead:
         upcoming = sensor.upcoming(sensed)
         upcoming = tuple(np.array(a, dtype=float) for a in (upcoming.q, upcoming.qd, upcoming.force))
@@ -303,6 +303,8 @@ class VirtualRobot(Robot):
     on ``cpus`` (a collection of CPUs; None: any), reported by :meth:`report`; lock-step runs are never
     real-time scheduled nor pinned.
     """
+
+    clock_waits = True  # the served clock starts with the first torque (the arm held until then)
 
     def __init__(self, scenario, faults=(), limit: float | None = None, realtime: bool = True,
                  scheduling: str = "auto", cpus=None):
