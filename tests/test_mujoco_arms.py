@@ -735,7 +735,8 @@ def test_design_refuses_what_run_refuses(monkeypatch, capsys):
 
 def test_mjcf_file_is_a_path_or_a_shipped_name(tmp_path, monkeypatch, capsys):
     """plant.mjcf.file: a file of that name (any extension) is the user's, relative to the
-    scenario file in a file and to the working directory with --set; else a shipped model; an
+    scenario file in a file; with --set relative to the working directory, else to the scenario
+    file (a name in both places that are different files is refused); else a shipped model; an
     unknown name lists the shipped ones."""
     from hinfnn.scenario.sections import mjcf_path
 
@@ -757,7 +758,22 @@ def test_mjcf_file_is_a_path_or_a_shipped_name(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(folder.parent.parent)
     sc = H.load_scenario(str(folder / "s.toml"), check=False)
     assert sc.plant.mjcf.file == str((folder / "arm.xml").resolve())
+    # --set: a file in the working directory as typed, else the one beside the scenario file
+    scenario = str(folder / "s.toml")
+    sc = H.load_scenario(scenario, ["plant.mjcf.file=arm.xml"], check=False)  # cwd: tmp_path's parent
+    assert sc.plant.mjcf.file == str((folder / "arm.xml").resolve())
+    assert dict(sc.overrides)["plant.mjcf.file"] == sc.plant.mjcf.file  # re-applied from anywhere
+    with pytest.raises(ConfigError) as err:  # in neither place: both named
+        H.load_scenario(scenario, ["plant.mjcf.file=other.xml"], check=False)
+    assert err.value.key == "plant.mjcf.file" and str((folder / "other.xml").resolve()) in str(err.value)
+    assert str((tmp_path.parent / "other.xml").resolve()) in str(err.value) and "'ur5e'" in str(err.value)
     monkeypatch.chdir(tmp_path)
+    (tmp_path / "arm.xml").write_text(mine.read_text(encoding="utf-8"), encoding="utf-8")
+    with pytest.raises(ConfigError) as err:  # two different files of that name: which one is not guessed
+        H.load_scenario(scenario, ["plant.mjcf.file=arm.xml"], check=False)
+    assert err.value.key == "plant.mjcf.file" and "absolute path" in str(err.value)
+    for path in (folder / "arm.xml", tmp_path / "arm.xml"):
+        assert str(path.resolve()) in str(err.value)
     plant = H.load_scenario("ur5e-polish", ["plant.mjcf.file=mj-copy.mjcf"]).build_plant()  # --set: the cwd
     assert plant.scene.source == "mj-copy.mjcf" and plant.model.nq == 6
 
