@@ -429,9 +429,9 @@ def _set_path(key: str, value: str, folder, suffix: str) -> str:
     if not here.exists() and looks_like_path and value not in shipped_robots(suffix):
         tried = f"{here.resolve()} (from the working directory)"
         if beside is not None:
-            tried += f" nor {beside.resolve()} (beside the scenario file)"
+            tried = f"neither {tried} nor {beside.resolve()} (beside the scenario file)"
         what = "a URDF" if suffix == ".urdf" else "an MJCF"
-        raise ConfigError(f"{value}: no such file: neither {tried}; give the path of {what} file or the name of "
+        raise ConfigError(f"{value}: no such file: {tried}; give the path of {what} file or the name of "
                           f"one shipped with hinfnn ({', '.join(repr(k) for k in shipped_robots(suffix))})", key=key)
     return value
 
