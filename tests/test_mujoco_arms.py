@@ -705,8 +705,9 @@ def test_user_mjcf_mass_scale_and_payload_are_the_perturbed_urdf():
 
 
 def test_torque_limits_of_a_user_mjcf_fall_back_to_the_given_ones():
-    """The effort limits of a user's MJCF are its actuators' force ranges; a joint without one
-    takes the nominal URDF's (``effort_limit``)."""
+    """The effort limits of a user's MJCF are what the file states (its joints' actuatorfrcrange,
+    its actuators' force ranges times their gear); a joint without one takes the nominal URDF's
+    (``effort_limit``)."""
     urdf = load_urdf(UR5E_URDF, "base_link", "tool0")
     plant = _user(surface=Sphere.build((5.0, 5.0, 5.0), 0.3))
     np.testing.assert_array_equal(np.asarray(plant.arm.chain.effort_limit), [150, 150, 150, 28, 28, 28])
@@ -715,6 +716,17 @@ def test_torque_limits_of_a_user_mjcf_fall_back_to_the_given_ones():
     assert np.all(np.isinf(np.asarray(chain_from_model(model, UR5E_JOINTS, site).effort_limit)))
     given = chain_from_model(model, UR5E_JOINTS, site, effort_limit=urdf.effort_limit)
     np.testing.assert_array_equal(np.asarray(given.effort_limit), np.asarray(urdf.effort_limit))
+    # a joint's actuatorfrcrange, an actuator's force range times its gear (summed over the joint's
+    # actuators), the smaller of the two; an actuator without a force range states nothing
+    xml = chain_xml(urdf)
+    for joint, limit in (("shoulder_pan_joint", 40), ("elbow_joint", 20)):
+        xml = xml.replace(f'<joint name="{joint}" ', f'<joint name="{joint}" actuatorfrcrange="-{limit} {limit}" ')
+    xml = xml.replace("</mujoco>", '<actuator><motor joint="shoulder_lift_joint" gear="50" forcerange="-2 2"/>'
+                      '<motor joint="elbow_joint" gear="-10" forcerange="-3 3"/>'
+                      '<motor joint="wrist_1_joint" forcerange="-5 5"/><motor joint="wrist_1_joint" gear="2" '
+                      'forcerange="-1 1"/><motor joint="wrist_2_joint" gear="3"/></actuator></mujoco>')
+    stated = chain_from_model(mujoco.MjModel.from_xml_string(xml), UR5E_JOINTS, site, effort_limit=urdf.effort_limit)
+    np.testing.assert_array_equal(np.asarray(stated.effort_limit), [40, 100, 20, 7, 28, 28])
 
 
 def test_design_refuses_what_run_refuses(monkeypatch, capsys):
@@ -735,7 +747,8 @@ def test_design_refuses_what_run_refuses(monkeypatch, capsys):
 
 def test_mjcf_file_is_a_path_or_a_shipped_name(tmp_path, monkeypatch, capsys):
     """plant.mjcf.file: a file of that name (any extension) is the user's, relative to the
-    scenario file in a file and to the working directory with --set; else a shipped model; an
+    scenario file in a file; with --set relative to the working directory, else to the scenario
+    file (a name in both places that are different files is refused); else a shipped model; an
     unknown name lists the shipped ones."""
     from hinfnn.scenario.sections import mjcf_path
 
@@ -757,7 +770,22 @@ def test_mjcf_file_is_a_path_or_a_shipped_name(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(folder.parent.parent)
     sc = H.load_scenario(str(folder / "s.toml"), check=False)
     assert sc.plant.mjcf.file == str((folder / "arm.xml").resolve())
+    # --set: a file in the working directory as typed, else the one beside the scenario file
+    scenario = str(folder / "s.toml")
+    sc = H.load_scenario(scenario, ["plant.mjcf.file=arm.xml"], check=False)  # cwd: tmp_path's parent
+    assert sc.plant.mjcf.file == str((folder / "arm.xml").resolve())
+    assert dict(sc.overrides)["plant.mjcf.file"] == sc.plant.mjcf.file  # re-applied from anywhere
+    with pytest.raises(ConfigError) as err:  # in neither place: both named
+        H.load_scenario(scenario, ["plant.mjcf.file=other.xml"], check=False)
+    assert err.value.key == "plant.mjcf.file" and str((folder / "other.xml").resolve()) in str(err.value)
+    assert str((tmp_path.parent / "other.xml").resolve()) in str(err.value) and "'ur5e'" in str(err.value)
     monkeypatch.chdir(tmp_path)
+    (tmp_path / "arm.xml").write_text(mine.read_text(encoding="utf-8"), encoding="utf-8")
+    with pytest.raises(ConfigError) as err:  # two different files of that name: which one is not guessed
+        H.load_scenario(scenario, ["plant.mjcf.file=arm.xml"], check=False)
+    assert err.value.key == "plant.mjcf.file" and "absolute path" in str(err.value)
+    for path in (folder / "arm.xml", tmp_path / "arm.xml"):
+        assert str(path.resolve()) in str(err.value)
     plant = H.load_scenario("ur5e-polish", ["plant.mjcf.file=mj-copy.mjcf"]).build_plant()  # --set: the cwd
     assert plant.scene.source == "mj-copy.mjcf" and plant.model.nq == 6
 

@@ -163,6 +163,17 @@ def test_scenario_file_relative_to_the_scenario(tmp_path):
     assert sc.build().plant.arm.n == 6
 
 
+def test_set_file_not_in_the_working_directory_is_beside_the_scenario(tmp_path, monkeypatch):
+    """``--set nominal.arm.file=ur5b.xml`` from another folder: no such file in the working
+    directory, so the one beside the scenario file, made absolute."""
+    shutil.copy(shipped_robots()["ur5"], tmp_path / "ur5.xml")
+    shutil.copy(shipped_robots()["ur5"], tmp_path / "ur5b.xml")
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    sc = Scenario.load(_scenario_with_file(tmp_path, "ur5.xml"), ["nominal.arm.file=ur5b.xml"], check=False)
+    assert sc.nominal.arm.file == str((tmp_path / "ur5b.xml").resolve())
+
+
 @pytest.mark.parametrize("value, pattern", [
     ("arm.urdf.xacro", "is a xacro file: expand it with xacro first"),
     ("folder", "is a folder, not a URDF file"),

@@ -127,11 +127,12 @@ def robot_file(value: str, suffix: str = ".urdf") -> str:
         return shipped[value]
     looks_like_path = os.sep in value or "/" in value or os.path.splitext(value)[1] != ""
     names = ", ".join(repr(k) for k in shipped)
+    article, kind = ("a", "robot") if suffix == ".urdf" else ("an", "model")
     close = difflib.get_close_matches(value, list(shipped), n=1, cutoff=0.6)
     hint = f"; did you mean {close[0]!r}?" if close else ""
     if looks_like_path:
-        raise UrdfError(f"no such file; give the path of a {what} file (in a scenario file relative to that file, on "
-                        f"the command line to the working directory) or a robot shipped with hinfnn: {names}{hint}",
+        raise UrdfError(f"no such file; give the path of {article} {what} file (in a scenario file relative to that file, "
+                        f"on the command line to the working directory) or a {kind} shipped with hinfnn: {names}{hint}",
                         value)
     raise UrdfError(f"is neither a file nor a {'robot' if suffix == '.urdf' else 'model'} shipped with hinfnn "
                     f"({names}){hint}", value)

@@ -71,7 +71,7 @@ class Scenario:
     @classmethod
     def from_dict(cls, raw: dict, overrides=(), *, source: str = "<dict>", check: bool = True) -> "Scenario":
         """Build from a plain dict (the TOML table), resolving ``base`` and applying overrides."""
-        items = override_items(overrides)
+        items = _resolve_set_paths(override_items(overrides), source)
         data = resolve_base(_resolve_paths(raw, source), source)
         if items:
             before, given = copy.deepcopy(data), {}
@@ -373,14 +373,14 @@ def _resolve_paths(raw: dict, source: str) -> dict:
     scenario file that names them, made absolute (so a scenario.toml written elsewhere still finds
     them): a value is a path when a file or folder of that name exists beside the scenario, or
     when it looks like one (a '/' or an extension) and is not the name of a shipped robot or MJCF
-    model (then the error names the path tried). A value given with ``--set`` is not resolved
-    here: it is relative to the working directory, as anything typed on a command line."""
+    model (then the error names the path tried). A value given with ``--set`` is resolved by
+    :func:`_resolve_set_paths`."""
     if source == "<dict>" or not Path(source).is_file():
         return raw
     from ..model.urdf import shipped_robots
 
     out = raw
-    for who, section, suffix in (("plant", "arm", ".urdf"), ("nominal", "arm", ".urdf"), ("plant", "mjcf", ".xml")):
+    for who, section, suffix in _FILE_KEYS:
         part = raw.get(who, {}).get(section) if isinstance(raw.get(who), dict) else None
         f = part.get("file") if isinstance(part, dict) else None
         if not isinstance(f, str) or not f or Path(f).is_absolute():
@@ -392,6 +392,52 @@ def _resolve_paths(raw: dict, source: str) -> dict:
                 out = copy.deepcopy(raw)
             out[who][section]["file"] = str(candidate.resolve())
     return out
+
+
+def _resolve_set_paths(items, source: str) -> list:
+    """The override pairs with each relative file path (``plant.arm.file``, ``nominal.arm.file``,
+    ``plant.mjcf.file``) found: a file of that name in the working directory (a path typed in a
+    shell) is kept as given; else one beside the scenario file (a scenario loaded from a file) is
+    made absolute; a value naming a file in both places that are not the same file is refused
+    (ConfigError at the key naming both: give an absolute path); a value that looks like a path (a
+    '/' or an extension), is no shipped robot or model and is in neither place is refused naming
+    both places tried. Anything else (a shipped name, an absolute path) is kept for the section's
+    own reading of it."""
+    keys = {f"{who}.{section}.file": suffix for who, section, suffix in _FILE_KEYS}
+    folder = Path(source).parent if source != "<dict>" and Path(source).is_file() else None
+    out = []
+    for key, value in items:
+        if key in keys and isinstance(value, str) and value and not Path(value).is_absolute():
+            value = _set_path(key, value, folder, keys[key])
+        out.append((key, value))
+    return out
+
+
+def _set_path(key: str, value: str, folder, suffix: str) -> str:
+    from ..model.urdf import shipped_robots
+
+    here = Path(value)
+    beside = folder / value if folder is not None else None
+    if beside is not None and beside.exists():
+        if not here.exists():
+            return str(beside.resolve())
+        if here.resolve() != beside.resolve():
+            raise ConfigError(f"{value!r} names two files, {here.resolve()} (from the working directory) and "
+                              f"{beside.resolve()} (beside the scenario file): give an absolute path", key=key)
+        return value
+    looks_like_path = "/" in value or here.suffix != ""
+    if not here.exists() and looks_like_path and value not in shipped_robots(suffix):
+        tried = f"{here.resolve()} (from the working directory)"
+        if beside is not None:
+            tried = f"neither {tried} nor {beside.resolve()} (beside the scenario file)"
+        what = "a URDF" if suffix == ".urdf" else "an MJCF"
+        raise ConfigError(f"{value}: no such file: {tried}; give the path of {what} file or the name of "
+                          f"one shipped with hinfnn ({', '.join(repr(k) for k in shipped_robots(suffix))})", key=key)
+    return value
+
+
+#: The scenario keys that name a file: (section, subsection, the suffix of the shipped files).
+_FILE_KEYS = (("plant", "arm", ".urdf"), ("nominal", "arm", ".urdf"), ("plant", "mjcf", ".xml"))
 
 
 def suggest_key(key: str) -> str:

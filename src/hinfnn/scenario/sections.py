@@ -222,7 +222,7 @@ class UrdfArmConfig(ArmConfig):
     nominal arm is usually the file as written."""
 
     file: str = param(doc="URDF: a path to a URDF file (any extension; relative to the scenario file, or on the "
-                          "command line to the working directory), or a robot "
+                          "command line to the working directory, else to the scenario file), or a robot "
                           "shipped with hinfnn when no such file exists ('ur5', 'panda', 'ur10', 'kinova', "
                           "'planar/three_link', 'planar/sec6_two_link'); xacro files must be expanded first")
     base_link: str = param(doc="link the chain starts from (fixed)")
@@ -757,9 +757,9 @@ class MjcfConfig:
     """A user's MJCF as the true arm (``file`` empty: the MJCF is generated from ``plant.arm``)."""
 
     file: str = param("", doc="MJCF of the true arm: a path to an MJCF file (any extension; relative to the scenario "
-                              "file, or on the command line to the working directory), or a model shipped with "
-                              "hinfnn when no such file exists ('ur5e': MuJoCo Menagerie's UR5e); empty: generated "
-                              "from plant.arm")
+                              "file, or on the command line to the working directory, else to the scenario file), "
+                              "or a model shipped with hinfnn when no such file exists ('ur5e': MuJoCo Menagerie's "
+                              "UR5e, 'fr3'); empty: generated from plant.arm")
     joints: tuple[str, ...] = param((), doc="the arm's joints in the MJCF, from the base to the tool (all of its degrees "
                                             "of freedom; default: the joint names of plant.arm)")
     tool_site: str = param("", doc="the MJCF site the tool hangs from (e.g. the flange)")

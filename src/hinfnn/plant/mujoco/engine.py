@@ -663,7 +663,8 @@ class MujocoPlant(DiscretePlant):
         joint angles). The model keeps what it has (armature, damping, friction loss, springs); its
         actuators are switched off. ``mass_scale``, ``payload_mass``, ``payload_xyz``: the true
         arm's perturbation, applied to the file (:func:`~hinfnn.plant.mujoco.scene.build_scene`);
-        ``effort_limit``: the joints' torque limits where the file has no actuator force range
+        ``effort_limit``: the joints' torque limits where the file states none (a joint's
+        ``actuatorfrcrange`` or its actuators' force ranges)
         (e.g. the nominal URDF's). The rest as :meth:`from_models`."""
         from ...model.augmented import chain_arm
 

@@ -715,6 +715,27 @@ def _scale_masses(mujoco, spec, model, joints, mass_scale):
     spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
 
 
+def _effort_limits(mujoco, model, jids, given):
+    """Each listed joint's torque (or force) limit as the file states it: the joint's own
+    ``actuatorfrcrange`` and the actuators on it (each force range times its gear, summed over the
+    joint's actuators when every one of them has a force range), the smaller where both are
+    given; a joint with neither takes ``given``'s entry (infinite without it)."""
+    n = len(jids)
+    effort = np.full(n, np.inf) if given is None else np.array(given, dtype=float).reshape(n)
+    for i, j in enumerate(jids):
+        acts = [a for a in range(model.nu) if int(model.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT)
+                and int(model.actuator_trnid[a, 0]) == j]
+        stated = []
+        if acts and all(model.actuator_forcelimited[a] for a in acts):
+            stated.append(sum(abs(float(model.actuator_gear[a, 0]))
+                              * float(np.max(np.abs(model.actuator_forcerange[a]))) for a in acts))
+        if model.jnt_actfrclimited[j]:
+            stated.append(float(np.max(np.abs(model.jnt_actfrcrange[j]))))
+        if stated:
+            effort[i] = min(stated)
+    return effort
+
+
 def chain_from_model(model, joints, site: str | int, effort_limit=None):
     """The :class:`~hinfnn.model.urdf.UrdfChain` of a compiled MuJoCo arm: its rigid-body part.
 
@@ -724,9 +745,9 @@ def chain_from_model(model, joints, site: str | int, effort_limit=None):
     anchor; body i is every MuJoCo body whose nearest listed joint above it (itself included) is
     joint i, lumped (parallel-axis theorem) in that frame; bodies above the first joint are the
     base. Not in the chain: armature, damping, friction loss, springs, limits' forces, actuators
-    (what the nominal of a user's MJCF does not know); its effort limits are the force ranges of the
-    actuators on the joints, where a joint has none ``effort_limit``'s entry (e.g. the nominal
-    URDF's; infinite without it)."""
+    (what the nominal of a user's MJCF does not know); its effort limits are the joints'
+    ``actuatorfrcrange`` and the force ranges of the actuators on them times their gear, where a
+    joint has neither ``effort_limit``'s entry (e.g. the nominal URDF's; infinite without it)."""
     import jax.numpy as jnp
 
     from ...model.urdf import UrdfChain
@@ -770,13 +791,7 @@ def chain_from_model(model, joints, site: str | int, effort_limit=None):
     lower = [model.jnt_range[j, 0] if model.jnt_limited[j] else -np.inf for j in jids]
     upper = [model.jnt_range[j, 1] if model.jnt_limited[j] else np.inf for j in jids]
     names = [[model.body(b).name for b in range(1, model.nbody) if owner(b) == i] for i in range(n)]
-    # the force range of an actuator on the joint, if it has one; else the one given
-    effort = np.full(n, np.inf) if effort_limit is None else np.array(effort_limit, dtype=float).reshape(n)
-    for a in range(model.nu):
-        if int(model.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and model.actuator_forcelimited[a]:
-            j = int(model.actuator_trnid[a, 0])
-            if j in jids:
-                effort[jids.index(j)] = float(np.max(np.abs(model.actuator_forcerange[a])))
+    effort = _effort_limits(mujoco, model, jids, effort_limit)
     f = lambda x: jnp.asarray(np.asarray(x, dtype=float))  # noqa: E731
     return UrdfChain(
         placement_rot=f(place_R), placement_pos=f(place_p),
