@@ -137,10 +137,10 @@ def run_loop(robot: Robot, sampled, limits: S.SafetyLimits, *, t_final: float, g
     off while the loop runs (:func:`_no_collection`; collect before starting the robot). ``scheduling``
     (:data:`hinfnn.robot.realtime.MODES`) and ``cpu``: the calling thread's real-time scheduling while
     the loop runs (:func:`hinfnn.robot.realtime.realtime`), recorded as the log's ``scheduling``.
-    ``warm()``: called once on the scheduled thread before the first reading when the robot's clock
-    waits for the first torque (:attr:`~hinfnn.robot.Robot.clock_waits`): the law's first calls on
-    the CPU the loop is pinned to are slower than the rest (its code and data not yet in that CPU's
-    caches), which a started clock would count as late cycles."""
+    ``warm()``: called once on the scheduled thread, pinned to its CPU, before the first reading when
+    the robot's clock waits for the first torque (:attr:`~hinfnn.robot.Robot.clock_waits`): the law's
+    first calls are slower than the rest, and calls made where the loop then runs shorten its first
+    cycle (not its second: docs/robot.md, "What was tested")."""
     with realtime(scheduling, cpu=cpu) as how, _no_collection():
         if warm is not None and getattr(robot, "clock_waits", False):
             warm()

@@ -112,8 +112,7 @@ def prepared(sc):
     point_jacobian = (lambda q: np.asarray(jac_fn(np.asarray(q, dtype=float))))
     gravity(q), point_jacobian(q)
     # a loop run for a few samples at the start pose: its first update (the start at the first sample)
-    # and the next ones (the update on the state the previous one gave back) each do work once that
-    # the robot's first cycles must not (measured: the first two cycles of every robot run were late)
+    # and the next ones (the update on the state the previous one gave back) each do work once
     q_start = np.asarray(setup.start_q, dtype=float)
 
     def warm():  # a throwaway loop, a few samples at the start pose (run again on the loop's own thread)

@@ -20,8 +20,9 @@ reading known before it (:meth:`hinfnn.plant.instruments.Sensor.upcoming`): the 
 at the tick and then steps the plant and acquires the new sample while the loop computes, so the
 loop has the whole period, with the same readings and torques as stepping first. With an ideal or
 undelayed sensor the server steps the plant after the tick and publishes then, so the loop has a
-period less that step's time to answer. The server runs every compiled call on its own thread (JAX's CPU async dispatch off). A
-server held up by its own machine for more than half a period moves its clock on by the delay (counted in
+period less that step's time to answer. The first reading has no tick (NaN): the clock starts with
+the first torque. The server runs every compiled call on its own thread (JAX's CPU async dispatch
+off). A server held up by its own machine for more than half a period moves its clock on by the delay (counted in
 :attr:`VirtualRobot.server_behind`) rather than stepping the plant several times in a row with a
 stale torque: a real robot's clock never lags, so the lateness a run sees is the loop's own.
 
@@ -231,7 +232,7 @@ def serve(config: dict) -> None:
         _publish(R, prev)
 
     S[0] = _RUNNING
-    publish(0, state, 0, math.nan if realtime else None)  # in real time no tick yet: the clock starts with the first torque
+    publish(0, state, 0, math.nan if realtime else None)  # no tick yet: the clock starts with the first torque
     if ahead:
         upcoming = sensor.upcoming(sensed)
         upcoming = tuple(np.array(a, dtype=float) for a in (upcoming.q, upcoming.qd, upcoming.force))
