@@ -20,7 +20,7 @@ from hinfnn.errors import ConfigError, DesignError
 from hinfnn.scenario import Scenario
 from hinfnn.sweep import spec_from_dict
 from hinfnn.sweep.tune import (_force_rate_design, _outcome, candidate_overrides, cross_entropy, declared_range,
-                               default_knobs, range_notes, require_holdable, sensed_design, tune)
+                               default_knobs, range_notes, require_holdable, score, sensed_design, tune)
 
 SAMPLED = """
 name = "sampled"
@@ -200,3 +200,24 @@ def test_an_outcome_names_the_criterion_furthest_from_its_tolerance():
     o = outcome([0.001, 0.01], 0.18)
     assert (o.worst, o.badness) == ("force", pytest.approx(1.8))
     assert outcome([0.001, 0.01], 0.05, status=3).worst == "stopped"
+
+
+def test_the_score_does_not_give_up_tracking_for_the_worst_criterion():
+    """The iiwa 14 search (docs/arms-and-surfaces.md): with the force the worst criterion on every draw,
+    a score of the worst criterion alone preferred a design that tracked worse (q 0.28: s1 6.4 mm,
+    r_y 29 mrad) to one within tolerance (q 10: 1.5 mm, 6.6 mrad) at a slightly larger force error."""
+    tol = dict(position_tolerance=0.005, angle_tolerance=0.02, force_tolerance=0.1, out_of_contact=0.0)
+    coords = [("s1", "m"), ("r_y", "rad")]
+
+    def outcome(e, force):
+        m = dict(rms_e_u1_each_last2s=e, verdict=dict(contact_held=True, tracking_within_tolerance=False,
+                                                      force_error_ratio_last2s=force, out_of_contact_after=0.0))
+        return _outcome(m, 0, tol, coords)
+
+    loose = outcome([0.0064, 0.029], 0.25)  # force worst (2.5), r_y and s1 beyond theirs too
+    tight = outcome([0.0015, 0.0066], 0.27)  # force worst (2.7), the rest within
+    assert loose.worst == tight.worst == "force" and tight.others == 0.0
+    assert loose.others == pytest.approx(np.log10(1.28) + np.log10(1.45))
+    assert score([tight]) > score([loose])
+    # within every other tolerance, the score is the worst criterion's alone, as before
+    assert score([tight]) == pytest.approx(-0.01 * np.log10(2.7))

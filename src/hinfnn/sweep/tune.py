@@ -307,6 +307,7 @@ class Outcome:
     done: bool
     badness: float  # the worst criterion over its tolerance (>= 10 for a run that stopped)
     worst: str = ""  # which criterion that is: a motion coordinate's name, "force", "contact" or "stopped"
+    others: float = 0.0  # sum of log10(ratio) over the OTHER criteria beyond their tolerance (0: none)
 
 
 @dataclasses.dataclass
@@ -412,17 +413,24 @@ def _outcome(m: dict, status: int, tol: dict, coords) -> Outcome:
     out_after = v.get("out_of_contact_after")
     if out_after is not None and math.isfinite(out_after):
         ratios.append((out_after / max(tol["out_of_contact"], 1e-3), "contact"))
-    bad, worst = max([r for r in ratios if math.isfinite(r[0])] or [(10.0, "stopped")], key=lambda r: r[0])
-    return Outcome(True, held, tracked, done, float(bad), worst)
+    finite = [r for r in ratios if math.isfinite(r[0])]
+    bad, worst = max(finite or [(10.0, "stopped")], key=lambda r: r[0])
+    others = sum(math.log10(r) for r, name in finite if name != worst and r > 1.0)
+    return Outcome(True, held, tracked, done, float(bad), worst, float(others))
 
 
 def score(outcomes: list[Outcome]) -> float:
     """The share of draws that did their job, plus a hundredth of a tie-break: minus the mean of
-    log10 of the worst criterion over its tolerance (clipped to [0.1, 10])."""
+    log10 of the worst criterion over its tolerance (clipped to [0.1, 10]), minus half the mean of
+    how far the other criteria are beyond theirs (:attr:`Outcome.others`, clipped to 1). The second
+    part is 0 where only the worst criterion misses its tolerance; where several do, it keeps the
+    search from giving up one criterion (the tool's tracking) for the worst (the force), which a
+    draw needs too."""
     if not outcomes:
         return -1.0
     share = sum(o.done for o in outcomes) / len(outcomes)
     tie = -float(np.mean([math.log10(min(max(o.badness, 0.1), 10.0)) for o in outcomes]))
+    tie -= 0.5 * float(np.mean([min(o.others, 1.0) for o in outcomes]))
     return share + 0.01 * tie
 
 
