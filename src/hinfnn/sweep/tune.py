@@ -16,14 +16,16 @@ the nominal error dynamics (K_p × s², K_v × s, the velocity half of Q_p × 1/
 Riccati weights keep their structure), the Riccati weight Q_p's scale, α_λ (β_λ then follows
 from Theorem 1's bound, ``beta_lam = "min"``), α_z, and the force-rate term's damping ratio ζ*
 with its stiffness range set to the spec's declared one (the term is added where the base
-scenario has none). A candidate is one set of factors; its design is the scenario's own
+scenario has none), or, where the base design chose κ for the declared sensor (ζ* sets nothing
+there), a factor on that κ (:func:`default_knobs`). A candidate is one set of factors; its design is the scenario's own
 (Theorem 1's bounds, the Riccati equation, the force-rate design): a candidate the design
 refuses scores −1 and is recorded with the refusal. A feasible candidate is scored on a fixed set
 of tuning draws (draws 0 … N−1 of the spec's seeded streams): the share of draws that *did their
 job* (:func:`hinfnn.metrics.verdicts`: bounded, so within the torque and penetration limits, contact
 held after ``verdict.contact_after``, tracking within tolerance over the last 2 s), plus a small
-tie-break (a hundredth of the mean log10 of how far the worst criterion is from its tolerance)
-so that the search moves where the share is flat. Every generation's candidates and draws are
+tie-break (a hundredth of the mean log10 of how far the worst criterion is from its tolerance,
+and of half how far the other criteria are beyond theirs) so that the search moves where the
+share is flat. Every generation's candidates and draws are
 one :func:`hinfnn.simulate_batch` call per compiled structure. The best candidate and the base
 design are then both run on held-out draws (N … N+M−1, never used in tuning) at the spec's own
 horizon: the before/after shares with 95 % Wilson intervals.
