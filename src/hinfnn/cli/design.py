@@ -108,7 +108,8 @@ def tune_summary(res) -> str:
     for label, outs in (("before", res.held_out_before), ("after", res.held_out_after)):
         fails = failures_by_criterion(outs)
         if fails:
-            lines.append(f"held-out missed {label}, by worst criterion: " + ", ".join(f"{k} {n}" for k, n in fails.items()))
+            lines.append(f"held-out missed {label}, by worst criterion: "
+                         + ", ".join(f"{k} {n}" for k, n in fails.items()))
     return "\n".join(lines)
 
 

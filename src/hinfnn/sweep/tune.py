@@ -285,7 +285,8 @@ def candidate_overrides(scenario, values: dict, stiffness: tuple[float, float] |
     if "kappa" in values:
         if kappa is None:
             raise ConfigError("the kappa knob scales the base design's force-rate gain: the base scenario has no "
-                              "force-rate term (controller.force_rate.kappa = 0; the zeta knob adds one)", key="--knobs")
+                              "force-rate term (controller.force_rate.kappa = 0; the zeta knob adds one)",
+                              key="--knobs")
         out.append(("controller.force_rate.kappa", float(kappa) * float(values["kappa"])))
     if "zeta" in values:
         out += [("controller.force_rate.kappa", "rule"), ("controller.force_rate.zeta", float(values["zeta"]))]
