@@ -221,3 +221,18 @@ def test_the_score_does_not_give_up_tracking_for_the_worst_criterion():
     assert score([tight]) > score([loose])
     # within every other tolerance, the score is the worst criterion's alone, as before
     assert score([tight]) == pytest.approx(-0.01 * np.log10(2.7))
+
+
+def test_the_iiwa14_example_is_the_issues_trial_on_the_users_urdf():
+    """examples/iiwa14 (docs/arms-and-surfaces.md, "Your own arm, tuned"): panda-table's task on the
+    user's iiwa 14 URDF, the truth 20 % heavy with mu = 0.2, and a spec that draws the truth only."""
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[1] / "examples" / "iiwa14"
+    sc = Scenario.load(folder / "iiwa14-table.toml", check=False)
+    assert (sc.plant.arm.mass_scale, sc.plant.friction.coulomb, sc.nominal.arm.mass_scale) == (1.2, 0.2, 1.0)
+    assert sc.build().nominal_arm.n == 7 and sc.task.extra == ("arm_angle",)
+    spec = tomllib.loads((folder / "iiwa14-uncertainty.toml").read_text())
+    assert spec["scenario"] == "iiwa14-table.toml" and set(spec["vary"]) == {
+        "plant.arm.mass_scale", "plant.arm.payload_mass", "plant.friction.coulomb"}
+    assert (spec["vary"]["plant.arm.mass_scale"]["low"], spec["vary"]["plant.arm.mass_scale"]["high"]) == (0.8, 1.2)
