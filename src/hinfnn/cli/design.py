@@ -45,12 +45,12 @@ def tune_main(args) -> int:
     from ..errors import ConfigError
     from ..experiment.result import result_folder
     from ..io import dumps_json
-    from ..sweep.tune import KNOB_NAMES, range_notes, tune
+    from ..sweep.tune import range_notes, tune
     from ._common import command_line
 
     if args.json:
         raise ConfigError("--json prints a design; --tune writes a folder (its tune.json)", key="--json")
-    knobs = KNOB_NAMES if args.knobs is None else tuple(k.strip() for k in args.knobs.split(",") if k.strip())
+    knobs = None if args.knobs is None else tuple(k.strip() for k in args.knobs.split(",") if k.strip())
     spec = _spec(args)
     if args.tune_t_final is not None and not 0 < args.tune_t_final <= spec.base.simulation.t_final:
         raise ConfigError(f"must be > 0 and at most the scenario's t_final {spec.base.simulation.t_final:g} s, got "
@@ -105,13 +105,21 @@ def tune_summary(res) -> str:
     for label, attr in (("did its job", "done"), ("held contact", "held"), ("stayed bounded", "bounded")):
         lines.append(f"held-out {label:<15} before {_fmt_share(res.held_out_before, attr)}   after "
                      f"{_fmt_share(res.held_out_after, attr)}")
+    for label, outs in (("before", res.held_out_before), ("after", res.held_out_after)):
+        fails = failures_by_criterion(outs)
+        if fails:
+            lines.append(f"held-out missed {label}, by worst criterion: "
+                         + ", ".join(f"{k} {n}" for k, n in fails.items()))
     return "\n".join(lines)
 
 
 def tune_record(res, spec, args) -> dict:
+    values = res.held_out_values or [{} for _ in res.held_out_draws]
+
     def outs(o):
-        return [dict(draw=i, done=x.done, held=x.held, tracked=x.tracked, bounded=x.bounded, badness=x.badness)
-                for i, x in zip(res.held_out_draws, o)]
+        return [dict(draw=i, values=_plain_values(v), done=x.done, held=x.held, tracked=x.tracked, bounded=x.bounded,
+                     badness=x.badness, worst=x.worst)
+                for i, v, x in zip(res.held_out_draws, values, o)]
 
     return dict(spec=spec.name, seed=spec.seed, search_seed=args.seed, knobs=[k.name for k in res.knobs],
                 stiffness_declared=res.stiffness, tuning_draws=res.tuning_draws, held_out_draws=res.held_out_draws,
@@ -124,6 +132,22 @@ def tune_record(res, spec, args) -> dict:
                 held_out_before=outs(res.held_out_before), held_out_after=outs(res.held_out_after))
 
 
+def _plain_values(values: dict) -> dict:
+    import numpy as np
+
+    return {k: (np.asarray(v).tolist() if not isinstance(v, str) else v) for k, v in values.items()}
+
+
+def failures_by_criterion(outs) -> dict:
+    """How many held-out draws missed their job, by the criterion furthest from its tolerance
+    (:attr:`hinfnn.sweep.tune.Outcome.worst`)."""
+    counts: dict = {}
+    for o in outs:
+        if not o.done:
+            counts[o.worst or "?"] = counts.get(o.worst or "?", 0) + 1
+    return dict(sorted(counts.items(), key=lambda kv: -kv[1]))
+
+
 def tune_markdown(res, spec, args) -> str:
     lines = [f"# `hinfnn design --tune {spec.name}`", "",
              f"Base scenario `{res.tuned.name}`; the spec's draws (seed {spec.seed}): tuning draws "
@@ -134,6 +158,11 @@ def tune_markdown(res, spec, args) -> str:
              "| held-out draws | base design | tuned design |", "|---|---|---|"]
     for label, attr in (("did its job", "done"), ("held contact", "held"), ("stayed bounded", "bounded")):
         lines.append(f"| {label} | {_fmt_share(res.held_out_before, attr)} | {_fmt_share(res.held_out_after, attr)} |")
+    for label, outs in (("base design", res.held_out_before), ("tuned design", res.held_out_after)):
+        fails = failures_by_criterion(outs)
+        if fails:
+            lines.append(f"\nHeld-out draws the {label} missed, by the criterion furthest from its tolerance: "
+                         + ", ".join(f"{k} {n}" for k, n in fails.items()) + " (tune.json: each draw's values).")
     lines += ["", "(95 % Wilson intervals.) Tuned keys:", ""]
     lines += [f"- `{k} = {v!r}`" for k, v in res.best.overrides] or ["- none: no candidate beat the base design"]
     lines += ["", "| generation | candidate | did its job (tuning draws) | score | refused |", "|---|---|---|---|---|"]

@@ -16,14 +16,16 @@ the nominal error dynamics (K_p × s², K_v × s, the velocity half of Q_p × 1/
 Riccati weights keep their structure), the Riccati weight Q_p's scale, α_λ (β_λ then follows
 from Theorem 1's bound, ``beta_lam = "min"``), α_z, and the force-rate term's damping ratio ζ*
 with its stiffness range set to the spec's declared one (the term is added where the base
-scenario has none). A candidate is one set of factors; its design is the scenario's own
+scenario has none), or, where the base design chose κ for the declared sensor (ζ* sets nothing
+there), a factor on that κ (:func:`default_knobs`). A candidate is one set of factors; its design is the scenario's own
 (Theorem 1's bounds, the Riccati equation, the force-rate design): a candidate the design
 refuses scores −1 and is recorded with the refusal. A feasible candidate is scored on a fixed set
 of tuning draws (draws 0 … N−1 of the spec's seeded streams): the share of draws that *did their
 job* (:func:`hinfnn.metrics.verdicts`: bounded, so within the torque and penetration limits, contact
 held after ``verdict.contact_after``, tracking within tolerance over the last 2 s), plus a small
-tie-break (a hundredth of the mean log10 of how far the worst criterion is from its tolerance)
-so that the search moves where the share is flat. Every generation's candidates and draws are
+tie-break (a hundredth of the mean log10 of how far the worst criterion is from its tolerance,
+and of half how far the other criteria are beyond theirs) so that the search moves where the
+share is flat. Every generation's candidates and draws are
 one :func:`hinfnn.simulate_batch` call per compiled structure. The best candidate and the base
 design are then both run on held-out draws (N … N+M−1, never used in tuning) at the spec's own
 horizon: the before/after shares with 95 % Wilson intervals.
@@ -218,8 +220,32 @@ KNOBS = (
     Knob("alpha_lam", 0.25, 8.0, "force weight α_λ × s (β_λ from Theorem 1's bound)"),
     Knob("alpha_z", 0.25, 4.0, "α_z × s of eq. (27)"),
     Knob("zeta", 0.1, 2.0, "the force-rate rule's damping ratio ζ* at the softest declared contact"),
+    Knob("kappa", 0.5, 2.0, "the force-rate gain κ × s, on the base design's κ (a design for the declared sensor, "
+                            "whose κ ζ* does not set)"),
 )
 KNOB_NAMES = tuple(k.name for k in KNOBS)
+#: The knobs every search moves; the force-rate term's is added by :func:`default_knobs`.
+GAIN_KNOBS = ("omega", "q", "alpha_lam", "alpha_z")
+
+
+def sensed_design(scenario, kind: str) -> dict | None:
+    """The base force-rate design when its κ was chosen for the declared sensor (sampled control with
+    a delay, noise or a force filter: :func:`hinfnn.controllers.sensing.design_sensing`), else None.
+    Such a κ does not depend on the rule's ζ*: the ``zeta`` knob would move nothing there."""
+    try:
+        d = _force_rate_design(scenario, kind)
+    except HinfnnError:
+        return None
+    return d if d is not None and d.get("sensing") is not None else None
+
+
+def default_knobs(scenario, kind: str) -> tuple:
+    """The knobs a search moves by default: :data:`GAIN_KNOBS` and the force-rate term's, ``kappa``
+    (a factor on κ) where the base design chose κ for the declared sensor, ``zeta`` (the rule's
+    damping ratio, adding the term where there is none) otherwise; none for the FL-like law."""
+    if kind == "fl":
+        return GAIN_KNOBS
+    return GAIN_KNOBS + (("kappa",) if sensed_design(scenario, kind) is not None else ("zeta",))
 
 
 def _scaled(x, s):
@@ -227,10 +253,12 @@ def _scaled(x, s):
     return float(a) if a.ndim == 0 else a.tolist()
 
 
-def candidate_overrides(scenario, values: dict, stiffness: tuple[float, float] | None) -> list[tuple[str, object]]:
+def candidate_overrides(scenario, values: dict, stiffness: tuple[float, float] | None,
+                        kappa: float | None = None) -> list[tuple[str, object]]:
     """The scenario keys a candidate sets: ``values`` maps knob names to their value (missing:
-    the base design's). The force-rate term is set only when ``zeta`` is given, with its
-    stiffness range the declared one."""
+    the base design's). The force-rate term is set only when ``zeta`` or ``kappa`` is given, with
+    its stiffness range the declared one; ``kappa``: the base design's κ (s), which the knob
+    scales."""
     g = scenario.controller.gains
     out = []
     s = values.get("omega")
@@ -254,8 +282,15 @@ def candidate_overrides(scenario, values: dict, stiffness: tuple[float, float] |
             out.append(("controller.gains.beta_lam", "min"))
     if "alpha_z" in values:
         out.append(("controller.gains.alpha_z", float(g.alpha_z) * values["alpha_z"]))
+    if "kappa" in values:
+        if kappa is None:
+            raise ConfigError("the kappa knob scales the base design's force-rate gain: the base scenario has no "
+                              "force-rate term (controller.force_rate.kappa = 0; the zeta knob adds one)",
+                              key="--knobs")
+        out.append(("controller.force_rate.kappa", float(kappa) * float(values["kappa"])))
     if "zeta" in values:
         out += [("controller.force_rate.kappa", "rule"), ("controller.force_rate.zeta", float(values["zeta"]))]
+    if "zeta" in values or "kappa" in values:
         if stiffness is not None:
             out += [("controller.force_rate.stiffness_min", float(stiffness[0])),
                     ("controller.force_rate.stiffness_max", float(stiffness[1]))]
@@ -274,6 +309,8 @@ class Outcome:
     tracked: bool
     done: bool
     badness: float  # the worst criterion over its tolerance (>= 10 for a run that stopped)
+    worst: str = ""  # which criterion that is: a motion coordinate's name, "force", "contact" or "stopped"
+    others: float = 0.0  # sum of log10(ratio) over the OTHER criteria beyond their tolerance (0: none)
 
 
 @dataclasses.dataclass
@@ -370,26 +407,33 @@ def _outcome(m: dict, status: int, tol: dict, coords) -> Outcome:
     tracked = bool(v["tracking_within_tolerance"])
     done = bool(bounded and held is not False and tracked)
     if not bounded:
-        return Outcome(False, held, False, False, 10.0)
+        return Outcome(False, held, False, False, 10.0, "stopped")
     ratios = []
     for (name, unit), e in zip(coords or [], m["rms_e_u1_each_last2s"]):
-        ratios.append(e / (tol["angle_tolerance"] if unit == "rad" else tol["position_tolerance"]))
+        ratios.append((e / (tol["angle_tolerance"] if unit == "rad" else tol["position_tolerance"]), name))
     if v.get("force_error_ratio_last2s") is not None:
-        ratios.append(v["force_error_ratio_last2s"] / tol["force_tolerance"])
+        ratios.append((v["force_error_ratio_last2s"] / tol["force_tolerance"], "force"))
     out_after = v.get("out_of_contact_after")
     if out_after is not None and math.isfinite(out_after):
-        ratios.append(out_after / max(tol["out_of_contact"], 1e-3))
-    bad = max([r for r in ratios if math.isfinite(r)] or [10.0])
-    return Outcome(True, held, tracked, done, float(bad))
+        ratios.append((out_after / max(tol["out_of_contact"], 1e-3), "contact"))
+    finite = [r for r in ratios if math.isfinite(r[0])]
+    bad, worst = max(finite or [(10.0, "stopped")], key=lambda r: r[0])
+    others = sum(math.log10(r) for r, name in finite if name != worst and r > 1.0)
+    return Outcome(True, held, tracked, done, float(bad), worst, float(others))
 
 
 def score(outcomes: list[Outcome]) -> float:
     """The share of draws that did their job, plus a hundredth of a tie-break: minus the mean of
-    log10 of the worst criterion over its tolerance (clipped to [0.1, 10])."""
+    log10 of the worst criterion over its tolerance (clipped to [0.1, 10]), minus half the mean of
+    how far the other criteria are beyond theirs (:attr:`Outcome.others`, clipped to 1). The second
+    part is 0 where only the worst criterion misses its tolerance; where several do, it keeps the
+    search from giving up one criterion (the tool's tracking) for the worst (the force), which a
+    draw needs too."""
     if not outcomes:
         return -1.0
     share = sum(o.done for o in outcomes) / len(outcomes)
     tie = -float(np.mean([math.log10(min(max(o.badness, 0.1), 10.0)) for o in outcomes]))
+    tie -= 0.5 * float(np.mean([min(o.others, 1.0) for o in outcomes]))
     return share + 0.01 * tie
 
 
@@ -425,6 +469,7 @@ class TuneResult:
     runs: int
     tuned: object  # the tuned Scenario
     stiffness: tuple | None
+    held_out_values: list = dataclasses.field(default_factory=list)  # each held-out draw's drawn values
 
 
 def _to_values(u: np.ndarray, knobs) -> dict:
@@ -462,15 +507,17 @@ def cross_entropy(objective: Callable, start, *, generations: int, population: i
     return best_u, best_s
 
 
-def tune(spec, *, kind: str | None = None, knobs=KNOB_NAMES, draws: int = 16, held_out: int = 64,
+def tune(spec, *, kind: str | None = None, knobs=None, draws: int = 16, held_out: int = 64,
          generations: int = 4, population: int = 8, seed: int = 0, t_final: float | None = None,
          log: Callable[[str], None] | None = None) -> TuneResult:
     """Tune the base scenario's design over the spec's draws (see the module docstring): a
     cross-entropy search, seeded by ``seed``, of ``population`` candidates per generation over
     ``generations`` generations on ``draws`` tuning draws (runs of ``t_final`` s, default the
     scenario's), then the base and the best design on ``held_out`` other draws at the scenario's
-    horizon. ``knobs``: which of :data:`KNOBS` to move. Raises DesignError before any run when the
-    declared stiffness range cannot be held at the control period."""
+    horizon. ``knobs``: which of :data:`KNOBS` to move (None: :func:`default_knobs`). Raises
+    DesignError before any run when the declared stiffness range cannot be held at the control
+    period; ConfigError for ``zeta`` where the base design chose κ for the declared sensor (ζ* sets
+    nothing there: ``kappa`` scales that κ), and for ``kappa`` where the base has no force-rate term."""
     log = log or (lambda s: None)
     t_start = time.perf_counter()
     base = spec.base
@@ -478,6 +525,8 @@ def tune(spec, *, kind: str | None = None, knobs=KNOB_NAMES, draws: int = 16, he
     kind = kind or kinds[0]
     if kind not in kinds:
         raise ConfigError(f"{kind!r} is not a controller of the spec (it lists {kinds})", key="--kind")
+    explicit = knobs is not None
+    knobs = tuple(knobs) if explicit else default_knobs(base, kind)
     unknown = [k for k in knobs if k not in KNOB_NAMES]
     if unknown:
         raise ConfigError(f"unknown knob {unknown[0]!r} (the knobs: {', '.join(KNOB_NAMES)})", key="--knobs")
@@ -485,8 +534,24 @@ def tune(spec, *, kind: str | None = None, knobs=KNOB_NAMES, draws: int = 16, he
                             ("--population", population, 2)):
         if int(value) != value or value < lo:
             raise ConfigError(f"must be a whole number >= {lo}, got {value}", key=name)
-    if kind == "fl" and "zeta" in knobs:
-        knobs = tuple(k for k in knobs if k != "zeta")
+    if kind == "fl":
+        knobs = tuple(k for k in knobs if k not in ("zeta", "kappa"))
+    sensed = sensed_design(base, kind) if ("zeta" in knobs or "kappa" in knobs) else None
+    if "zeta" in knobs and sensed is not None:
+        raise ConfigError(f"the {kind} design chose its force-rate gain for the declared sensor (κ = "
+                          f"{float(sensed['kappa']):.3g} s with its delay and noise): the rule's damping ratio ζ* "
+                          "sets nothing there; the kappa knob scales that κ", key="--knobs")
+    base_kappa = None
+    if "kappa" in knobs:
+        try:
+            d = _force_rate_design(base, kind)
+        except HinfnnError:
+            d = None
+        if d is None:
+            raise ConfigError(f"the kappa knob scales the base design's force-rate gain, and the {kind} law of "
+                              f"{base.name} has none (controller.force_rate.kappa = 0; the zeta knob adds the term)",
+                              key="--knobs")
+        base_kappa = float(d["kappa"])
     use = tuple(k for k in KNOBS if k.name in knobs)
     stiffness = declared_range(spec, STIFFNESS_KEY)
     if stiffness is not None and not all(math.isfinite(x) for x in stiffness):
@@ -525,6 +590,7 @@ def tune(spec, *, kind: str | None = None, knobs=KNOB_NAMES, draws: int = 16, he
     run_generation([base_cand], tdraws, t_final)
     history.append(base_cand)
     log(f"base design: {base_cand.done}/{base_cand.judged} tuning draws did their job (score {base_cand.score:.4f})")
+    log("knobs: " + ", ".join(k.name for k in use) + ("" if explicit else " (the default for this design)"))
     start = {k.name: 1.0 for k in use}
     if "zeta" in start:
         start["zeta"] = base_values.get("zeta") or 0.7
@@ -535,7 +601,8 @@ def tune(spec, *, kind: str | None = None, knobs=KNOB_NAMES, draws: int = 16, he
         cands = []
         for u in us:
             vals = _to_values(u, use)
-            cands.append(Candidate(values=vals, overrides=candidate_overrides(base, vals, stiffness), generation=g))
+            cands.append(Candidate(values=vals, overrides=candidate_overrides(base, vals, stiffness, base_kappa),
+                                   generation=g))
         run_generation(cands, tdraws, t_final)
         history.extend(cands)
         top = max(cands, key=lambda c: c.score)
@@ -563,8 +630,9 @@ def tune(spec, *, kind: str | None = None, knobs=KNOB_NAMES, draws: int = 16, he
     return TuneResult(base=base_cand, best=best, history=history, knobs=use, tuning_draws=tdraws.indices,
                       held_out_draws=hdraws.indices, held_out_before=before, held_out_after=after,
                       invalid=tdraws.invalid + hdraws.invalid, wall_s=time.perf_counter() - t_start, runs=n_runs,
-                      tuned=tuned, stiffness=stiffness)
+                      tuned=tuned, stiffness=stiffness, held_out_values=hdraws.values)
 
 
-__all__ = ["declared_range", "range_notes", "require_holdable", "Knob", "KNOBS", "KNOB_NAMES", "candidate_overrides",
+__all__ = ["declared_range", "range_notes", "require_holdable", "Knob", "KNOBS", "KNOB_NAMES", "GAIN_KNOBS",
+           "default_knobs", "sensed_design", "candidate_overrides",
            "stiffest_held", "build_draws", "evaluate", "score", "cross_entropy", "tune", "TuneResult", "Candidate", "Outcome", "Draws", "STIFFNESS_KEY"]
