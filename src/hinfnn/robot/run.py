@@ -97,7 +97,6 @@ def prepared(sc):
     import jax
 
     from ..controllers.sampled import SampledController
-    from ..protocols import Measurement, needs_start
 
     kind = _single(sc)
     setup = sc.build()
@@ -119,9 +118,7 @@ def prepared(sc):
         loop = sampled.loop()
         for k in range(WARM_SAMPLES):
             loop.update(k * limits.period, limits.period, q_start, np.zeros(n), np.zeros(d))
-    warm()
-    if needs_start(controller):
-        sampled._start(0.0, sampled.init(), Measurement(q=q, qd=np.zeros(n), force=np.zeros(d)))
+    warm()  # its first update also compiles the controller's start (SampledLoop starts it there)
     return sampled, limits, gravity, point_jacobian, warm
 
 

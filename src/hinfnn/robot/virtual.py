@@ -97,6 +97,11 @@ def _publish(buf: np.ndarray, values) -> None:
 SPIN = 2e-4
 
 
+def _on_host(meas) -> tuple:
+    """(q, q̇, force) of a measurement as NumPy arrays (what :func:`serve` publishes)."""
+    return tuple(np.array(a, dtype=float) for a in (meas.q, meas.qd, meas.force))
+
+
 def _snapshot(buf: np.ndarray):
     """(seq, copy of the values), or (None, None) while the block is being written."""
     s0 = buf[0]
@@ -208,8 +213,8 @@ def serve(config: dict) -> None:
             reading = state
             if sensor is not None:  # what the robot's sensor gives at sample k (noise, bias, delay, bandwidth)
                 reading, sensed = sense(k, state, sensed)
-            reading = (reading.q, reading.qd, reading.force)
-        q, qd, force = (np.array(a, dtype=float) for a in reading)
+            reading = _on_host(reading)
+        q, qd, force = reading  # NumPy arrays made for this reading (a fault may change them)
         for i, f in enumerate(faults):
             if f.kind == "stall" or not f.active(t, fired[i]):
                 continue
@@ -234,8 +239,7 @@ def serve(config: dict) -> None:
     S[0] = _RUNNING
     publish(0, state, 0, math.nan if realtime else None)  # no tick yet: the clock starts with the first torque
     if ahead:
-        upcoming = sensor.upcoming(sensed)
-        upcoming = tuple(np.array(a, dtype=float) for a in (upcoming.q, upcoming.qd, upcoming.force))
+        upcoming = _on_host(sensor.upcoming(sensed))
     gc.collect()  # the served plant's clock must not stop for a collection (the loop's side does the same)
     gc.disable()
     while C[0] < 2 and S[0] == _RUNNING:  # the clock starts with the first torque (the arm held until then)
@@ -269,18 +273,18 @@ def serve(config: dict) -> None:
         drive = jnp.asarray(tau)
         if act is not None:  # the motors: torque and rate limits, then the joints' friction
             applied, drive = actuate(drive, applied, k == 0, state.qd)
-        if ahead:  # the reading of sample k + 1 at its tick, then the plant stepped to it and acquired
-            publish(k + 1, None, missed, t0 + (k + 1) * period if realtime else None, reading=upcoming)
-            state = step(k * period, state, drive)
-            k += 1
-            sensed, upcoming = acquire(k, state, sensed)
-            upcoming = tuple(np.array(a, dtype=float) for a in (upcoming.q, upcoming.qd, upcoming.force))
-            continue
+        # in real time a reading is stamped with its tick (the torque for it is due one period later),
+        # not with when the step that made it ended: the loop's lateness is against the robot's next tick
+        tick = t0 + (k + 1) * period if realtime else None
+        if ahead:  # the reading of sample k + 1 at its tick, before the plant is stepped to it
+            publish(k + 1, None, missed, tick, reading=upcoming)
         state = step(k * period, state, drive)
         k += 1
-        # in real time the reading is stamped with its tick (the torque for it is due one period later),
-        # not with when the step that made it ended: the loop's lateness is against the robot's next tick
-        publish(k, state, missed, t0 + k * period if realtime else None)
+        if ahead:  # the new sample acquired, and the reading it makes due at the next tick
+            sensed, upcoming = acquire(k, state, sensed)
+            upcoming = _on_host(upcoming)
+        else:
+            publish(k, state, missed, tick)
     S[1] = behind
     S[0] = _ENDED
     del R, C, S

@@ -377,8 +377,6 @@ def _resolve_paths(raw: dict, source: str) -> dict:
     :func:`_resolve_set_paths`."""
     if source == "<dict>" or not Path(source).is_file():
         return raw
-    from ..model.urdf import shipped_robots
-
     out = raw
     for who, section, suffix in _FILE_KEYS:
         part = raw.get(who, {}).get(section) if isinstance(raw.get(who), dict) else None
@@ -386,8 +384,7 @@ def _resolve_paths(raw: dict, source: str) -> dict:
         if not isinstance(f, str) or not f or Path(f).is_absolute():
             continue
         candidate = Path(source).parent / f
-        looks_like_path = "/" in f or Path(f).suffix != ""
-        if candidate.exists() or (looks_like_path and f not in shipped_robots(suffix)):
+        if candidate.exists() or _names_a_file(f, suffix):
             if out is raw:
                 out = copy.deepcopy(raw)
             out[who][section]["file"] = str(candidate.resolve())
@@ -425,8 +422,7 @@ def _set_path(key: str, value: str, folder, suffix: str) -> str:
             raise ConfigError(f"{value!r} names two files, {here.resolve()} (from the working directory) and "
                               f"{beside.resolve()} (beside the scenario file): give an absolute path", key=key)
         return value
-    looks_like_path = "/" in value or here.suffix != ""
-    if not here.exists() and looks_like_path and value not in shipped_robots(suffix):
+    if not here.exists() and _names_a_file(value, suffix):
         tried = f"{here.resolve()} (from the working directory)"
         if beside is not None:
             tried = f"neither {tried} nor {beside.resolve()} (beside the scenario file)"
@@ -434,6 +430,14 @@ def _set_path(key: str, value: str, folder, suffix: str) -> str:
         raise ConfigError(f"{value}: no such file: {tried}; give the path of {what} file or the name of "
                           f"one shipped with hinfnn ({', '.join(repr(k) for k in shipped_robots(suffix))})", key=key)
     return value
+
+
+def _names_a_file(value: str, suffix: str) -> bool:
+    """Whether a file key's ``value`` is meant as a path: it looks like one (a '/' or an extension)
+    and is not the name of a robot or model shipped with hinfnn (files ending in ``suffix``)."""
+    from ..model.urdf import shipped_robots
+
+    return ("/" in value or Path(value).suffix != "") and value not in shipped_robots(suffix)
 
 
 #: The scenario keys that name a file: (section, subsection, the suffix of the shipped files).

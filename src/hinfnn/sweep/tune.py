@@ -228,24 +228,36 @@ KNOB_NAMES = tuple(k.name for k in KNOBS)
 GAIN_KNOBS = ("omega", "q", "alpha_lam", "alpha_z")
 
 
+def _base_design(scenario, kind: str) -> dict | None:
+    """:func:`_force_rate_design`, None where the design refuses the base scenario."""
+    try:
+        return _force_rate_design(scenario, kind)
+    except HinfnnError:
+        return None
+
+
+def _sensed(design: dict | None) -> dict | None:
+    return design if design is not None and design.get("sensing") is not None else None
+
+
+def _default_knobs(kind: str, design: dict | None) -> tuple:
+    if kind == "fl":
+        return GAIN_KNOBS
+    return GAIN_KNOBS + (("kappa",) if _sensed(design) is not None else ("zeta",))
+
+
 def sensed_design(scenario, kind: str) -> dict | None:
     """The base force-rate design when its κ was chosen for the declared sensor (sampled control with
     a delay, noise or a force filter: :func:`hinfnn.controllers.sensing.design_sensing`), else None.
     Such a κ does not depend on the rule's ζ*: the ``zeta`` knob would move nothing there."""
-    try:
-        d = _force_rate_design(scenario, kind)
-    except HinfnnError:
-        return None
-    return d if d is not None and d.get("sensing") is not None else None
+    return _sensed(_base_design(scenario, kind))
 
 
 def default_knobs(scenario, kind: str) -> tuple:
     """The knobs a search moves by default: :data:`GAIN_KNOBS` and the force-rate term's, ``kappa``
     (a factor on κ) where the base design chose κ for the declared sensor, ``zeta`` (the rule's
     damping ratio, adding the term where there is none) otherwise; none for the FL-like law."""
-    if kind == "fl":
-        return GAIN_KNOBS
-    return GAIN_KNOBS + (("kappa",) if sensed_design(scenario, kind) is not None else ("zeta",))
+    return _default_knobs(kind, None if kind == "fl" else _base_design(scenario, kind))
 
 
 def _scaled(x, s):
@@ -526,7 +538,9 @@ def tune(spec, *, kind: str | None = None, knobs=None, draws: int = 16, held_out
     if kind not in kinds:
         raise ConfigError(f"{kind!r} is not a controller of the spec (it lists {kinds})", key="--kind")
     explicit = knobs is not None
-    knobs = tuple(knobs) if explicit else default_knobs(base, kind)
+    # the base's force-rate design, made once: the default knobs and the zeta/kappa checks read it
+    design = None if kind == "fl" or (explicit and not {"zeta", "kappa"} & set(knobs)) else _base_design(base, kind)
+    knobs = tuple(knobs) if explicit else _default_knobs(kind, design)
     unknown = [k for k in knobs if k not in KNOB_NAMES]
     if unknown:
         raise ConfigError(f"unknown knob {unknown[0]!r} (the knobs: {', '.join(KNOB_NAMES)})", key="--knobs")
@@ -536,22 +550,18 @@ def tune(spec, *, kind: str | None = None, knobs=None, draws: int = 16, held_out
             raise ConfigError(f"must be a whole number >= {lo}, got {value}", key=name)
     if kind == "fl":
         knobs = tuple(k for k in knobs if k not in ("zeta", "kappa"))
-    sensed = sensed_design(base, kind) if ("zeta" in knobs or "kappa" in knobs) else None
+    sensed = _sensed(design)
     if "zeta" in knobs and sensed is not None:
         raise ConfigError(f"the {kind} design chose its force-rate gain for the declared sensor (κ = "
                           f"{float(sensed['kappa']):.3g} s with its delay and noise): the rule's damping ratio ζ* "
                           "sets nothing there; the kappa knob scales that κ", key="--knobs")
     base_kappa = None
     if "kappa" in knobs:
-        try:
-            d = _force_rate_design(base, kind)
-        except HinfnnError:
-            d = None
-        if d is None:
+        if design is None:
             raise ConfigError(f"the kappa knob scales the base design's force-rate gain, and the {kind} law of "
                               f"{base.name} has none (controller.force_rate.kappa = 0; the zeta knob adds the term)",
                               key="--knobs")
-        base_kappa = float(d["kappa"])
+        base_kappa = float(design["kappa"])
     use = tuple(k for k in KNOBS if k.name in knobs)
     stiffness = declared_range(spec, STIFFNESS_KEY)
     if stiffness is not None and not all(math.isfinite(x) for x in stiffness):
