@@ -20,7 +20,7 @@ from hinfnn.errors import ConfigError, DesignError
 from hinfnn.scenario import Scenario
 from hinfnn.sweep import spec_from_dict
 from hinfnn.sweep.tune import (_force_rate_design, _outcome, candidate_overrides, cross_entropy, declared_range,
-                               default_knobs, range_notes, require_holdable, score, sensed_design, tune)
+                               default_knobs, force_radius, range_notes, require_holdable, score, sensed_design, tune)
 
 SAMPLED = """
 name = "sampled"
@@ -161,7 +161,8 @@ def test_a_force_rate_gain_designed_for_the_sensor_is_tuned_by_kappa_not_zeta():
     knobs scale κ instead and an explicit zeta is refused; an ideal-sensor design keeps zeta."""
     sc = Scenario.load("ur5-table-stable", check=False)
     base = sensed_design(sc, "hinf_nn")
-    assert base is not None and default_knobs(sc, "hinf_nn") == ("omega", "q", "alpha_lam", "alpha_z", "kappa")
+    assert base is not None and default_knobs(sc, "hinf_nn") == ("omega", "q", "alpha_lam", "alpha_z", "kappa",
+                                                                 "radius_f")
     assert default_knobs(Scenario.load("ur5-table", check=False), "hinf_nn")[-1] == "zeta"
     kap = float(base["kappa"])
 
@@ -184,6 +185,43 @@ def test_a_force_rate_gain_designed_for_the_sensor_is_tuned_by_kappa_not_zeta():
     assert err.value.key == "--knobs" and "kappa knob" in str(err.value)
     with pytest.raises(ConfigError, match="has no force-rate term"):
         candidate_overrides(sc, {"kappa": 1.1}, None, None)
+
+
+def test_the_radius_f_knob_scales_the_force_networks_projection_radius():
+    """Where a noisy sensor makes the update laws project (Remark 2), the design's radius of F_f lets the
+    network give the largest |λ_d| and no more; the iiwa 14's 20 % mass error presses harder than that
+    (docs/arms-and-surfaces.md), so the tuner moves the radius by a factor. The candidate's controller
+    projects on exactly that factor times the design's ball; H∞-only (no network) and an ideal sensor
+    (no projection) have no such knob, and asking for it is refused before anything runs."""
+    from hinfnn.controllers import terms as T
+
+    sc = Scenario.load("ur5-table-stable", check=False)
+    r0 = force_radius(sc, "hinf_nn")
+    built = sc.single("hinf_nn").build_controller("hinf_nn").term(T.ForceNetwork).network
+    assert r0 == pytest.approx(float(built.radius), rel=0) and bool(built.project)
+    over = candidate_overrides(sc, {"radius_f": 3.5}, None, None, r0)
+    assert over == [("controller.adaptation.radius_f", pytest.approx(3.5 * r0, rel=1e-15))]
+    net = sc.single("hinf_nn").with_overrides(over).build_controller("hinf_nn").term(T.ForceNetwork).network
+    assert float(net.radius) == pytest.approx(3.5 * r0, rel=1e-15) and bool(net.project)
+    pos = sc.single("hinf_nn").with_overrides(over).build_controller("hinf_nn").term(T.PositionNetwork).network
+    assert float(pos.radius) == float(sc.single("hinf_nn").build_controller("hinf_nn").term(T.PositionNetwork)
+                                      .network.radius)  # F_p's ball is not moved
+    assert "radius_f" not in default_knobs(sc, "hinf")
+    ideal = Scenario.load("ur5-table", check=False)
+    assert force_radius(ideal, "hinf_nn") is None and "radius_f" not in default_knobs(ideal, "hinf_nn")
+    with pytest.raises(ConfigError, match="does not project"):
+        candidate_overrides(ideal, {"radius_f": 2.0}, None, None, None)
+    spec = spec_of("""
+        name = "ideal"
+        scenario = "ur5-table"
+        controllers = ["hinf_nn"]
+        samples = 2
+        [vary]
+        "plant.friction.coulomb" = { distribution = "uniform", low = 0.0, high = 0.3 }
+        """)
+    with pytest.raises(ConfigError) as err:  # before anything runs
+        tune(spec, knobs=("q", "radius_f"), draws=1, held_out=0, generations=0)
+    assert err.value.key == "--knobs" and "does not project" in str(err.value)
 
 
 def test_an_outcome_names_the_criterion_furthest_from_its_tolerance():

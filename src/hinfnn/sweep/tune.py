@@ -17,7 +17,11 @@ Riccati weights keep their structure), the Riccati weight Q_p's scale, α_λ (β
 from Theorem 1's bound, ``beta_lam = "min"``), α_z, and the force-rate term's damping ratio ζ*
 with its stiffness range set to the spec's declared one (the term is added where the base
 scenario has none), or, where the base design chose κ for the declared sensor (ζ* sets nothing
-there), a factor on that κ (:func:`default_knobs`). A candidate is one set of factors; its design is the scenario's own
+there), a factor on that κ, and, where a noisy sensor makes the networks' update laws project
+(Remark 2; docs/beyond-the-paper.md section 11), a factor on the force network's projection radius
+(:func:`default_knobs`): the design's radius lets F_f give the largest |λ_d| and no more, while a
+heavy arm whose masses are uncertain presses on the surface with a larger error than that. A
+candidate is one set of factors; its design is the scenario's own
 (Theorem 1's bounds, the Riccati equation, the force-rate design): a candidate the design
 refuses scores −1 and is recorded with the refusal. A feasible candidate is scored on a fixed set
 of tuning draws (draws 0 … N−1 of the spec's seeded streams): the share of draws that *did their
@@ -222,6 +226,8 @@ KNOBS = (
     Knob("zeta", 0.1, 2.0, "the force-rate rule's damping ratio ζ* at the softest declared contact"),
     Knob("kappa", 0.5, 2.0, "the force-rate gain κ × s, on the base design's κ (a design for the declared sensor, "
                             "whose κ ζ* does not set)"),
+    Knob("radius_f", 0.5, 16.0, "the force network's projection radius × s, on the base design's (Remark 2's ball, "
+                                "where a noisy sensor makes the update laws project)"),
 )
 KNOB_NAMES = tuple(k.name for k in KNOBS)
 #: The knobs every search moves; the force-rate term's is added by :func:`default_knobs`.
@@ -236,14 +242,33 @@ def _base_design(scenario, kind: str) -> dict | None:
         return None
 
 
+def force_radius(scenario, kind: str) -> float | None:
+    """The projection radius of the force network F_f in ``kind``'s design of ``scenario``
+    (Remark 2's ball: ``controller.adaptation.radius_f``, by default the least-norm weights giving the
+    largest |λ_d| at zero error, docs/beyond-the-paper.md section 11), or None where its update law
+    does not project (an ideal sensor, ``controller.adaptation.robust`` other than projection, a law
+    without F_f) or the design refuses the scenario."""
+    from ..controllers import terms as T
+
+    try:
+        ctrl = scenario.single(kind).build_controller(kind)
+    except HinfnnError:
+        return None
+    term = ctrl.term(T.ForceNetwork)
+    if term is None or not bool(term.network.project):
+        return None
+    return float(term.network.radius)
+
+
 def _sensed(design: dict | None) -> dict | None:
     return design if design is not None and design.get("sensing") is not None else None
 
 
-def _default_knobs(kind: str, design: dict | None) -> tuple:
+def _default_knobs(kind: str, design: dict | None, radius: float | None = None) -> tuple:
     if kind == "fl":
         return GAIN_KNOBS
-    return GAIN_KNOBS + (("kappa",) if _sensed(design) is not None else ("zeta",))
+    return (GAIN_KNOBS + (("kappa",) if _sensed(design) is not None else ("zeta",))
+            + (("radius_f",) if radius is not None else ()))
 
 
 def sensed_design(scenario, kind: str) -> dict | None:
@@ -256,8 +281,11 @@ def sensed_design(scenario, kind: str) -> dict | None:
 def default_knobs(scenario, kind: str) -> tuple:
     """The knobs a search moves by default: :data:`GAIN_KNOBS` and the force-rate term's, ``kappa``
     (a factor on κ) where the base design chose κ for the declared sensor, ``zeta`` (the rule's
-    damping ratio, adding the term where there is none) otherwise; none for the FL-like law."""
-    return _default_knobs(kind, None if kind == "fl" else _base_design(scenario, kind))
+    damping ratio, adding the term where there is none) otherwise, and ``radius_f`` where the force
+    network's update law projects (:func:`force_radius`); none of these for the FL-like law."""
+    if kind == "fl":
+        return GAIN_KNOBS
+    return _default_knobs(kind, _base_design(scenario, kind), force_radius(scenario, kind))
 
 
 def _scaled(x, s):
@@ -266,11 +294,12 @@ def _scaled(x, s):
 
 
 def candidate_overrides(scenario, values: dict, stiffness: tuple[float, float] | None,
-                        kappa: float | None = None) -> list[tuple[str, object]]:
+                        kappa: float | None = None, radius_f: float | None = None) -> list[tuple[str, object]]:
     """The scenario keys a candidate sets: ``values`` maps knob names to their value (missing:
     the base design's). The force-rate term is set only when ``zeta`` or ``kappa`` is given, with
     its stiffness range the declared one; ``kappa``: the base design's κ (s), which the knob
-    scales."""
+    scales; ``radius_f``: the base design's projection radius of F_f (:func:`force_radius`), which
+    the knob of that name scales."""
     g = scenario.controller.gains
     out = []
     s = values.get("omega")
@@ -300,6 +329,12 @@ def candidate_overrides(scenario, values: dict, stiffness: tuple[float, float] |
                               "force-rate term (controller.force_rate.kappa = 0; the zeta knob adds one)",
                               key="--knobs")
         out.append(("controller.force_rate.kappa", float(kappa) * float(values["kappa"])))
+    if "radius_f" in values:
+        if radius_f is None:
+            raise ConfigError("the radius_f knob scales the force network's projection radius, and the base "
+                              "design does not project (controller.adaptation.robust resolves to another law: an "
+                              "ideal sensor, or a law without F_f)", key="--knobs")
+        out.append(("controller.adaptation.radius_f", float(radius_f) * float(values["radius_f"])))
     if "zeta" in values:
         out += [("controller.force_rate.kappa", "rule"), ("controller.force_rate.zeta", float(values["zeta"]))]
     if "zeta" in values or "kappa" in values:
@@ -540,7 +575,8 @@ def tune(spec, *, kind: str | None = None, knobs=None, draws: int = 16, held_out
     explicit = knobs is not None
     # the base's force-rate design, made once: the default knobs and the zeta/kappa checks read it
     design = None if kind == "fl" or (explicit and not {"zeta", "kappa"} & set(knobs)) else _base_design(base, kind)
-    knobs = tuple(knobs) if explicit else _default_knobs(kind, design)
+    radius = None if kind == "fl" or (explicit and "radius_f" not in knobs) else force_radius(base, kind)
+    knobs = tuple(knobs) if explicit else _default_knobs(kind, design, radius)
     unknown = [k for k in knobs if k not in KNOB_NAMES]
     if unknown:
         raise ConfigError(f"unknown knob {unknown[0]!r} (the knobs: {', '.join(KNOB_NAMES)})", key="--knobs")
@@ -549,7 +585,7 @@ def tune(spec, *, kind: str | None = None, knobs=None, draws: int = 16, held_out
         if int(value) != value or value < lo:
             raise ConfigError(f"must be a whole number >= {lo}, got {value}", key=name)
     if kind == "fl":
-        knobs = tuple(k for k in knobs if k not in ("zeta", "kappa"))
+        knobs = tuple(k for k in knobs if k not in ("zeta", "kappa", "radius_f"))
     sensed = _sensed(design)
     if "zeta" in knobs and sensed is not None:
         raise ConfigError(f"the {kind} design chose its force-rate gain for the declared sensor (κ = "
@@ -562,6 +598,11 @@ def tune(spec, *, kind: str | None = None, knobs=None, draws: int = 16, held_out
                               f"{base.name} has none (controller.force_rate.kappa = 0; the zeta knob adds the term)",
                               key="--knobs")
         base_kappa = float(design["kappa"])
+    if "radius_f" in knobs and radius is None:
+        raise ConfigError(f"the radius_f knob scales the force network's projection radius, and the {kind} law of "
+                          f"{base.name} does not project it (controller.adaptation.robust = "
+                          f"{base.controller.adaptation.robust!r} with this sensor; \"projection\", or \"auto\" with a "
+                          "noisy sensor, projects)", key="--knobs")
     use = tuple(k for k in KNOBS if k.name in knobs)
     stiffness = declared_range(spec, STIFFNESS_KEY)
     if stiffness is not None and not all(math.isfinite(x) for x in stiffness):
@@ -611,7 +652,7 @@ def tune(spec, *, kind: str | None = None, knobs=None, draws: int = 16, held_out
         cands = []
         for u in us:
             vals = _to_values(u, use)
-            cands.append(Candidate(values=vals, overrides=candidate_overrides(base, vals, stiffness, base_kappa),
+            cands.append(Candidate(values=vals, overrides=candidate_overrides(base, vals, stiffness, base_kappa, radius),
                                    generation=g))
         run_generation(cands, tdraws, t_final)
         history.extend(cands)
@@ -644,5 +685,5 @@ def tune(spec, *, kind: str | None = None, knobs=None, draws: int = 16, held_out
 
 
 __all__ = ["declared_range", "range_notes", "require_holdable", "Knob", "KNOBS", "KNOB_NAMES", "GAIN_KNOBS",
-           "default_knobs", "sensed_design", "candidate_overrides",
+           "default_knobs", "sensed_design", "force_radius", "candidate_overrides",
            "stiffest_held", "build_draws", "evaluate", "score", "cross_entropy", "tune", "TuneResult", "Candidate", "Outcome", "Draws", "STIFFNESS_KEY"]
