@@ -220,8 +220,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="with --tune: horizon of the tuning runs, s (default the scenario's; held-out runs use it)")
     d.add_argument("--knobs", default=None, metavar="NAMES",
                    help="with --tune: the design parameters to move, separated by commas, of "
-                        "omega,q,alpha_lam,alpha_z,zeta,kappa (default: omega,q,alpha_lam,alpha_z and zeta, or kappa "
-                        "where the force-rate gain is designed for the declared sensor)")
+                        "omega,q,alpha_lam,alpha_z,zeta,kappa,radius_f (default: omega,q,alpha_lam,alpha_z; zeta, or "
+                        "kappa where the force-rate gain is designed for the declared sensor; radius_f where a noisy "
+                        "sensor makes the networks' update laws project)")
     d.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario value (repeatable)")
     d.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
