@@ -103,6 +103,8 @@ CHAINS = {
     "seven": lambda: load_urdf_string(_seven_dof_urdf(), "base", "tool", tool_xyz=(0.02, 0.0, 0.08),
                                       tool_rpy=(0.1, 0.2, 0.3), locked={"j6": 0.4}),
     "planar3": lambda: planar_chain([2.0, 1.5, 1.0], [0.8, 0.7, 0.5]),
+    # the motors' armature, written as each joint's MuJoCo armature: MuJoCo's M is the chain's
+    "ur5-armature": lambda: _true_ur5().with_armature([0.3, 0.25, 0.2, 0.1, 0.05, 0.02]),
 }
 
 
@@ -134,9 +136,10 @@ def test_generated_model_is_the_builtin_arm(name):
     m = _model(chain)
     n = chain.n
     assert (m.nq, m.nv, m.nu) == (n, n, 0)
-    # nothing MuJoCo adds by default to the rigid-body dynamics
-    for field in ("dof_armature", "dof_damping", "dof_frictionloss", "jnt_stiffness", "jnt_limited"):
+    # nothing MuJoCo adds by default to the rigid-body dynamics; the armature is the chain's
+    for field in ("dof_damping", "dof_frictionloss", "jnt_stiffness", "jnt_limited"):
         assert not np.any(getattr(m, field)), field
+    np.testing.assert_array_equal(m.dof_armature, np.zeros(n) if chain.armature is None else np.asarray(chain.armature))
     np.testing.assert_array_equal(m.opt.gravity, np.asarray(chain.gravity))
     np.testing.assert_allclose(m.body_mass[1:], np.asarray(chain.mass), rtol=1e-15)
     d = mujoco.MjData(m)
