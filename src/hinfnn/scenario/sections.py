@@ -74,7 +74,8 @@ def _locked_pairs(joints, positions) -> tuple:
 
 _ARMATURE_DOC = ("the motors' reflected inertia (armature) per joint, kg m^2 (kg for a prismatic joint): one number for "
                  "every joint or one per moving joint; added to M(q)'s diagonal (not in the paper; "
-                 "docs/arms-and-surfaces.md, \"Motor armature\")")
+                 "docs/arms-and-surfaces.md, \"Motor armature\"); the truth's applies to the built-in plant and "
+                 "to the MJCF generated from plant.arm, a user's MJCF has its own")
 
 
 def _with_armature(chain, armature, key: str):
