@@ -808,3 +808,25 @@ def test_path_past_a_limit_of_the_users_mjcf_names_the_mjcf(tmp_path):
         H.load_scenario("ur5e-polish", [f"plant.mjcf.file={path}"])
     assert err.value.key == "reference" and "shoulder_pan_joint" in str(err.value), err.value
     assert f"the true arm's MJCF, plant.mjcf.file = '{path}'" in str(err.value) and "URDF" not in str(err.value)
+
+
+def test_an_mjcf_armature_the_nominal_lacks_is_named_in_one_warning():
+    """fr3-table's truth (fr3.xml) has a motor armature on every joint: with the nominal told none,
+    the scenario's checks warn (HinfnnWarning) naming the joints and values; the shipped fr3-table
+    (its nominal states them) and a generated MJCF (the truth is plant.arm) do not."""
+    from hinfnn.errors import HinfnnWarning
+    from hinfnn.scenario import Scenario
+    from hinfnn.scenario.checks import _warn_unmodelled_armature, unmodelled_armature
+
+    bare = Scenario.load("fr3-table", {"nominal.arm.armature": 0.0}, check=False)
+    setup = bare.build()
+    expected = [(f"joint{i + 1}", a) for i, a in enumerate((0.2, 0.2, 0.2, 0.2, 0.1, 0.1, 0.1))]
+    assert unmodelled_armature(bare, setup) == expected
+    with pytest.warns(HinfnnWarning, match=r"nominal.arm.armature: the true arm's MJCF \(fr3\) gives its joints a motor "
+                      r"armature \(joint1 0.2, joint2 0.2, .*joint7 0.1 kg m\^2\).*nominal.arm.armature = "
+                      r"\[0.2, 0.2, 0.2, 0.2, 0.1, 0.1, 0.1\]"):
+        _warn_unmodelled_armature(bare, setup)
+    shipped = Scenario.load("fr3-table", check=False)
+    assert unmodelled_armature(shipped, shipped.build()) == []
+    generated = Scenario.load("panda-table", {"plant.engine": "mujoco"}, check=False)
+    assert unmodelled_armature(generated, generated.build()) == []
