@@ -685,6 +685,17 @@ def test_armature_is_diag_added_and_zero_is_no_armature():
     np.testing.assert_array_equal(np.asarray(base.with_armature(0.3).armature), np.full(7, 0.3))
     for copy in (chain.perturbed(mass_scale=1.1, payload_mass=0.2), chain.with_gravity((0.0, 0.0, -9.0))):
         np.testing.assert_array_equal(np.asarray(copy.armature), a)
+    # every place an arm forms M: the full terms, the law's, the plant's, forward dynamics
+    from hinfnn.model.taskmap import PositionTaskMap
+    from hinfnn.model.urdf import UrdfArm
+
+    arm = UrdfArm(chain, PositionTaskMap())
+    tau = jnp.asarray(rng.uniform(-5.0, 5.0, 7))
+    Ms = jax.jit(lambda q, qd: (arm.terms(q, qd).M, arm.law_terms(q, qd).M, arm.plant_terms(q, qd).M))(q, qd)
+    for M in Ms:
+        np.testing.assert_allclose(np.asarray(M), np.asarray(chain.M(q)), rtol=0, atol=1e-13)
+    qdd = arm.forward_dynamics(q, qd, tau, arm.plant_terms(q, qd))
+    np.testing.assert_allclose(np.asarray(chain.inverse_dynamics(q, qd, qdd)), np.asarray(tau), rtol=0, atol=1e-11)
 
 
 @pytest.mark.parametrize("value, words", [
