@@ -103,6 +103,8 @@ CHAINS = {
     "seven": lambda: load_urdf_string(_seven_dof_urdf(), "base", "tool", tool_xyz=(0.02, 0.0, 0.08),
                                       tool_rpy=(0.1, 0.2, 0.3), locked={"j6": 0.4}),
     "planar3": lambda: planar_chain([2.0, 1.5, 1.0], [0.8, 0.7, 0.5]),
+    # the motors' armature, written as each joint's MuJoCo armature: MuJoCo's M is the chain's
+    "ur5-armature": lambda: _true_ur5().with_armature([0.3, 0.25, 0.2, 0.1, 0.05, 0.02]),
 }
 
 
@@ -134,9 +136,10 @@ def test_generated_model_is_the_builtin_arm(name):
     m = _model(chain)
     n = chain.n
     assert (m.nq, m.nv, m.nu) == (n, n, 0)
-    # nothing MuJoCo adds by default to the rigid-body dynamics
-    for field in ("dof_armature", "dof_damping", "dof_frictionloss", "jnt_stiffness", "jnt_limited"):
+    # nothing MuJoCo adds by default to the rigid-body dynamics; the armature is the chain's
+    for field in ("dof_damping", "dof_frictionloss", "jnt_stiffness", "jnt_limited"):
         assert not np.any(getattr(m, field)), field
+    np.testing.assert_array_equal(m.dof_armature, np.zeros(n) if chain.armature is None else np.asarray(chain.armature))
     np.testing.assert_array_equal(m.opt.gravity, np.asarray(chain.gravity))
     np.testing.assert_allclose(m.body_mass[1:], np.asarray(chain.mass), rtol=1e-15)
     d = mujoco.MjData(m)
@@ -805,3 +808,25 @@ def test_path_past_a_limit_of_the_users_mjcf_names_the_mjcf(tmp_path):
         H.load_scenario("ur5e-polish", [f"plant.mjcf.file={path}"])
     assert err.value.key == "reference" and "shoulder_pan_joint" in str(err.value), err.value
     assert f"the true arm's MJCF, plant.mjcf.file = '{path}'" in str(err.value) and "URDF" not in str(err.value)
+
+
+def test_an_mjcf_armature_the_nominal_lacks_is_named_in_one_warning():
+    """fr3-table's truth (fr3.xml) has a motor armature on every joint: with the nominal told none,
+    the scenario's checks warn (HinfnnWarning) naming the joints and values; the shipped fr3-table
+    (its nominal states them) and a generated MJCF (the truth is plant.arm) do not."""
+    from hinfnn.errors import HinfnnWarning
+    from hinfnn.scenario import Scenario
+    from hinfnn.scenario.checks import _warn_unmodelled_armature, unmodelled_armature
+
+    bare = Scenario.load("fr3-table", {"nominal.arm.armature": 0.0}, check=False)
+    setup = bare.build()
+    expected = [(f"joint{i + 1}", a) for i, a in enumerate((0.2, 0.2, 0.2, 0.2, 0.1, 0.1, 0.1))]
+    assert unmodelled_armature(bare, setup) == expected
+    with pytest.warns(HinfnnWarning, match=r"nominal.arm.armature: the true arm's MJCF \(fr3\) gives its joints a motor "
+                      r"armature \(joint1 0.2, joint2 0.2, .*joint7 0.1 kg m\^2\).*nominal.arm.armature = "
+                      r"\[0.2, 0.2, 0.2, 0.2, 0.1, 0.1, 0.1\]"):
+        _warn_unmodelled_armature(bare, setup)
+    shipped = Scenario.load("fr3-table", check=False)
+    assert unmodelled_armature(shipped, shipped.build()) == []
+    generated = Scenario.load("panda-table", {"plant.engine": "mujoco"}, check=False)
+    assert unmodelled_armature(generated, generated.build()) == []

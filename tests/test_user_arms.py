@@ -15,6 +15,7 @@ import shutil
 import xml.etree.ElementTree as ET
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pinocchio as pin  # the oracle (a test dependency)
 import pytest
@@ -617,3 +618,130 @@ def test_scenario_load_without_float64_says_so(tmp_path):
     env = {**os.environ, "JAX_ENABLE_X64": "0"}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
     assert "hinfnn computes in float64: call hinfnn.configure()" in out.stdout, out.stdout + out.stderr
+
+
+# --------------------------------------------------------------------------------------------
+# Motor armature (not in the paper; docs/arms-and-surfaces.md, "Motor armature")
+# --------------------------------------------------------------------------------------------
+#: the FR3's motor armature as assets/fr3/fr3.xml states it (kg m^2, joints 1-7)
+FR3_ARMATURE = (0.2, 0.2, 0.2, 0.2, 0.1, 0.1, 0.1)
+
+
+@jax.jit
+def _armature_terms(chain, Q, QD, QDD, TAU):
+    """M by 3 x 3 products (``M``), M of the compiled loop's kinematics (``_crba``), inverse and
+    forward dynamics, at a batch of states: one program per chain structure."""
+    def one(q, qd, qdd, tau):
+        return (chain.M(q), chain._crba(chain._kinematics(q)), chain.inverse_dynamics(q, qd, qdd),
+                chain.forward_dynamics(q, qd, tau))
+
+    return jax.vmap(one)(Q, QD, QDD, TAU)
+
+
+def test_armature_against_pinocchio():
+    """Pinocchio's model.armature is the oracle: M(q) (both of hinfnn's forms), inverse dynamics
+    (RNEA + armature q̈) and forward dynamics (ABA) of the FR3 URDF with per-joint armatures, at 8
+    seeded random states."""
+    a = np.array(FR3_ARMATURE) * np.linspace(1.0, 1.6, 7)  # distinct on every joint
+    chain = load_urdf("fr3", "link0", "link8", tool_xyz=(0.0, 0.0, 0.1)).with_armature(a)
+    model = pin.buildModelFromUrdf(robot_file("fr3"))
+    model.armature = a
+    data = model.createData()
+    rng = np.random.default_rng(56)
+    Q, QD, QDD, TAU = (rng.uniform(-2.0, 2.0, (8, 7)) for _ in range(4))
+    got = [np.asarray(x) for x in _armature_terms(chain, Q, QD, QDD, TAU)]
+    worst = dict(M=0.0, M_loop=0.0, tau=0.0, qdd=0.0)
+    for i in range(8):
+        M = pin.crba(model, data, Q[i])
+        M = np.triu(M) + np.triu(M, 1).T
+        tau = pin.rnea(model, data, Q[i], QD[i], QDD[i])
+        qdd = pin.aba(model, data, Q[i], QD[i], TAU[i])
+        for key, g, ref in (("M", got[0][i], M), ("M_loop", got[1][i], M), ("tau", got[2][i], tau),
+                            ("qdd", got[3][i], qdd)):
+            worst[key] = max(worst[key], float(np.max(np.abs(g - ref)) / np.max(np.abs(ref))))
+    print({k: f"{v:.1e}" for k, v in worst.items()})
+    assert all(v < 1e-10 for v in worst.values()), worst
+    # the armature matters here: joint 7's rigid inertia is a thousandth of it
+    assert float(load_urdf("fr3", "link0", "link8").M(Q[0])[6, 6]) < 1e-3 * a[6]
+
+
+def test_armature_is_diag_added_and_zero_is_no_armature():
+    """M gains exactly diag(a), inverse dynamics exactly a q̈; zero (or None) is the chain without an
+    armature, whose programs are those of a chain that never had one; copies keep it."""
+    base = load_urdf("fr3", "link0", "link8", tool_xyz=(0.0, 0.0, 0.1))
+    a = np.array(FR3_ARMATURE)
+    chain = base.with_armature(a)
+    rng = np.random.default_rng(5)
+    q, qd, qdd = (jnp.asarray(rng.uniform(-1.0, 1.0, 7)) for _ in range(3))
+    np.testing.assert_array_equal(np.asarray(chain.M(q)), np.asarray(base.M(q)) + np.diag(a))
+    np.testing.assert_array_equal(np.asarray(chain.inverse_dynamics(q, qd, qdd)),
+                                  np.asarray(base.inverse_dynamics(q, qd, qdd)) + a * np.asarray(qdd))
+    np.testing.assert_array_equal(np.asarray(chain.bias(q, qd)), np.asarray(base.bias(q, qd)))  # C, G unchanged
+    assert base.with_armature(0.0).armature is None and base.with_armature([0.0] * 7).armature is None
+    assert chain.with_armature(None).armature is None
+    for zero in (base.with_armature(0.0), chain.with_armature(0.0)):
+        assert jax.tree.structure(zero) == jax.tree.structure(base)
+        assert str(jax.make_jaxpr(zero.M)(q)) == str(jax.make_jaxpr(base.M)(q))
+    np.testing.assert_array_equal(np.asarray(base.with_armature(0.3).armature), np.full(7, 0.3))
+    for copy in (chain.perturbed(mass_scale=1.1, payload_mass=0.2), chain.with_gravity((0.0, 0.0, -9.0))):
+        np.testing.assert_array_equal(np.asarray(copy.armature), a)
+    # every place an arm forms M: the full terms, the law's, the plant's, forward dynamics
+    from hinfnn.model.taskmap import PositionTaskMap
+    from hinfnn.model.urdf import UrdfArm
+
+    arm = UrdfArm(chain, PositionTaskMap())
+    tau = jnp.asarray(rng.uniform(-5.0, 5.0, 7))
+    Ms = jax.jit(lambda q, qd: (arm.terms(q, qd).M, arm.law_terms(q, qd).M, arm.plant_terms(q, qd).M))(q, qd)
+    for M in Ms:
+        np.testing.assert_allclose(np.asarray(M), np.asarray(chain.M(q)), rtol=0, atol=1e-13)
+    qdd = arm.forward_dynamics(q, qd, tau, arm.plant_terms(q, qd))
+    np.testing.assert_allclose(np.asarray(chain.inverse_dynamics(q, qd, qdd)), np.asarray(tau), rtol=0, atol=1e-11)
+
+
+@pytest.mark.parametrize("value, words", [
+    ([0.1, 0.2], "got [0.1, 0.2]"),
+    (-0.1, "got -0.1"),
+    ([0.1] * 6 + [float("nan")], "nan"),
+    ([[0.1] * 7], "got [[0.1"),
+    ("heavy", "got 'heavy'"),
+])
+def test_armature_bad_input_is_a_config_error(value, words):
+    chain = load_urdf("fr3", "link0", "link8")
+    with pytest.raises(H.ConfigError) as info:
+        chain.with_armature(value, key="nominal.arm.armature")
+    assert info.value.key == "nominal.arm.armature"
+    assert "a number or a list of 7 (one per joint: joint1" in str(info.value) and ">= 0" in str(info.value)
+    assert words in str(info.value)
+
+
+@pytest.mark.parametrize("scenario, overrides, key, words", [
+    ("fr3-table", {"nominal.arm.armature": [0.1, 0.1]}, "nominal.arm.armature",
+     "must be a number or a list of 7 (one per moving joint, n = 7), got 2: [0.1, 0.1]"),
+    ("fr3-table", {"nominal.arm.armature": -0.1}, "nominal.arm.armature", ">= 0"),
+    ("fr3-table", {"nominal.arm.armature": float("nan")}, "nominal.arm.armature", "must be finite"),
+    ("fr3-table", {"plant.arm.armature": 0.1}, "plant.arm.armature",
+     "has no effect on a user's MJCF (plant.mjcf.file = 'fr3'), got 0.1: MuJoCo takes the file's own joint armature"),
+    ("paper", {"plant.arm.armature": 0.1}, "plant.arm.model",  # the closed-form arm: the planar one takes it
+     "model = 'two_link' does not take the key 'armature' (model = 'planar')"),
+    ("planar3-drum", {"plant.arm.armature": [0.1, 0.1]}, "plant.arm.armature", "got 2: [0.1, 0.1]"),
+])
+def test_armature_scenario_keys_refuse_bad_input(scenario, overrides, key, words):
+    with pytest.raises(H.ConfigError) as info:
+        Scenario.load(scenario, overrides).build_plant()
+    assert info.value.key == key and words in str(info.value), str(info.value)
+
+
+def test_fr3_table_nominal_has_its_truths_armature():
+    """fr3-table's nominal states the FR3's motor armature as its truth's MJCF does (fr3.xml's
+    dof_armature); the built-in plant takes plant.arm.armature, the planar arm's too."""
+    mujoco = pytest.importorskip("mujoco")
+    from hinfnn.scenario.sections import mjcf_path
+
+    sc = Scenario.load("fr3-table")
+    nominal = sc.nominal.arm.chain("nominal.arm")
+    truth = mujoco.MjModel.from_xml_path(mjcf_path("fr3"))
+    np.testing.assert_array_equal(np.asarray(nominal.armature), truth.dof_armature)
+    np.testing.assert_array_equal(np.asarray(nominal.armature), FR3_ARMATURE)
+    planar = Scenario.load("planar3-drum", {"plant.arm.armature": [0.1, 0.2, 0.3]})
+    np.testing.assert_array_equal(np.asarray(planar.plant.arm.joint_chain("plant.arm").armature), [0.1, 0.2, 0.3])
+    assert Scenario.load("planar3-drum").plant.arm.joint_chain("plant.arm").armature is None

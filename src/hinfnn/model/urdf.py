@@ -471,6 +471,10 @@ class UrdfChain:
     ``mass[i]``, centre of mass ``com[i]`` and rotational inertia ``inertia[i]`` about it (body
     axes); the tool frame is ``tool_rot, tool_pos`` in body n's frame; ``gravity`` is the
     gravitational acceleration in the base frame. Joint limits are kept, not enforced.
+    ``armature`` (None, or (n,) kg·m² / kg): the motors' reflected inertia per joint, which a URDF
+    cannot state (Pinocchio's ``model.armature``, MuJoCo's joint ``armature``): M(q) =
+    M_rigid(q) + diag(armature), and inverse dynamics gains armature · q̈ (:meth:`with_armature`;
+    None, the default, adds nothing to any program).
 
     Two formulations of the forward kinematics (:mod:`hinfnn.model.rbd`), and each public method
     says which it uses: :meth:`fk`, :meth:`frame_jacobian` and :meth:`M` always by 3 × 3 products
@@ -499,6 +503,7 @@ class UrdfChain:
     joint_names: tuple = static_field(default=())
     body_links: tuple = static_field(default=())
     kernels: la.Kernels = la.kernels_field()
+    armature: jax.Array | None = None
 
     # --- kinematics (hinfnn.model.rbd) --------------------------------------------------------
     def _kinematics(self, q) -> rbd.Frames:
@@ -539,11 +544,18 @@ class UrdfChain:
         """The base's spatial acceleration (−g, 0) that puts gravity into RNEA (a 6-tuple)."""
         return rbd.gravity_vector(self.gravity)
 
-    @staticmethod
-    def _crba(k: rbd.Frames):
+    def _crba(self, k: rbd.Frames):
         """M by the composite-rigid-body algorithm: M_ij = S_iᵀ I^c_{max(i,j)} S_j with composite
-        inertias I^c_j = Σ_{k≥j} I_k."""
-        return rbd.crba(k)
+        inertias I^c_j = Σ_{k≥j} I_k, plus diag(armature) (:meth:`_with_armature`)."""
+        return self._with_armature(rbd.crba(k))
+
+    def _with_armature(self, M):
+        """M + diag(armature): the motors' reflected inertia on the diagonal (not in the paper:
+        docs/arms-and-surfaces.md, "Motor armature"). Without an armature M itself, the same
+        program as before the field existed."""
+        if self.armature is None:
+            return M
+        return M + jnp.diag(self.armature)
 
     @staticmethod
     def _rnea(k: rbd.Frames, qd, qdd, a0, v=None):
@@ -564,8 +576,8 @@ class UrdfChain:
         """Joint-space inertia matrix by the composite-rigid-body algorithm (:meth:`_crba`) on the
         kinematics by 3 × 3 products (:func:`hinfnn.model.rbd.frames_by_products`), as :meth:`fk`:
         M alone is computed by the programs that run once; the compiled loop's comes from
-        :meth:`_crba` on its own kinematics."""
-        return rbd.crba(rbd.frames_by_products(self, q))
+        :meth:`_crba` on its own kinematics. With the motors' ``armature``: M_rigid + diag(armature)."""
+        return self._with_armature(rbd.crba(rbd.frames_by_products(self, q)))
 
     def bias(self, q, qd):
         """C(q, q̇) q̇ + G(q) by recursive Newton–Euler (q̈ = 0), on :meth:`_kinematics` (the chain's kernels)."""
@@ -584,8 +596,12 @@ class UrdfChain:
         return rbd.potential(self._kinematics(q), self.gravity)
 
     def inverse_dynamics(self, q, qd, qdd):
-        """τ = M(q) q̈ + C(q, q̇) q̇ + G(q) (RNEA), on :meth:`_kinematics` (the chain's kernels)."""
-        return self._rnea(self._kinematics(q), qd, qdd, self._a0())
+        """τ = M(q) q̈ + C(q, q̇) q̇ + G(q) (RNEA, plus armature · q̈ with the motors' ``armature``),
+        on :meth:`_kinematics` (the chain's kernels)."""
+        tau = self._rnea(self._kinematics(q), qd, qdd, self._a0())
+        if self.armature is None:
+            return tau
+        return tau + self.armature * qdd
 
     def forward_dynamics(self, q, qd, tau):
         """q̈ = M(q)⁻¹ (τ − C(q, q̇) q̇ − G(q)) (CRBA and RNEA share the forward pass; M by its
@@ -632,6 +648,44 @@ class UrdfChain:
     def with_gravity(self, gravity) -> "UrdfChain":
         """The same chain under another gravity vector (base frame)."""
         return replace(self, gravity=jnp.asarray(gravity, float))
+
+    def with_armature(self, armature, key: str = "armature") -> "UrdfChain":
+        """The same chain with the motors' reflected inertia ``armature`` (kg·m² for a revolute
+        joint, kg for a prismatic one; a number for every joint or one per joint, finite, ≥ 0):
+        M(q) gains diag(armature), inverse dynamics armature · q̈, forward dynamics follows from M.
+        Not in the paper (docs/arms-and-surfaces.md, "Motor armature"). All zeros (or None) give
+        the chain without one (``armature`` None: the programs of a chain that never had one).
+        Bad input: :class:`~hinfnn.errors.ConfigError` at ``key`` naming the value and what is
+        allowed."""
+        if armature is None:
+            return replace(self, armature=None)
+        a = np.asarray(armature, dtype=float) if _numeric(armature) else None
+        allowed = f"a number or a list of {self.n} (one per joint: {', '.join(self.joint_names) or self.n}), each finite and >= 0, kg m^2"
+        if a is None or a.ndim > 1 or a.size not in (1, self.n):
+            raise ConfigError(f"must be {allowed}, got {_listed(armature)}", key=key)
+        if not np.all(np.isfinite(a)) or np.any(a < 0):
+            raise ConfigError(f"must be {allowed}, got {_listed(armature)}", key=key)
+        a = np.broadcast_to(a.reshape(-1), (self.n,)).astype(float)
+        if not np.any(a):
+            return replace(self, armature=None)
+        return replace(self, armature=jnp.asarray(a))
+
+
+def _numeric(value) -> bool:
+    """A number or a (nested) list or array of numbers (not text, not a mapping)."""
+    try:
+        np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return not isinstance(value, (str, bytes, dict))
+
+
+def _listed(value) -> str:
+    """A value as a user would have written it, in an error message."""
+    try:
+        return repr(np.asarray(value, dtype=float).tolist())
+    except (TypeError, ValueError):
+        return repr(value)
 
 
 def planar_chain(masses, lengths, g: float = 9.81) -> UrdfChain:

@@ -117,7 +117,9 @@ class FrankaRobot(Robot):
     ``scenario``: a single-controller :class:`~hinfnn.scenario.Scenario` with a 7-joint nominal arm,
     ``simulation.control = "sampled"`` and ``simulation.control_period = 0.001`` (ConfigError naming
     the key otherwise). ``force_source``, ``observer_gain`` (1/s): the contact force (module
-    docstring; ``observer_armature``: the motors' reflected inertia per joint, kg·m², when known).
+    docstring; the observer's M̂ is the nominal arm's, with the motors' armature where the scenario
+    states one (``nominal.arm.armature``); ``observer_armature``: reflected inertia per joint,
+    kg·m², added to it beyond that).
     ``move_to_start``: move the arm to the scenario's start pose q0 first when it is
     more than ``start_tolerance`` rad away on a joint (a quintic joint motion at most
     ``move_speed`` rad/s); False: a ConfigError naming ``initial.u1`` instead. ``realtime``:

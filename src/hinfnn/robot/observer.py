@@ -48,9 +48,10 @@ class MomentumObserver:
     """``MomentumObserver(arm, gain, armature=0)``: the generalized-momentum observer of module
     docstring on the nominal ``arm`` (a :class:`hinfnn.model.arm.Arm`: M, C, G and the tool point's
     Jacobian), ``gain`` K_O in 1/s (the residual's bandwidth; K_O h must stay below 1 at the sample
-    period h), ``armature``: the motors' reflected inertia per joint (kg·m², a number or one per
-    joint) added to M̂'s diagonal: a URDF does not hold it, and the observer would read it, times
-    q̈, as an external torque.
+    period h), ``armature``: motors' reflected inertia per joint (kg·m², a number or one per
+    joint) added to M̂'s diagonal beyond the nominal arm's own (a chain's ``armature``, the
+    scenario's ``nominal.arm.armature``, is in ``arm.M`` already): the observer would read an
+    inertia the model lacks, times q̈, as an external torque.
 
     ``init()`` gives the state; ``step(state, q, qd, tau_net, h)`` advances it to a new sample
     and returns ``(state, force, r, G)``: the estimated contact force the tool exerts (d,), the

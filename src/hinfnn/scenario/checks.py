@@ -99,6 +99,47 @@ def check(sc) -> None:
     if sc.controller.singularity_stop > 0:
         _check_path_against_singularity(sc, controllers[0], q0)
     _check_step_against_contact(sc, plant, q0)
+    _warn_unmodelled_armature(sc, setup)
+
+
+def unmodelled_armature(sc, setup) -> list[tuple[str, float]]:
+    """(joint, armature in kg m^2) of each joint of a user's MJCF truth (``plant.mjcf.file``) with a
+    motor armature, when the nominal arm states none (``nominal.arm.armature`` all zero); empty
+    otherwise (another truth, or a nominal with an armature)."""
+    if getattr(sc.plant, "engine", None) != "mujoco" or not sc.plant.mjcf.file:
+        return []
+    chain = getattr(setup.nominal_arm, "chain", None)
+    model = getattr(setup.plant, "model", None)
+    if chain is None or chain.armature is not None or model is None:
+        return []
+    from ..plant.mujoco.scene import require_mujoco
+
+    mujoco = require_mujoco()
+    out = []
+    for name in sc.plant.mjcf.joints or chain.joint_names:
+        j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if j >= 0 and float(model.dof_armature[model.jnt_dofadr[j]]) > 0:
+            out.append((name, float(model.dof_armature[model.jnt_dofadr[j]])))
+    return out
+
+
+def _warn_unmodelled_armature(sc, setup) -> None:
+    """Say before the run (a :class:`~hinfnn.errors.HinfnnWarning`, one line from the command) when
+    the truth is a user's MJCF whose joints have a motor armature and the nominal has none: on a
+    light wrist joint the armature can be a thousand times the nominal inertia (fr3-table's r_z
+    error before its nominal stated it; docs/arms-and-surfaces.md, "Motor armature")."""
+    import warnings
+
+    found = unmodelled_armature(sc, setup)
+    if found:
+        listed = ", ".join(f"{name} {a:g}" for name, a in found)
+        values = ", ".join(f"{a:g}" for _, a in found) if len(found) == len(setup.nominal_arm.chain.joint_names) \
+            else None
+        hint = f" (nominal.arm.armature = [{values}])" if values else ""
+        warnings.warn(f"nominal.arm.armature: the true arm's MJCF ({sc.plant.mjcf.file}) gives its joints a motor "
+                      f"armature ({listed} kg m^2) that the nominal model does not have: the controller's M(q) lacks "
+                      f"it; state it{hint} where the robot's motors have it (docs/arms-and-surfaces.md, "
+                      "\"Motor armature\")", HinfnnWarning, stacklevel=2)
 
 
 def _warn_large_networks(sc, controllers) -> None:

@@ -72,6 +72,21 @@ def _locked_pairs(joints, positions) -> tuple:
     return tuple(zip(joints, positions or (0.0,) * len(joints)))
 
 
+_ARMATURE_DOC = ("the motors' reflected inertia (armature) per joint, kg m^2 (kg for a prismatic joint): one number for "
+                 "every joint or one per moving joint; added to M(q)'s diagonal (not in the paper; "
+                 "docs/arms-and-surfaces.md, \"Motor armature\"); the truth's applies to the built-in plant and "
+                 "to the MJCF generated from plant.arm, a user's MJCF has its own")
+
+
+def _with_armature(chain, armature, key: str):
+    """``chain`` with the motors' armature of the section at ``key`` (nothing added when all zero)."""
+    a = np.atleast_1d(np.asarray(armature, dtype=float))
+    if not np.any(a):
+        return chain
+    return chain.with_armature(per_item(armature, chain.n, f"{key}.armature", f"one per moving joint, n = {chain.n}"),
+                               key=f"{key}.armature")
+
+
 @section
 class ArmConfig:
     """An arm model (``model`` chooses the kind). ``build(task, key)`` returns the arm with the
@@ -152,6 +167,7 @@ class PlanarArmConfig(ArmConfig):
     masses: tuple[float, ...] = param(doc="tip mass of each link, kg", gt=0.0, le=1e4)
     lengths: tuple[float, ...] = param(doc="length of each link, m", gt=0.0, le=100.0)
     g: float = param(9.81, doc="gravity, m/s^2", ge=0.0, le=100.0)
+    armature: Numbers = param(0.0, doc=_ARMATURE_DOC, ge=0.0, le=1e4)
 
     plane = "xy"
 
@@ -186,7 +202,7 @@ class PlanarArmConfig(ArmConfig):
     def joint_chain(self, key: str = "arm"):
         from ..model.urdf import planar_chain
 
-        return planar_chain(self.masses, self.lengths, self.g)
+        return _with_armature(planar_chain(self.masses, self.lengths, self.g), self.armature, key)
 
     def reach(self) -> tuple[float, float]:
         L = sorted(self.lengths)
@@ -244,6 +260,7 @@ class UrdfArmConfig(ArmConfig):
     payload_mass: float = param(0.0, doc="a point mass at the tool, kg", ge=0.0, le=1e4)
     payload_xyz: tuple[float, ...] = param((0.0, 0.0, 0.0), doc="its position in the tool frame, m",
                                            ge=-10.0, le=10.0)
+    armature: Numbers = param(0.0, doc=_ARMATURE_DOC, ge=0.0, le=1e4)
 
     plane = "xz"
 
@@ -282,7 +299,7 @@ class UrdfArmConfig(ArmConfig):
 
             chain = chain.perturbed(mass_scale=jnp.asarray(scale), com_shift=jnp.asarray(shift),
                                     payload_mass=self.payload_mass, payload_xyz=tuple(self.payload_xyz))
-        return chain
+        return _with_armature(chain, self.armature, key)
 
     def native_task(self, key: str = "task.map"):
         raise ConfigError("a URDF arm has no native task coordinates: choose task.map = \"fitted\" (fitted to the "
@@ -845,6 +862,11 @@ class MujocoPlantConfig(PlantConfig):
                 raise ConfigError(f"has no effect on a user's MJCF (plant.mjcf.file = {self.mjcf.file!r}): its bodies' "
                                   "centres of mass are the file's (mass_scale, payload_mass and payload_xyz apply to "
                                   "it); edit the file, or leave the key at its default", key=f"{path}.arm.com_shift")
+            if any(a != 0.0 for a in np.atleast_1d(self.arm.armature)):
+                raise ConfigError(f"has no effect on a user's MJCF (plant.mjcf.file = {self.mjcf.file!r}), got "
+                                  f"{self.arm.armature!r}: MuJoCo takes the file's own joint armature (its joints' "
+                                  "armature attribute); edit the file, or leave the key at its default (0)",
+                                  key=f"{path}.arm.armature")
 
     #: The longest MuJoCo step ``timestep = "auto"`` takes, s (RK4 resolves a 1e6 N/m contact on a
     #: 1 kg effective mass at it: ω h = 0.1).

@@ -209,11 +209,14 @@ def chain_xml(chain, name: str = "hinfnn_chain") -> str:
     as in the URDF about ``axes[i]`` at its origin; its ``<inertial>`` is the chain's mass, centre
     of mass and full rotational inertia (``fullinertia``; MuJoCo diagonalises it). The site
     ``tool`` is the tool frame in the last body. Gravity is the chain's. Everything MuJoCo would
-    add to the rigid-body dynamics is off: ``inertiafromgeom="false"``, no armature, damping,
-    friction loss, springs or limits (hinfnn keeps joint limits, it does not enforce them).
+    add to the rigid-body dynamics is off: ``inertiafromgeom="false"``, no damping, friction loss,
+    springs or limits (hinfnn keeps joint limits, it does not enforce them); each joint's
+    ``armature`` is the chain's motor armature (:meth:`~hinfnn.model.urdf.UrdfChain.with_armature`;
+    0 without one), so that MuJoCo's M(q) is the chain's.
     Point masses (zero rotational inertia) get m (1e-5 m)² (:func:`_body_inertia`)."""
     n = int(chain.n)
     lines = []
+    armature = np.zeros(n) if getattr(chain, "armature", None) is None else np.asarray(chain.armature, dtype=float)
     for i in range(n):
         ind = "  " * (i + 2)
         R = np.asarray(chain.placement_rot[i])
@@ -226,7 +229,7 @@ def chain_xml(chain, name: str = "hinfnn_chain") -> str:
         joint = chain.joint_names[i] if i < len(chain.joint_names) else f"joint{i + 1}"
         lines.append(f'{ind}<body name="{body_name}" pos="{_vec(p)}" quat="{_vec(_quat(R))}">')
         lines.append(f'{ind}  <joint name="{joint}" type="{kind}" axis="{_vec(chain.axes[i])}" pos="0 0 0" '
-                     'limited="false" damping="0" armature="0" frictionloss="0" stiffness="0"/>')
+                     f'limited="false" damping="0" armature="{_num(armature[i]) if armature[i] else 0}" frictionloss="0" stiffness="0"/>')
         lines.append(f'{ind}  <inertial pos="{_vec(chain.com[i])}" mass="{_num(m)}" fullinertia="'
                      f'{_num(I[0, 0])} {_num(I[1, 1])} {_num(I[2, 2])} {_num(I[0, 1])} {_num(I[0, 2])} {_num(I[1, 2])}"/>')
     ind = "  " * (n + 2)
