@@ -436,6 +436,44 @@ def _fake_run(e_u1, e_lam, lam_d, penetration, dt=1e-3, status=0):
                       fail_details={}, dt=dt, save_every=1)
 
 
+def test_a_network_held_on_its_projection_ball_is_named_in_the_notes_of_a_run_that_missed():
+    """F_f's weights at the radius for 60 % of the last 2 s (the iiwa 14's base design: its design ball
+    of 15 N against 16-34 N of force-side uncertainty) give one line naming the network, the radius and
+    the key; 40 % gives none, nor does a network that does not project; a run that did its job keeps
+    its notes as they are."""
+    from types import SimpleNamespace
+
+    from hinfnn.controllers import terms as T
+    from hinfnn.experiment.result import _explain
+    from hinfnn.metrics import projection_notes
+
+    n = 3001
+    tr = _fake_run(np.zeros((n, 1)), np.zeros(n), np.full(n, 15.0), np.zeros(n))
+    norm = np.full(n, 0.5)
+    norm[-1200:] = 1.39  # the last 1.2 s of the last 2 s: 60 %
+    tr.arrays["theta_f_norm"] = norm
+    tr.arrays["theta_p_norm"] = np.full(n, 7.0)
+    ball = SimpleNamespace(project=True, radius=np.asarray(1.39))
+    law = SimpleNamespace(terms=(SimpleNamespace(network=ball, key=T.ForceNetwork.key),
+                                 SimpleNamespace(network=SimpleNamespace(project=True, radius=np.asarray(7.78)),
+                                                 key=T.PositionNetwork.key)))
+    (note,) = projection_notes(law, tr)
+    assert note.startswith("F_f's weights sat on their projection ball (radius 1.39, controller.adaptation.radius_f) "
+                           "for 60% of the last 2 s") and "radius_f knob" in note
+    tr.arrays["theta_f_norm"] = np.where(np.arange(n) >= n - 800, 1.39, 0.5)  # 40 %
+    assert projection_notes(law, tr) == []
+    tr.arrays["theta_f_norm"] = norm
+    free = SimpleNamespace(terms=(SimpleNamespace(network=SimpleNamespace(project=False, radius=np.asarray(1.39)),
+                                                  key=T.ForceNetwork.key),))
+    assert projection_notes(free, tr) == []
+    missed = {"verdict": {"contact_held": True, "tracking_within_tolerance": False, "notes": ["force: ..."]}}
+    _explain(missed, law, tr)
+    assert missed["verdict"]["notes"] == ["force: ...", note]
+    done = {"verdict": {"contact_held": True, "tracking_within_tolerance": True, "notes": []}}
+    _explain(done, law, tr)
+    assert done["verdict"]["notes"] == []
+
+
 def test_verdicts_judge_each_coordinate_in_its_unit():
     """3 s of samples: a position coordinate 3 mm off and an angle 0.03 rad off over the last 2 s,
     a force error of 5 % of λd = 20 N, contact lost once at 0.2 s (before contact_after) and once

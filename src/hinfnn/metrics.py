@@ -339,6 +339,49 @@ def _judging(traj, tolerances, coordinates, m: int):
     return tol, list(coordinates)
 
 
+#: The networks whose update law may project (Remark 2): the recorded norm, the radius's scenario key.
+_BALLS = {"theta_p": ("F_p", "controller.adaptation.radius_p", "9.81 per output"),
+          "theta_f": ("F_f", "controller.adaptation.radius_f", "the largest |λd|")}
+#: The share of the last 2 s a network's weights must sit on their ball for :func:`projection_notes`.
+ON_BALL_SHARE = 0.5
+
+
+def projection_notes(controller, traj, last: float = 2.0) -> list[str]:
+    """One line per network of ``controller`` whose update law projects (Remark 2; not the paper's
+    eqs. (30)–(31) as printed: docs/beyond-the-paper.md section 11) and whose weights sat on the
+    ball's surface, ‖Θ̂‖ ≥ (1 − 1e-6) r, for at least :data:`ON_BALL_SHARE` of the stored samples of
+    the last ``last`` s of ``traj``: the network wanted to give more than the ball lets it, so the
+    uncertainty it learns is larger than its radius assumes (on the iiwa 14 with its masses 20 %
+    off, F_f's design ball of 15 N against a force-side uncertainty of 16–34 N:
+    docs/arms-and-surfaces.md). Empty when no network projects or none sat there; the run's
+    summary prints these lines after the verdict's notes when the run did not do its job."""
+    if getattr(traj, "batched", False):
+        raise ValueError("projection_notes takes one run; use traj.member(i) for a batch")
+    end = traj.valid_samples()
+    t = np.asarray(traj.arrays["t"])[:end]
+    if len(t) == 0:
+        return []
+    window = t >= t[-1] - last - 1e-9 * max(1.0, float(t[-1]))
+    out = []
+    for term in getattr(controller, "terms", ()):
+        net, key = getattr(term, "network", None), getattr(term, "key", None)
+        if net is None or key not in _BALLS or not bool(getattr(net, "project", False)):
+            continue
+        field = f"{key}_norm"
+        if field not in traj.arrays:
+            continue
+        r = float(np.asarray(net.radius))
+        norm = np.asarray(traj.arrays[field])[:end][window]
+        on = float(np.mean(norm >= (1.0 - 1e-6) * r)) if len(norm) else 0.0
+        if on >= ON_BALL_SHARE:
+            name, k, what = _BALLS[key]
+            out.append(f"{name}'s weights sat on their projection ball (radius {r:.3g}, {k}) for {on:.0%} of the "
+                       f"last {last:g} s: the uncertainty it learns is larger than the ball lets it give (by "
+                       f"default {what} at zero error); a larger {k.rsplit('.', 1)[1]}, or `hinfnn design --tune` "
+                       f"with the {k.rsplit('.', 1)[1]} knob")
+    return out
+
+
 def verdicts(rms_each_last, out_after, force_ratio, joint_margin, *, partial: bool, status: int, tolerances: dict,
              coordinates) -> dict:
     """Whether a run did its job, next to its status:

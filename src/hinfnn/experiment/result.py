@@ -63,13 +63,26 @@ def simulate_cases(cases: list[Case], *, runs=None, progress=None, save_every: i
     trajs = simulate_many(runs, progress=progress, save_every=save_every, fields=fields)
     seconds = time.perf_counter() - t0
     metrics = {}
+    controllers = {r.name: r.controller for r in runs}
     for name, traj in trajs.items():
         m = compute_metrics(traj)
+        _explain(m, controllers.get(name), traj)
         if extra is not None:
             extra(traj, m)
         metrics[name] = m
     designs = {r.name: r.controller.summary() for r in runs}
     return Outcome(cases=list(cases), trajectories=trajs, metrics=metrics, designs=designs, seconds=seconds)
+
+
+def _explain(m: dict, controller, traj) -> None:
+    """Add to the notes of a run that did not do its job what its networks say about it
+    (:func:`hinfnn.metrics.projection_notes`: weights held on their projection ball)."""
+    from ..metrics import projection_notes
+
+    v = m.get("verdict") or {}
+    if controller is None or (v.get("contact_held") is not False and v.get("tracking_within_tolerance") is not False):
+        return
+    v["notes"] = list(v.get("notes", ())) + projection_notes(controller, traj)
 
 
 def check_memory(runs, *, fields=None, log=print):
