@@ -444,7 +444,7 @@ def test_a_network_held_on_its_projection_ball_is_named_in_the_notes_of_a_run_th
     from types import SimpleNamespace
 
     from hinfnn.controllers import terms as T
-    from hinfnn.experiment.result import _explain
+    from hinfnn.experiment.result import explain
     from hinfnn.metrics import projection_notes
 
     n = 3001
@@ -467,10 +467,10 @@ def test_a_network_held_on_its_projection_ball_is_named_in_the_notes_of_a_run_th
                                                   key=T.ForceNetwork.key),))
     assert projection_notes(free, tr) == []
     missed = {"verdict": {"contact_held": True, "tracking_within_tolerance": False, "notes": ["force: ..."]}}
-    _explain(missed, law, tr)
+    explain(missed, law, tr)
     assert missed["verdict"]["notes"] == ["force: ...", note]
     done = {"verdict": {"contact_held": True, "tracking_within_tolerance": True, "notes": []}}
-    _explain(done, law, tr)
+    explain(done, law, tr)
     assert done["verdict"]["notes"] == []
 
 

@@ -66,7 +66,7 @@ def simulate_cases(cases: list[Case], *, runs=None, progress=None, save_every: i
     controllers = {r.name: r.controller for r in runs}
     for name, traj in trajs.items():
         m = compute_metrics(traj)
-        _explain(m, controllers.get(name), traj)
+        explain(m, controllers.get(name), traj)
         if extra is not None:
             extra(traj, m)
         metrics[name] = m
@@ -74,7 +74,7 @@ def simulate_cases(cases: list[Case], *, runs=None, progress=None, save_every: i
     return Outcome(cases=list(cases), trajectories=trajs, metrics=metrics, designs=designs, seconds=seconds)
 
 
-def _explain(m: dict, controller, traj) -> None:
+def explain(m: dict, controller, traj) -> None:
     """Add to the notes of a run that did not do its job what its networks say about it
     (:func:`hinfnn.metrics.projection_notes`: weights held on their projection ball)."""
     from ..metrics import projection_notes
@@ -172,5 +172,5 @@ def result_folder(out, *, command: str, name: str, kind: str, force: bool = Fals
         log(f"hinfnn: {written.moved}")
 
 
-__all__ = ["Outcome", "build_runs", "simulate_cases", "check_memory", "run_cases", "write_result", "result_folder",
+__all__ = ["Outcome", "build_runs", "simulate_cases", "check_memory", "explain", "run_cases", "write_result", "result_folder",
            "Written"]

@@ -140,6 +140,7 @@ def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, 
     as ``robot.realtime``; the virtual robot's served clock is scheduled the same way, on the other
     CPUs."""
     from ..experiment import Outcome, cases, result_folder, write_result
+    from ..experiment.result import explain
     from ..io import atomic_write_text
     from ..metrics import compute_metrics
     from ..workflows.run import result_name
@@ -160,6 +161,7 @@ def run_robot(sc, *, robot="virtual", faults=(), out=None, force: bool = False, 
                                 point_jacobian=jacobian, log=event_log, scheduling=scheduling, cpu=cpu, warm=warm)
         traj = trajectory(loop_log, sampled, case.info())
         metrics = compute_metrics(traj)
+        explain(metrics, sampled.controller, traj)
         outcome = Outcome(cases=[case], trajectories={case.name: traj}, metrics={case.name: metrics},
                           designs={case.name: sampled.controller.summary()}, seconds=time.perf_counter() - t0)
         summary = {**loop_log.summary(), "limits": limits.summary()}
