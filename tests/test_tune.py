@@ -67,6 +67,29 @@ def test_cross_entropy_improves_a_toy_objective_deterministically():
     assert s1 > objective([start], 0)[0] + 0.5 and np.max(np.abs(u1 - target)) < 0.1
 
 
+def test_the_first_generation_spans_the_whole_box():
+    """A Latin hypercube: each knob's range cut into P − 1 strata holds one of the first generation's
+    P − 1 points each (the iiwa 14's q × 10 and radius_f × 3.6 sit at 1.0 and 0.57 of their unit
+    ranges, two spreads from the base design's start; a Gaussian start did not reach them). Later
+    generations, and explore=False, sample around the mean."""
+    seen = []
+
+    def objective(us, g):
+        seen.append(np.array(us))
+        return [-float(np.sum((u - 0.9) ** 2)) for u in us]
+
+    start = np.full(4, 0.2)
+    cross_entropy(objective, start, generations=2, population=9, seed=1)
+    first = seen[0]
+    assert np.array_equal(first[0], start)
+    for d in range(4):
+        assert sorted(np.floor(first[1:, d] * 8).astype(int)) == list(range(8))
+    seen.clear()
+    cross_entropy(objective, start, generations=1, population=9, seed=1, explore=False)
+    rng = np.random.default_rng(1)  # the Gaussian samples of the search before the hypercube
+    assert np.array_equal(seen[0][1:], [np.clip(start + 0.25 * rng.standard_normal(4), 0.0, 1.0) for _ in range(8)])
+
+
 def test_refused_candidates_are_never_elite():
     calls = []
 

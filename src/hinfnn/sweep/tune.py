@@ -529,19 +529,28 @@ def _to_unit(values: dict, knobs) -> np.ndarray:
 
 
 def cross_entropy(objective: Callable, start, *, generations: int, population: int, seed: int, std: float = 0.25,
-                  elite: float = 0.25, smoothing: float = 0.7, min_std: float = 0.04):
+                  elite: float = 0.25, smoothing: float = 0.7, min_std: float = 0.04, explore: bool = True):
     """Maximise ``objective(points, generation) -> scores`` over the unit box by a seeded
     cross-entropy method: each generation evaluates the current mean and ``population − 1``
-    Gaussian samples around it (clipped to [0, 1]) as one call, then moves the mean and the
-    spread towards the best ``elite`` share (at least two; candidates scored −1, refused, are
-    never elite) with ``smoothing``. Returns (best point, best score); the same seed gives the same
-    points."""
+    other points as one call, then moves the mean and the spread towards the best ``elite`` share
+    (at least two; candidates scored −1, refused, are never elite) with ``smoothing``. The other
+    points are Gaussian samples around the mean (clipped to [0, 1]); with ``explore`` the first
+    generation's are a seeded Latin hypercube over the whole box instead, so that a good region
+    far from ``start`` (a knob at the end of its range, two spreads away) can be found at all.
+    Returns (best point, best score); the same seed gives the same points."""
+    from scipy.stats import qmc
+
     rng = np.random.default_rng(seed)
     mean = np.clip(np.asarray(start, dtype=float), 0.0, 1.0)
     sd = np.full(mean.shape, float(std))
     best_u, best_s = mean, -math.inf
     for g in range(1, generations + 1):
-        us = [mean] + [np.clip(mean + sd * rng.standard_normal(mean.shape), 0.0, 1.0) for _ in range(population - 1)]
+        if g == 1 and explore and population > 1:
+            box = qmc.LatinHypercube(d=mean.size, seed=rng).random(population - 1)
+            us = [mean] + [np.asarray(u, dtype=float) for u in box]
+        else:
+            us = [mean] + [np.clip(mean + sd * rng.standard_normal(mean.shape), 0.0, 1.0)
+                           for _ in range(population - 1)]
         scores = list(objective(us, g))
         ranked = sorted(range(len(us)), key=lambda i: -scores[i])
         for i in ranked[:1]:
