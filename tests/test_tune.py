@@ -297,3 +297,13 @@ def test_the_iiwa14_example_is_the_issues_trial_on_the_users_urdf():
     assert spec["scenario"] == "iiwa14-table.toml" and set(spec["vary"]) == {
         "plant.arm.mass_scale", "plant.arm.payload_mass", "plant.friction.coulomb"}
     assert (spec["vary"]["plant.arm.mass_scale"]["low"], spec["vary"]["plant.arm.mass_scale"]["high"]) == (0.8, 1.2)
+    # the tuned example: the base scenario with the four tuned keys, the design's ball scaled by its factor
+    from hinfnn.controllers import terms as T
+
+    tuned = Scenario.load(folder / "iiwa14-table-tuned.toml", check=False)
+    r0 = force_radius(sc, "hinf_nn")
+    law = tuned.single("hinf_nn").build_controller("hinf_nn")
+    assert float(law.term(T.ForceNetwork).network.radius) == pytest.approx(2.681793124562103 * r0, rel=1e-12)
+    assert tuned.controller.force_rate.kappa == pytest.approx(
+        0.7306867262747311 * float(_force_rate_design(sc.single("hinf_nn"), "hinf_nn")["kappa"]), rel=1e-12)
+    assert (tuned.plant, tuned.nominal, tuned.task, tuned.reference) == (sc.plant, sc.nominal, sc.task, sc.reference)
