@@ -234,12 +234,25 @@ KNOB_NAMES = tuple(k.name for k in KNOBS)
 GAIN_KNOBS = ("omega", "q", "alpha_lam", "alpha_z")
 
 
+def _base_facts(scenario, kind: str) -> tuple[dict | None, float | None]:
+    """``kind``'s design of ``scenario`` built once: its force-rate design record (None: no
+    force-rate term) and its force network's projection radius (None: its update law does not
+    project); (None, None) where the design refuses the scenario."""
+    from ..controllers import terms as T
+
+    try:
+        ctrl = scenario.single(kind).build_controller(kind)
+    except HinfnnError:
+        return None, None
+    rate, net = ctrl.term(T.ForceRate), ctrl.term(T.ForceNetwork)
+    design = None if rate is None or float(rate.kappa) == 0.0 else dict(rate.design)
+    radius = float(net.network.radius) if net is not None and bool(net.network.project) else None
+    return design, radius
+
+
 def _base_design(scenario, kind: str) -> dict | None:
     """:func:`_force_rate_design`, None where the design refuses the base scenario."""
-    try:
-        return _force_rate_design(scenario, kind)
-    except HinfnnError:
-        return None
+    return _base_facts(scenario, kind)[0]
 
 
 def force_radius(scenario, kind: str) -> float | None:
@@ -248,16 +261,7 @@ def force_radius(scenario, kind: str) -> float | None:
     largest |λ_d| at zero error, docs/beyond-the-paper.md section 11), or None where its update law
     does not project (an ideal sensor, ``controller.adaptation.robust`` other than projection, a law
     without F_f) or the design refuses the scenario."""
-    from ..controllers import terms as T
-
-    try:
-        ctrl = scenario.single(kind).build_controller(kind)
-    except HinfnnError:
-        return None
-    term = ctrl.term(T.ForceNetwork)
-    if term is None or not bool(term.network.project):
-        return None
-    return float(term.network.radius)
+    return _base_facts(scenario, kind)[1]
 
 
 def _sensed(design: dict | None) -> dict | None:
@@ -285,7 +289,7 @@ def default_knobs(scenario, kind: str) -> tuple:
     network's update law projects (:func:`force_radius`); none of these for the FL-like law."""
     if kind == "fl":
         return GAIN_KNOBS
-    return _default_knobs(kind, _base_design(scenario, kind), force_radius(scenario, kind))
+    return _default_knobs(kind, *_base_facts(scenario, kind))
 
 
 def _scaled(x, s):
@@ -582,9 +586,8 @@ def tune(spec, *, kind: str | None = None, knobs=None, draws: int = 16, held_out
     if kind not in kinds:
         raise ConfigError(f"{kind!r} is not a controller of the spec (it lists {kinds})", key="--kind")
     explicit = knobs is not None
-    # the base's force-rate design, made once: the default knobs and the zeta/kappa checks read it
-    design = None if kind == "fl" or (explicit and not {"zeta", "kappa"} & set(knobs)) else _base_design(base, kind)
-    radius = None if kind == "fl" or (explicit and "radius_f" not in knobs) else force_radius(base, kind)
+    # the base design, built once: the default knobs and the zeta/kappa/radius_f checks read it
+    design, radius = (None, None) if kind == "fl" else _base_facts(base, kind)
     knobs = tuple(knobs) if explicit else _default_knobs(kind, design, radius)
     unknown = [k for k in knobs if k not in KNOB_NAMES]
     if unknown:
