@@ -758,7 +758,8 @@ def test_armature_bad_input_is_a_config_error(value, words):
     ("fr3-table", {"nominal.arm.armature": -0.1}, "nominal.arm.armature", ">= 0"),
     ("fr3-table", {"nominal.arm.armature": float("nan")}, "nominal.arm.armature", "must be finite"),
     ("fr3-table", {"plant.arm.armature": 0.1}, "plant.arm.armature",
-     "has no effect on a user's MJCF (plant.mjcf.file = 'fr3'), got 0.1: MuJoCo takes the file's own joint armature"),
+     "must equal the armature of the MJCF's own joints (plant.mjcf.file = 'fr3': joint1 0.2, joint2 0.2, joint3 0.2, "
+     "joint4 0.2, joint5 0.1, joint6 0.1, joint7 0.1 kg m^2), got 0.1"),
     ("paper", {"plant.arm.armature": 0.1}, "plant.arm.model",  # the closed-form arm: the planar one takes it
      "model = 'two_link' does not take the key 'armature' (model = 'planar')"),
     ("planar3-drum", {"plant.arm.armature": [0.1, 0.1]}, "plant.arm.armature", "got 2: [0.1, 0.1]"),
@@ -780,6 +781,10 @@ def test_fr3_table_nominal_has_its_truths_armature():
     truth = mujoco.MjModel.from_xml_path(mjcf_path("fr3"))
     np.testing.assert_array_equal(np.asarray(nominal.armature), truth.dof_armature)
     np.testing.assert_array_equal(np.asarray(nominal.armature), FR3_ARMATURE)
+    # the built-in engine's truth is the same arm: plant.arm states the file's armature
+    np.testing.assert_array_equal(np.asarray(sc.plant.arm.chain("plant.arm").armature), truth.dof_armature)
+    builtin = Scenario.load("fr3-table", {"plant.engine": "hinfnn"})
+    np.testing.assert_array_equal(np.asarray(builtin.build_plant().arm.chain.armature), FR3_ARMATURE)
     planar = Scenario.load("planar3-drum", {"plant.arm.armature": [0.1, 0.2, 0.3]})
     np.testing.assert_array_equal(np.asarray(planar.plant.arm.joint_chain("plant.arm").armature), [0.1, 0.2, 0.3])
     assert Scenario.load("planar3-drum").plant.arm.joint_chain("plant.arm").armature is None
