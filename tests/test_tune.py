@@ -303,7 +303,9 @@ def test_the_iiwa14_example_is_the_issues_trial_on_the_users_urdf():
     tuned = Scenario.load(folder / "iiwa14-table-tuned.toml", check=False)
     r0 = force_radius(sc, "hinf_nn")
     law = tuned.single("hinf_nn").build_controller("hinf_nn")
-    assert float(law.term(T.ForceNetwork).network.radius) == pytest.approx(2.681793124562103 * r0, rel=1e-12)
+    assert float(law.term(T.ForceNetwork).network.radius) == pytest.approx(4.170842255983227 * r0, rel=1e-12)
     assert tuned.controller.force_rate.kappa == pytest.approx(
-        0.7306867262747311 * float(_force_rate_design(sc.single("hinf_nn"), "hinf_nn")["kappa"]), rel=1e-12)
+        0.5449269701274813 * float(_force_rate_design(sc.single("hinf_nn"), "hinf_nn")["kappa"]), rel=1e-12)
+    assert float(tuned.controller.gains.K_p) == pytest.approx(0.5295465532726283 ** 2 * float(sc.controller.gains.K_p),
+                                                              rel=1e-12)
     assert (tuned.plant, tuned.nominal, tuned.task, tuned.reference) == (sc.plant, sc.nominal, sc.task, sc.reference)
