@@ -247,6 +247,34 @@ def test_the_radius_f_knob_scales_the_force_networks_projection_radius():
     assert err.value.key == "--knobs" and "does not project" in str(err.value)
 
 
+def test_the_kappa_knob_scales_the_kappa_designed_for_the_declared_range(monkeypatch):
+    """ur5-polish declares its sensor and is designed for [1e4, 1e5] N/m; its spec draws [1e4, 1e6].
+    Every candidate sets the force-rate term's range to the declared one, where the base design's κ
+    holds nothing (the design refuses it: the first tuning of this spec refused all 24 candidates), so
+    the kappa knob scales the κ the design chooses for the declared range. Nothing is simulated: the
+    draws are stubbed out and the candidates' keys read back."""
+    from hinfnn.sweep import load_spec
+    from hinfnn.sweep import tune as tune_module
+
+    spec = load_spec("ur5-polish-uncertainty")
+    sc = spec.base.single("hinf_nn")
+    declared = [("controller.force_rate.stiffness_min", 1e4), ("controller.force_rate.stiffness_max", 1e6)]
+    base_k = float(_force_rate_design(sc, "hinf_nn")["kappa"])
+    ranged_k = float(_force_rate_design(sc.with_overrides(declared), "hinf_nn")["kappa"])
+    assert ranged_k < 0.2 * base_k
+    with pytest.raises(DesignError, match="does not hold even the stiffest contact"):
+        sc.with_overrides(candidate_overrides(sc, {"kappa": 1.0}, (1e4, 1e6), base_k)).build_controller("hinf_nn")
+    none = tune_module.Draws([], [], [], [], [], [])
+    monkeypatch.setattr(tune_module, "build_draws", lambda *a, **k: none)
+    lines = []
+    res = tune(spec, knobs=("kappa",), draws=1, held_out=0, generations=1, population=2, seed=0, log=lines.append)
+    first = dict(res.history[1].overrides)  # generation 1's mean: the factor 1
+    assert res.history[1].values == {"kappa": 1.0} and first["controller.force_rate.kappa"] == ranged_k
+    assert (first["controller.force_rate.stiffness_min"], first["controller.force_rate.stiffness_max"]) == (1e4, 1e6)
+    sc.with_overrides(list(first.items())).build_controller("hinf_nn")  # the design takes it
+    assert any(line.startswith(f"kappa knob: factors on κ = {ranged_k:.4g} s") for line in lines)
+
+
 def test_an_outcome_names_the_criterion_furthest_from_its_tolerance():
     tol = dict(position_tolerance=0.005, angle_tolerance=0.02, force_tolerance=0.1, out_of_contact=0.0)
     coords = [("s1", "m"), ("r_y", "rad")]

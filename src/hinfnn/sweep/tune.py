@@ -224,8 +224,8 @@ KNOBS = (
     Knob("alpha_lam", 0.25, 8.0, "force weight α_λ × s (β_λ from Theorem 1's bound)"),
     Knob("alpha_z", 0.25, 4.0, "α_z × s of eq. (27)"),
     Knob("zeta", 0.1, 2.0, "the force-rate rule's damping ratio ζ* at the softest declared contact"),
-    Knob("kappa", 0.5, 2.0, "the force-rate gain κ × s, on the base design's κ (a design for the declared sensor, "
-                            "whose κ ζ* does not set)"),
+    Knob("kappa", 0.5, 2.0, "the force-rate gain κ × s, on the κ the design chooses for the declared sensor and "
+                            "the spec's stiffness range (ζ* does not set it)"),
     Knob("radius_f", 0.5, 16.0, "the force network's projection radius × s, on the base design's (Remark 2's ball, "
                                 "where a noisy sensor makes the update laws project)"),
 )
@@ -621,6 +621,17 @@ def tune(spec, *, kind: str | None = None, knobs=None, draws: int = 16, held_out
         stiffness = None
     if stiffness is not None:
         require_holdable(base, kind, *stiffness)  # before anything runs: a range no design holds is refused
+    if base_kappa is not None and stiffness is not None and (
+            float(design["stiffness_min"]), float(design["stiffness_max"])) != tuple(stiffness):
+        # the candidates' force-rate term is for the declared range: the kappa knob scales the κ the design
+        # chooses for that range (the base design's, made for another, may hold none of it)
+        ranged = _base_design(base.with_overrides([("controller.force_rate.stiffness_min", float(stiffness[0])),
+                                                   ("controller.force_rate.stiffness_max", float(stiffness[1]))]),
+                              kind)
+        if ranged is not None:
+            base_kappa = float(ranged["kappa"])
+            log(f"kappa knob: factors on κ = {base_kappa:.4g} s, the design for the declared stiffness "
+                f"[{stiffness[0]:g}, {stiffness[1]:g}] N/m (the base design's: {float(design['kappa']):.4g} s)")
 
     base_values = {}
     if "zeta" in knobs:
