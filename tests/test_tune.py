@@ -54,6 +54,18 @@ def spec_of(text):
     return spec_from_dict(tomllib.loads(textwrap.dedent(text)))
 
 
+def friction_spec(scenario):
+    """A spec of ``scenario`` that draws the tool's Coulomb friction alone (2 draws)."""
+    return spec_of(f"""
+        name = "friction"
+        scenario = "{scenario}"
+        controllers = ["hinf_nn"]
+        samples = 2
+        [vary]
+        "plant.friction.coulomb" = {{ distribution = "uniform", low = 0.0, high = 0.3 }}
+        """)
+
+
 def test_cross_entropy_improves_a_toy_objective_deterministically():
     target = np.array([0.8, 0.2, 0.6])
 
@@ -195,16 +207,8 @@ def test_a_force_rate_gain_designed_for_the_sensor_is_tuned_by_kappa_not_zeta():
 
     assert kappa_of({"zeta": 0.2}) == kappa_of({"zeta": 1.8}) == kap  # ζ* moves nothing here
     assert kappa_of({"kappa": 1.1}) == pytest.approx(1.1 * kap, rel=1e-12)
-    spec = spec_of("""
-        name = "sensed"
-        scenario = "ur5-table-stable"
-        controllers = ["hinf_nn"]
-        samples = 2
-        [vary]
-        "plant.friction.coulomb" = { distribution = "uniform", low = 0.0, high = 0.3 }
-        """)
     with pytest.raises(ConfigError) as err:  # before anything runs
-        tune(spec, knobs=("omega", "zeta"), draws=1, held_out=0, generations=0)
+        tune(friction_spec("ur5-table-stable"), knobs=("omega", "zeta"), draws=1, held_out=0, generations=0)
     assert err.value.key == "--knobs" and "kappa knob" in str(err.value)
     with pytest.raises(ConfigError, match="has no force-rate term"):
         candidate_overrides(sc, {"kappa": 1.1}, None, None)
@@ -234,16 +238,8 @@ def test_the_radius_f_knob_scales_the_force_networks_projection_radius():
     assert force_radius(ideal, "hinf_nn") is None and "radius_f" not in default_knobs(ideal, "hinf_nn")
     with pytest.raises(ConfigError, match="does not project"):
         candidate_overrides(ideal, {"radius_f": 2.0}, None, None, None)
-    spec = spec_of("""
-        name = "ideal"
-        scenario = "ur5-table"
-        controllers = ["hinf_nn"]
-        samples = 2
-        [vary]
-        "plant.friction.coulomb" = { distribution = "uniform", low = 0.0, high = 0.3 }
-        """)
     with pytest.raises(ConfigError) as err:  # before anything runs
-        tune(spec, knobs=("q", "radius_f"), draws=1, held_out=0, generations=0)
+        tune(friction_spec("ur5-table"), knobs=("q", "radius_f"), draws=1, held_out=0, generations=0)
     assert err.value.key == "--knobs" and "does not project" in str(err.value)
 
 
