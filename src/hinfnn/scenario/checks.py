@@ -112,15 +112,10 @@ def unmodelled_armature(sc, setup) -> list[tuple[str, float]]:
     model = getattr(setup.plant, "model", None)
     if chain is None or chain.armature is not None or model is None:
         return []
-    from ..plant.mujoco.scene import require_mujoco
+    from ..plant.mujoco.scene import joint_armature
 
-    mujoco = require_mujoco()
-    out = []
-    for name in sc.plant.mjcf.joints or chain.joint_names:
-        j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
-        if j >= 0 and float(model.dof_armature[model.jnt_dofadr[j]]) > 0:
-            out.append((name, float(model.dof_armature[model.jnt_dofadr[j]])))
-    return out
+    names = sc.plant.mjcf.joints or chain.joint_names
+    return [(name, float(a)) for name, a in zip(names, joint_armature(model, names)) if a > 0]
 
 
 def _warn_unmodelled_armature(sc, setup) -> None:

@@ -863,34 +863,25 @@ class MujocoPlantConfig(PlantConfig):
                 raise ConfigError(f"has no effect on a user's MJCF (plant.mjcf.file = {self.mjcf.file!r}): its bodies' "
                                   "centres of mass are the file's (mass_scale, payload_mass and payload_xyz apply to "
                                   "it); edit the file, or leave the key at its default", key=f"{path}.arm.com_shift")
-            if any(a != 0.0 for a in np.atleast_1d(self.arm.armature)):
-                self._same_armature(path)
 
-    def _same_armature(self, path) -> None:
+    def _same_armature(self, model, joints) -> None:
         """A user's MJCF simulates its own joints' armature: a nonzero ``plant.arm.armature`` beside it
         states the same truth for the built-in engine (``plant.engine = "hinfnn"``, which reads
-        ``plant.arm``) and must equal the file's, joint by joint (ConfigError otherwise)."""
-        from ..plant.mujoco.scene import require_mujoco
+        ``plant.arm``) and must equal the compiled ``model``'s, joint by joint over the plant's
+        ``joints`` (ConfigError otherwise)."""
+        from ..plant.mujoco.scene import joint_armature
 
-        mujoco = require_mujoco()
-        key = f"{path}.arm.armature"
-        model = mujoco.MjModel.from_xml_path(mjcf_path(self.mjcf.file))
-        names = list(self.mjcf.joints) or [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j)
-                                           for j in range(model.njnt)
-                                           if model.jnt_type[j] in (mujoco.mjtJoint.mjJNT_HINGE,
-                                                                    mujoco.mjtJoint.mjJNT_SLIDE)]
-        ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names]
-        if any(j < 0 for j in ids):
-            return  # an unknown joint: plant.mjcf.joints' own check names it
-        theirs = np.array([model.dof_armature[model.jnt_dofadr[j]] for j in ids])
         ours = np.atleast_1d(np.asarray(self.arm.armature, dtype=float))
+        if not np.any(ours):
+            return
+        theirs = joint_armature(model, joints)
         if ours.size not in (1, theirs.size) or not np.allclose(np.broadcast_to(ours, theirs.shape), theirs,
                                                                 rtol=1e-12, atol=0.0):
             raise ConfigError(f"must equal the armature of the MJCF's own joints (plant.mjcf.file = {self.mjcf.file!r}: "
-                              f"{', '.join(f'{n} {a:g}' for n, a in zip(names, theirs))} kg m^2), got "
+                              f"{', '.join(f'{n} {a:g}' for n, a in zip(joints, theirs))} kg m^2), got "
                               f"{self.arm.armature!r}: MuJoCo simulates the file's, and this key states the same truth "
                               "for the built-in engine (plant.engine = \"hinfnn\"); edit the file, or leave the key "
-                              "at its default (0)", key=key)
+                              "at its default (0)", key="plant.arm.armature")
 
     #: The longest MuJoCo step ``timestep = "auto"`` takes, s (RK4 resolves a 1e6 N/m contact on a
     #: 1 kg effective mass at it: ω h = 0.1).
@@ -923,6 +914,7 @@ class MujocoPlantConfig(PlantConfig):
                                           task=task, locked=self.mjcf.locked, mass_scale=a.mass_scale,
                                           payload_mass=a.payload_mass, payload_xyz=a.payload_xyz, effort_limit=effort,
                                           **common)
+            self._same_armature(plant.model, joints)
         else:
             plant = MujocoPlant.from_models(self.arm.build(task, key="plant.arm"), **common)
         if self.sensor.ideal and self.actuator.ideal:

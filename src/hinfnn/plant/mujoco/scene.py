@@ -97,6 +97,17 @@ def require_mujoco():
     return mujoco
 
 
+def joint_armature(model, names) -> np.ndarray:
+    """The armature MuJoCo's ``model`` gives each joint of ``names`` (its degree of freedom's
+    ``dof_armature``: kg·m² for a hinge, kg for a slide; NaN for a name the model has no joint of)."""
+    mujoco = require_mujoco()
+    out = []
+    for name in names:
+        j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        out.append(float(model.dof_armature[model.jnt_dofadr[j]]) if j >= 0 else math.nan)
+    return np.array(out)
+
+
 # --------------------------------------------------------------------------------------------
 # Calibration
 # --------------------------------------------------------------------------------------------
