@@ -76,15 +76,19 @@ def declared_range(spec, key: str) -> tuple[float, float] | None:
     return None
 
 
-def _force_rate_design(scenario, kind: str) -> dict | None:
-    """The force-rate term's design record of ``kind`` (None: the law has no force-rate term)."""
+def _rate_record(ctrl) -> dict | None:
+    """The force-rate term's design record of a built controller (None: it has no force-rate term)."""
     from ..controllers import terms as T
 
-    ctrl = scenario.single(kind).build_controller(kind)
     term = ctrl.term(T.ForceRate)
     if term is None or float(term.kappa) == 0.0:
         return None
     return dict(term.design)
+
+
+def _force_rate_design(scenario, kind: str) -> dict | None:
+    """The force-rate term's design record of ``kind`` (None: the law has no force-rate term)."""
+    return _rate_record(scenario.single(kind).build_controller(kind))
 
 
 def range_notes(spec) -> list[str]:
@@ -244,10 +248,9 @@ def _base_facts(scenario, kind: str) -> tuple[dict | None, float | None]:
         ctrl = scenario.single(kind).build_controller(kind)
     except HinfnnError:
         return None, None
-    rate, net = ctrl.term(T.ForceRate), ctrl.term(T.ForceNetwork)
-    design = None if rate is None or float(rate.kappa) == 0.0 else dict(rate.design)
+    net = ctrl.term(T.ForceNetwork)
     radius = float(net.network.radius) if net is not None and bool(net.network.project) else None
-    return design, radius
+    return _rate_record(ctrl), radius
 
 
 def _base_design(scenario, kind: str) -> dict | None:
